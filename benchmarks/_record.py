@@ -1,0 +1,49 @@
+"""Write a benchmark's figures into its own section of BENCHMARKS.md.
+
+Each benchmark owns the text between ``<!-- begin NAME -->`` and ``<!-- end NAME -->``, so
+benchmarks can be rerun one at a time without touching the others' figures.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import re
+import shlex
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+BENCHMARKS_MD = ROOT / "BENCHMARKS.md"
+FIGURES = ROOT / "docs" / "figures"
+
+
+def machine() -> str:
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{os.cpu_count()} cores, {cpu}, Python {platform.python_version()}"
+
+
+def command() -> str:
+    return "python " + " ".join(shlex.quote(a) for a in [os.path.relpath(sys.argv[0], ROOT),
+                                                          *sys.argv[1:]])
+
+
+def write_section(name: str, title: str, body: str) -> None:
+    """Replace (or append) the section ``name`` of BENCHMARKS.md."""
+    text = BENCHMARKS_MD.read_text() if BENCHMARKS_MD.exists() else "# Benchmarks\n\n" \
+        "Figures measured by the scripts in `benchmarks/`; each section says how to redo it.\n"
+    block = (f"<!-- begin {name} -->\n## {title}\n\n"
+             f"Command: `{command()}`  \nMachine: {machine()}\n\n{body.strip()}\n"
+             f"<!-- end {name} -->")
+    pattern = re.compile(rf"<!-- begin {re.escape(name)} -->.*?<!-- end {re.escape(name)} -->",
+                         re.S)
+    text = pattern.sub(lambda _: block, text) if pattern.search(text) else \
+        text.rstrip() + "\n\n" + block + "\n"
+    BENCHMARKS_MD.write_text(text)

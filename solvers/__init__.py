@@ -1,0 +1,1 @@
+"""Solver back-ends shipped with uqflow; each implements ``uqflow.solver.Solver``."""

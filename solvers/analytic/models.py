@@ -1,0 +1,269 @@
+"""Closed-form models with exact answers (``tests/data/uq_test_values.toml``).
+
+Each model is a small class: its parameters with nominal values, its scene options, its
+outputs and a vectorisable formula. ``AnalyticSolver`` wraps one of them in the Solver
+contract. A scene option ``delay`` (seconds) makes every run sleep that long: it stands in
+for an expensive solver in the overhead benchmark and the kill-and-resume test.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping
+
+import numpy as np
+import xarray as xr
+
+from uqflow.errors import SceneError, SolverError
+from uqflow.solver import Solver, register_solver
+
+
+def _number(scene, key, default, *, positive=False, nonnegative=False):
+    value = scene.get(key, default)
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+        raise SceneError(f"must be a finite number, got {value!r}", key=f"scene.{key}")
+    if positive and value <= 0:
+        raise SceneError(f"must be > 0, got {value!r}", key=f"scene.{key}")
+    if nonnegative and value < 0:
+        raise SceneError(f"must be >= 0, got {value!r}", key=f"scene.{key}")
+    return float(value)
+
+
+def _numbers(scene, key, default):
+    value = scene.get(key, default)
+    arr = np.asarray(value, dtype=float) if isinstance(value, (list, tuple)) else None
+    if arr is None or arr.ndim != 1 or arr.size == 0 or not np.all(np.isfinite(arr)):
+        raise SceneError(f"must be a non-empty list of finite numbers, got {value!r}",
+                         key=f"scene.{key}")
+    return arr
+
+
+def _scalar(name, units=""):
+    return {name: ((), units)}
+
+
+class Ishigami:
+    """Y = sin X1 + a sin² X2 + b X3⁴ sin X1 (X_i ~ U(−π, π) in the reference problem)."""
+
+    options = ("a", "b")
+
+    def __init__(self, scene):
+        self.a = _number(scene, "a", 7.0)
+        self.b = _number(scene, "b", 0.1)
+        self.parameters = {"x1": 0.0, "x2": 0.0, "x3": 0.0}
+        self.outputs = _scalar("y")
+
+    def __call__(self, p, fields):
+        x1, x2, x3 = p["x1"], p["x2"], p["x3"]
+        return {"y": math.sin(x1) + self.a * math.sin(x2) ** 2 + self.b * x3**4 * math.sin(x1)}
+
+
+class SobolG:
+    """Y = Π (|4 X_i − 2| + a_i) / (1 + a_i) (X_i ~ U(0, 1))."""
+
+    options = ("a",)
+
+    def __init__(self, scene):
+        self.a = _numbers(scene, "a", [0.0, 1.0, 4.5, 9.0, 99.0, 99.0, 99.0, 99.0])
+        if np.any(self.a < 0):
+            raise SceneError("every a_i must be >= 0", key="scene.a")
+        self.parameters = {f"x{i + 1}": 0.5 for i in range(self.a.size)}
+        self.outputs = _scalar("y")
+
+    def __call__(self, p, fields):
+        x = np.array([p[f"x{i + 1}"] for i in range(self.a.size)])
+        return {"y": float(np.prod((np.abs(4 * x - 2) + self.a) / (1 + self.a)))}
+
+
+class Polynomial:
+    """Y = c0 + Σ c_i X_i + Σ_ij Q_ij X_i X_j: linear (no ``quadratic``) or quadratic."""
+
+    options = ("coefficients", "offset", "quadratic")
+
+    def __init__(self, scene):
+        self.c = _numbers(scene, "coefficients", [1.0])
+        self.c0 = _number(scene, "offset", 0.0)
+        n = self.c.size
+        q = scene.get("quadratic")
+        if q is None:
+            self.q = np.zeros((n, n))
+        else:
+            self.q = np.asarray(q, dtype=float) if isinstance(q, list) else None
+            if self.q is None or self.q.shape != (n, n) or not np.all(np.isfinite(self.q)):
+                raise SceneError(f"must be a {n}x{n} matrix of finite numbers",
+                                 key="scene.quadratic")
+        self.parameters = {f"x{i + 1}": 0.0 for i in range(n)}
+        self.outputs = _scalar("y")
+
+    def __call__(self, p, fields):
+        x = np.array([p[f"x{i + 1}"] for i in range(self.c.size)])
+        return {"y": float(self.c0 + self.c @ x + x @ self.q @ x)}
+
+
+class PowerLaw:
+    """Y = X^p; with X lognormal every moment is exact: E[X^r] = μ^r (1 + v²)^(r(r−1)/2)."""
+
+    options = ("p",)
+
+    def __init__(self, scene):
+        self.p = _number(scene, "p", 2.0)
+        self.parameters = {"x": 1.0}
+        self.outputs = _scalar("y")
+
+    def __call__(self, p, fields):
+        x = p["x"]
+        if x < 0 and self.p != int(self.p):
+            raise SolverError(f"x = {x:g} < 0 has no real power {self.p:g}")
+        return {"y": x**self.p}
+
+
+class ExponentialDecay:
+    """y(t) = α e^(−β t), a field-valued output over the scene's times ``t``."""
+
+    options = ("t",)
+
+    def __init__(self, scene):
+        t = scene.get("t", {"start": 0.0, "stop": 10.0, "num": 21})
+        if isinstance(t, Mapping):
+            unknown = set(t) - {"start", "stop", "num"}
+            if unknown:
+                raise SceneError(f"unknown key '{sorted(unknown)[0]}' (takes start, stop, num)",
+                                 key="scene.t")
+            num = t.get("num", 21)
+            if not isinstance(num, int) or num < 1:
+                raise SceneError(f"must be an integer >= 1, got {num!r}", key="scene.t.num")
+            self.t = np.linspace(_number(t, "start", 0.0), _number(t, "stop", 10.0), num)
+        else:
+            self.t = _numbers(scene, "t", t)
+        self.parameters = {"alpha": 1.5, "beta": 0.15}
+        self.outputs = {"y": (("t",), "")}
+        self.coords = {"t": ("t", self.t, {"units": "s"})}
+
+    def __call__(self, p, fields):
+        return {"y": p["alpha"] * np.exp(-p["beta"] * self.t)}
+
+
+class RandomEBar:
+    """End displacement u(L) = (F/A) ∫ 1/E(x) dx of a bar pulled by F, E constant or a field."""
+
+    options = ("force", "area", "length", "points")
+
+    def __init__(self, scene):
+        self.force = _number(scene, "force", 1.0e4)
+        self.area = _number(scene, "area", 1.0e-4, positive=True)
+        self.length = _number(scene, "length", 0.1, positive=True)
+        n = scene.get("points", 100)
+        if not isinstance(n, int) or isinstance(n, bool) or n < 1:
+            raise SceneError(f"must be an integer >= 1, got {n!r}", key="scene.points")
+        self.dx = self.length / n
+        self.x = (np.arange(n) + 0.5) * self.dx
+        self.parameters = {"bar.E": 200.0e9}
+        self.units = {"bar.E": "Pa"}
+        self.outputs = _scalar("end_displacement", "m")
+
+    def __call__(self, p, fields):
+        e = fields["E"] if fields and "E" in fields else np.full(self.x.size, p["bar.E"])
+        if np.any(~(e > 0)):
+            i = int(np.flatnonzero(~(e > 0))[0])
+            raise SolverError(f"E <= 0 at point {i} (x = {self.x[i]:.4g} m): {e[i]:.4g} Pa")
+        return {"end_displacement": self.force / self.area * float(np.sum(self.dx / e))}
+
+
+class Faulty:
+    """Y = X, raising ``SolverError`` above ``raise_above`` and returning NaN below ``nan_below``.
+
+    A model of a solver that fails in part of the input space, for failure-handling tests.
+    """
+
+    options = ("raise_above", "nan_below")
+
+    def __init__(self, scene):
+        self.raise_above = _number(scene, "raise_above", math.inf) if "raise_above" in scene \
+            else math.inf
+        self.nan_below = _number(scene, "nan_below", -math.inf) if "nan_below" in scene \
+            else -math.inf
+        self.parameters = {"x": 0.0}
+        self.outputs = _scalar("y")
+
+    def __call__(self, p, fields):
+        x = p["x"]
+        if x > self.raise_above:
+            raise SolverError(f"diverged: x = {x:.6g} exceeds {self.raise_above:g}")
+        return {"y": math.nan if x < self.nan_below else x}
+
+
+MODELS = {
+    "ishigami": Ishigami,
+    "sobol_g": SobolG,
+    "linear": Polynomial,
+    "quadratic": Polynomial,
+    "power": PowerLaw,
+    "exponential_decay": ExponentialDecay,
+    "random_E_bar": RandomEBar,
+    "faulty": Faulty,
+}
+
+
+@register_solver("analytic")
+class AnalyticSolver(Solver):
+    """Closed-form models with exact moments (ishigami, sobol_g, linear, quadratic, power, ...)."""
+
+    def __init__(self, model_name: str, model, delay: float):
+        self.model_name = model_name
+        self.model = model
+        self.delay = delay
+        self._template = self._make_template()
+
+    @classmethod
+    def from_scene(cls, scene: Mapping) -> "AnalyticSolver":
+        if not isinstance(scene, Mapping):
+            raise SceneError("must be a table", key="scene")
+        name = scene.get("model")
+        if name not in MODELS:
+            raise SceneError(f"unknown analytic model {name!r} (known: {', '.join(MODELS)})",
+                             key="scene.model")
+        model_cls = MODELS[name]
+        allowed = {"model", "delay", *model_cls.options}
+        for key in scene:
+            if key not in allowed:
+                raise SceneError(f"unknown key for model '{name}' "
+                                 f"(takes {', '.join(sorted(allowed))})", key=f"scene.{key}")
+        delay = _number(scene, "delay", 0.0, nonnegative=True)
+        return cls(name, model_cls(scene), delay)
+
+    def describe(self) -> str:
+        return f"analytic/{self.model_name}"
+
+    def nominal(self) -> dict[str, float]:
+        return dict(self.model.parameters)
+
+    def parameter_units(self) -> dict[str, str]:
+        return dict(getattr(self.model, "units", {}))
+
+    def field_points(self, name: str) -> np.ndarray:
+        if name == "E" and isinstance(self.model, RandomEBar):
+            return self.model.x[:, None]
+        return super().field_points(name)
+
+    def _make_template(self) -> xr.Dataset:
+        coords = getattr(self.model, "coords", {})
+        data = {}
+        for out, (dims, units) in self.model.outputs.items():
+            shape = tuple(len(coords[d][1]) for d in dims)
+            data[out] = xr.Variable(dims, np.full(shape, np.nan), {"units": units})
+        return xr.Dataset(data, coords={k: xr.Variable(*v) for k, v in coords.items()})
+
+    def outputs(self) -> xr.Dataset:
+        return self._template.copy(deep=True)
+
+    def run(self, params, fields=None) -> xr.Dataset:
+        if self.delay:
+            time.sleep(self.delay)
+        p = dict(self.model.parameters)
+        p.update(params)
+        values = self.model(p, fields)
+        ds = self._template.copy(deep=False)
+        for out, value in values.items():
+            ds[out] = ds[out].copy(data=np.asarray(value, dtype=float).reshape(ds[out].shape))
+        return ds

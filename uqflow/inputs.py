@@ -1,0 +1,429 @@
+"""Random inputs: one chaospy marginal per uncertain parameter, joined by a Gaussian copula.
+
+``RandomInput`` is a named marginal with its units and its first four moments;
+``InputSpace`` joins inputs with an optional correlation matrix (Nataf transform) and maps
+points of the unit hypercube to parameter values. Samplers live in ``uqflow.sampling``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import chaospy
+import numpy as np
+from scipy import optimize, special, stats
+
+from uqflow.errors import StudyError
+
+DISTRIBUTIONS = ("normal", "truncnormal", "lognormal", "uniform", "weibull", "beta")
+
+# Keys each distribution accepts besides name/units; "mean"+("std"|"cv") is the moment form.
+_NATIVE = {
+    "normal": set(),
+    "truncnormal": {"mu", "sigma", "lower", "upper"},
+    "lognormal": {"mu", "sigma"},
+    "uniform": {"lower", "upper"},
+    "weibull": {"shape", "scale", "lower"},
+    "beta": {"alpha", "beta", "lower", "upper"},
+}
+
+
+@dataclass(frozen=True)
+class RandomInput:
+    """A named uncertain parameter.
+
+    ``distribution`` is a chaospy distribution; ``kind`` the family name used in study files.
+    """
+
+    name: str
+    distribution: chaospy.Distribution
+    kind: str = "custom"
+    units: str = ""
+    moments: tuple[float, float, float, float] = field(default=(np.nan,) * 4, repr=False)
+
+    def __post_init__(self):
+        if np.isnan(self.moments[0]):
+            object.__setattr__(self, "moments", _central_moments(self.distribution))
+
+    @property
+    def mean(self) -> float:
+        return self.moments[0]
+
+    @property
+    def variance(self) -> float:
+        return self.moments[1]
+
+    @property
+    def std(self) -> float:
+        return math.sqrt(self.moments[1])
+
+    @property
+    def cv(self) -> float:
+        return self.std / abs(self.mean) if self.mean != 0 else math.inf
+
+    @property
+    def third_central_moment(self) -> float:
+        return self.moments[2]
+
+    @property
+    def fourth_central_moment(self) -> float:
+        return self.moments[3]
+
+    @property
+    def skewness(self) -> float:
+        return self.moments[2] / self.moments[1] ** 1.5 if self.moments[1] > 0 else 0.0
+
+    @property
+    def kurtosis(self) -> float:
+        return self.moments[3] / self.moments[1] ** 2 if self.moments[1] > 0 else math.nan
+
+    def inverse_cdf(self, u: np.ndarray) -> np.ndarray:
+        if self.variance == 0:
+            return np.full(np.shape(u), self.mean)
+        return np.asarray(self.distribution.inv(np.asarray(u, dtype=float)), dtype=float)
+
+    @classmethod
+    def from_spec(cls, spec: dict) -> "RandomInput":
+        """Build from a study-file table (``name``, ``distribution``, parameters, ``units``)."""
+        spec = dict(spec)
+        name = spec.pop("name")
+        kind = spec.pop("distribution")
+        units = spec.pop("units", "") or ""
+        dist, moments = make_distribution(kind, spec, key=f"inputs.{name}")
+        return cls(name=name, distribution=dist, kind=kind, units=units, moments=moments)
+
+
+def _central_moments(dist) -> tuple[float, float, float, float]:
+    return _central_from_raw(np.asarray(dist.mom([1, 2, 3, 4]), dtype=float))
+
+
+def make_distribution(kind: str, params: dict, key: str = "input"):
+    """Return ``(chaospy distribution, central moments)`` for a study-file parameter table.
+
+    Raises ``StudyError`` naming ``key`` for impossible parameters.
+    """
+    if kind not in DISTRIBUTIONS:
+        raise StudyError(f"unknown distribution '{kind}' (known: {', '.join(DISTRIBUTIONS)})",
+                         key=f"{key}.distribution")
+    params = {k: v for k, v in params.items() if v is not None}
+    allowed = _NATIVE[kind] | {"mean", "std", "cv"}
+    for k in params:
+        if k not in allowed:
+            raise StudyError(f"'{k}' is not a parameter of a {kind} distribution "
+                             f"(it takes {', '.join(sorted(allowed))})", key=f"{key}.{k}")
+    for k, v in params.items():
+        if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
+            raise StudyError(f"must be a finite number, got {v!r}", key=f"{key}.{k}")
+
+    moment_form = "mean" in params
+    if moment_form:
+        mean = float(params["mean"])
+        if "std" in params and "cv" in params:
+            raise StudyError("give either std or cv, not both", key=f"{key}.cv")
+        if "std" in params:
+            std = float(params["std"])
+            if std < 0:
+                raise StudyError(f"std must be >= 0, got {std:g}", key=f"{key}.std")
+        elif "cv" in params:
+            cv = float(params["cv"])
+            if cv < 0:
+                raise StudyError(f"cv must be >= 0, got {cv:g}", key=f"{key}.cv")
+            if mean == 0 and cv > 0:
+                raise StudyError("cv needs a nonzero mean (give std instead)", key=f"{key}.cv")
+            std = cv * abs(mean)
+        else:
+            raise StudyError("a mean needs a spread: give std or cv", key=f"{key}.std")
+    elif "std" in params or "cv" in params:
+        raise StudyError("std/cv need a mean", key=f"{key}.mean")
+
+    builder = _BUILDERS[kind]
+    if moment_form:
+        if std == 0:
+            return _point(mean)
+        return builder.from_moments(mean, std, params, key)
+    return builder.from_native(params, key)
+
+
+def _point(value: float):
+    # chaospy has no Dirac distribution; a one-ulp uniform is never sampled (inverse_cdf
+    # short-circuits on zero variance) but keeps the object a chaospy distribution.
+    value = float(value)
+    return chaospy.Uniform(value, np.nextafter(value, np.inf)), (value, 0.0, 0.0, 0.0)
+
+
+def _need(params, names, key, kind):
+    missing = [n for n in names if n not in params]
+    if missing:
+        raise StudyError(f"a {kind} distribution needs {', '.join(names)} "
+                         f"(or mean and std/cv)", key=f"{key}.{missing[0]}")
+
+
+class _Normal:
+    @staticmethod
+    def from_moments(mean, std, params, key):
+        return chaospy.Normal(mean, std), (mean, std**2, 0.0, 3 * std**4)
+
+    @staticmethod
+    def from_native(params, key):
+        _need(params, ["mean", "std"], key, "normal")
+
+
+class _LogNormal:
+    @staticmethod
+    def from_moments(mean, std, params, key):
+        if mean <= 0:
+            raise StudyError(f"a lognormal mean must be > 0, got {mean:g}", key=f"{key}.mean")
+        s2 = math.log1p((std / mean) ** 2)
+        return _LogNormal._make(math.log(mean) - s2 / 2, math.sqrt(s2))
+
+    @staticmethod
+    def from_native(params, key):
+        _need(params, ["mu", "sigma"], key, "lognormal")
+        if params["sigma"] < 0:
+            raise StudyError("sigma must be >= 0", key=f"{key}.sigma")
+        if params["sigma"] == 0:
+            return _point(math.exp(params["mu"]))
+        return _LogNormal._make(float(params["mu"]), float(params["sigma"]))
+
+    @staticmethod
+    def _make(mu, sigma):
+        dist = chaospy.LogNormal(mu, sigma)
+        m = [math.exp(r * mu + 0.5 * r * r * sigma * sigma) for r in (1, 2, 3, 4)]
+        return dist, _central_from_raw(m)
+
+
+class _Uniform:
+    @staticmethod
+    def from_moments(mean, std, params, key):
+        half = math.sqrt(3.0) * std
+        return _Uniform._make(mean - half, mean + half, key)
+
+    @staticmethod
+    def from_native(params, key):
+        _need(params, ["lower", "upper"], key, "uniform")
+        return _Uniform._make(float(params["lower"]), float(params["upper"]), key)
+
+    @staticmethod
+    def _make(lo, hi, key):
+        if not hi > lo:
+            raise StudyError(f"upper ({hi:g}) must exceed lower ({lo:g})", key=f"{key}.upper")
+        w = hi - lo
+        return chaospy.Uniform(lo, hi), ((lo + hi) / 2, w * w / 12, 0.0, w**4 / 80)
+
+
+class _Weibull:
+    @staticmethod
+    def from_moments(mean, std, params, key):
+        shift = float(params.get("lower", 0.0))
+        if mean <= shift:
+            raise StudyError(f"a Weibull mean must exceed its lower bound {shift:g}",
+                             key=f"{key}.mean")
+        cv = std / (mean - shift)
+
+        def cv_of(k):
+            g1, g2 = special.gamma(1 + 1 / k), special.gamma(1 + 2 / k)
+            return math.sqrt(max(g2 / g1**2 - 1, 0.0))
+
+        # cv falls monotonically with shape; shape 0.1 .. 500 covers cv ~ 430 .. 0.003.
+        lo, hi = 0.1, 500.0
+        if not cv_of(hi) < cv < cv_of(lo):
+            raise StudyError(f"cv {cv:g} is outside what a Weibull can have "
+                             f"({cv_of(hi):.3g} .. {cv_of(lo):.3g})", key=f"{key}.cv")
+        shape = optimize.brentq(lambda k: cv_of(k) - cv, lo, hi, xtol=1e-14, rtol=1e-14)
+        scale = (mean - shift) / special.gamma(1 + 1 / shape)
+        return _Weibull._make(shape, scale, shift, key)
+
+    @staticmethod
+    def from_native(params, key):
+        _need(params, ["shape", "scale"], key, "weibull")
+        return _Weibull._make(float(params["shape"]), float(params["scale"]),
+                              float(params.get("lower", 0.0)), key)
+
+    @staticmethod
+    def _make(shape, scale, shift, key):
+        if shape <= 0:
+            raise StudyError(f"shape must be > 0, got {shape:g}", key=f"{key}.shape")
+        if scale <= 0:
+            raise StudyError(f"scale must be > 0, got {scale:g}", key=f"{key}.scale")
+        raw = [scale**r * special.gamma(1 + r / shape) for r in (1, 2, 3, 4)]
+        m1, var, mu3, mu4 = _central_from_raw(raw)
+        return chaospy.Weibull(shape, scale, shift), (m1 + shift, var, mu3, mu4)
+
+
+class _Beta:
+    @staticmethod
+    def from_moments(mean, std, params, key):
+        lo, hi = float(params.get("lower", 0.0)), float(params.get("upper", 1.0))
+        if not hi > lo:
+            raise StudyError(f"upper ({hi:g}) must exceed lower ({lo:g})", key=f"{key}.upper")
+        m, s = (mean - lo) / (hi - lo), std / (hi - lo)
+        if not 0 < m < 1 or s * s >= m * (1 - m):
+            raise StudyError(f"no beta distribution on [{lo:g}, {hi:g}] has mean {mean:g} and "
+                             f"std {std:g}", key=f"{key}.std")
+        nu = m * (1 - m) / (s * s) - 1
+        return _Beta._make(m * nu, (1 - m) * nu, lo, hi, key)
+
+    @staticmethod
+    def from_native(params, key):
+        _need(params, ["alpha", "beta"], key, "beta")
+        return _Beta._make(float(params["alpha"]), float(params["beta"]),
+                           float(params.get("lower", 0.0)), float(params.get("upper", 1.0)), key)
+
+    @staticmethod
+    def _make(a, b, lo, hi, key):
+        for k, v in (("alpha", a), ("beta", b)):
+            if v <= 0:
+                raise StudyError(f"{k} must be > 0, got {v:g}", key=f"{key}.{k}")
+        if not hi > lo:
+            raise StudyError(f"upper ({hi:g}) must exceed lower ({lo:g})", key=f"{key}.upper")
+        w = hi - lo
+        m1, var, mu3, mu4 = (float(x) for x in stats.beta(a, b).stats(moments="mvsk"))
+        std = math.sqrt(var)
+        moments = (lo + w * m1, w * w * var, mu3 * (w * std) ** 3, (mu4 + 3) * (w * std) ** 4)
+        return chaospy.Beta(a, b, lower=lo, upper=hi), moments
+
+
+class _TruncNormal:
+    @staticmethod
+    def from_moments(mean, std, params, key):
+        lo, hi = float(params.get("lower", -math.inf)), float(params.get("upper", math.inf))
+        _TruncNormal._check_bounds(lo, hi, key)
+        if not lo < mean < hi:
+            raise StudyError(f"mean {mean:g} is not inside [{lo:g}, {hi:g}]", key=f"{key}.mean")
+
+        # Find the parent normal whose truncation has the requested mean and std.
+        def residual(z):
+            mu, sigma = z[0], math.exp(z[1])
+            m, v = _truncnorm_mv(mu, sigma, lo, hi)
+            return [(m - mean) / std, (math.sqrt(v) - std) / std]
+
+        sol = optimize.least_squares(residual, [mean, math.log(std)], xtol=1e-14, ftol=1e-14)
+        if not sol.success or max(abs(r) for r in sol.fun) > 1e-8:
+            raise StudyError(f"no truncated normal on [{lo:g}, {hi:g}] has mean {mean:g} and "
+                             f"std {std:g}", key=f"{key}.std")
+        return _TruncNormal._make(sol.x[0], math.exp(sol.x[1]), lo, hi, key)
+
+    @staticmethod
+    def from_native(params, key):
+        _need(params, ["mu", "sigma"], key, "truncnormal")
+        lo, hi = float(params.get("lower", -math.inf)), float(params.get("upper", math.inf))
+        if params["sigma"] <= 0:
+            raise StudyError(f"sigma must be > 0, got {params['sigma']:g}", key=f"{key}.sigma")
+        return _TruncNormal._make(float(params["mu"]), float(params["sigma"]), lo, hi, key)
+
+    @staticmethod
+    def _check_bounds(lo, hi, key):
+        if not hi > lo:
+            raise StudyError(f"upper ({hi:g}) must exceed lower ({lo:g})", key=f"{key}.upper")
+
+    @staticmethod
+    def _make(mu, sigma, lo, hi, key):
+        _TruncNormal._check_bounds(lo, hi, key)
+        a, b = (lo - mu) / sigma, (hi - mu) / sigma
+        m1, var, skew, exkurt = (float(x) for x in
+                                 stats.truncnorm(a, b, loc=mu, scale=sigma).stats(moments="mvsk"))
+        std = math.sqrt(var)
+        return (chaospy.TruncNormal(lower=lo, upper=hi, mu=mu, sigma=sigma),
+                (m1, var, skew * std**3, (exkurt + 3) * std**4))
+
+
+def _truncnorm_mv(mu, sigma, lo, hi):
+    a, b = (lo - mu) / sigma, (hi - mu) / sigma
+    m, v = stats.truncnorm.stats(a, b, loc=mu, scale=sigma, moments="mv")
+    return float(m), float(v)
+
+
+def _central_from_raw(raw):
+    m1, m2, m3, m4 = raw
+    var = m2 - m1**2
+    mu3 = m3 - 3 * m1 * m2 + 2 * m1**3
+    mu4 = m4 - 4 * m1 * m3 + 6 * m1**2 * m2 - 3 * m1**4
+    return (float(m1), float(max(var, 0.0)), float(mu3), float(max(mu4, 0.0)))
+
+
+_BUILDERS = {"normal": _Normal, "truncnormal": _TruncNormal, "lognormal": _LogNormal,
+             "uniform": _Uniform, "weibull": _Weibull, "beta": _Beta}
+
+
+class InputSpace:
+    """Joint distribution of the random inputs.
+
+    Marginals are joined by a Gaussian copula (Nataf transform): ``correlation`` is the
+    correlation of the underlying standard normals. For normal marginals it is the Pearson
+    correlation of the inputs themselves; for others it is close to it (the Taylor method
+    uses it as the Pearson correlation, an approximation stated in docs/methods.md).
+    """
+
+    def __init__(self, inputs: list[RandomInput], correlation: np.ndarray | None = None,
+                 key: str = "correlation"):
+        names = [i.name for i in inputs]
+        if len(set(names)) != len(names):
+            dup = next(n for n in names if names.count(n) > 1)
+            raise StudyError(f"input '{dup}' is declared twice", key="inputs.name")
+        self.inputs = list(inputs)
+        n = len(inputs)
+        if correlation is None:
+            correlation = np.eye(n)
+        correlation = np.asarray(correlation, dtype=float)
+        check_correlation(correlation, n, key)
+        self.correlation = correlation
+        self._cholesky = np.linalg.cholesky(correlation) if n else np.zeros((0, 0))
+
+    @property
+    def names(self) -> list[str]:
+        return [i.name for i in self.inputs]
+
+    def __len__(self) -> int:
+        return len(self.inputs)
+
+    def __getitem__(self, name: str) -> RandomInput:
+        return self.inputs[self.names.index(name)]
+
+    @property
+    def is_correlated(self) -> bool:
+        return bool(np.any(self.correlation != np.eye(len(self))))
+
+    @property
+    def means(self) -> np.ndarray:
+        return np.array([i.mean for i in self.inputs])
+
+    @property
+    def stds(self) -> np.ndarray:
+        return np.array([i.std for i in self.inputs])
+
+    def from_unit_hypercube(self, u: np.ndarray) -> np.ndarray:
+        """Map points ``u`` of shape (n_points, n_inputs) in (0, 1)^n to parameter values."""
+        u = np.clip(np.asarray(u, dtype=float), 1e-15, 1 - 1e-15)
+        if self.is_correlated:
+            z = stats.norm.ppf(u) @ self._cholesky.T
+            u = stats.norm.cdf(z)
+        return np.column_stack([inp.inverse_cdf(u[:, k]) for k, inp in enumerate(self.inputs)]) \
+            if len(self) else np.zeros((u.shape[0], 0))
+
+    def summary(self) -> dict[str, np.ndarray]:
+        """Mean, std, C.V. and skewness of every input (stored with every result)."""
+        return {
+            "input_mean": self.means,
+            "input_std": self.stds,
+            "input_cv": np.array([i.cv for i in self.inputs]),
+            "input_skewness": np.array([i.skewness for i in self.inputs]),
+        }
+
+
+def check_correlation(matrix: np.ndarray, n: int, key: str = "correlation") -> None:
+    """Raise ``StudyError`` unless ``matrix`` is an n×n symmetric positive definite correlation."""
+    if matrix.shape != (n, n):
+        raise StudyError(f"must be {n}x{n} (one row per input), got {matrix.shape}",
+                         key=f"{key}.matrix")
+    if not np.all(np.isfinite(matrix)):
+        raise StudyError("has non-finite entries", key=f"{key}.matrix")
+    if not np.allclose(matrix, matrix.T, rtol=0, atol=1e-12):
+        raise StudyError("must be symmetric", key=f"{key}.matrix")
+    if not np.allclose(np.diag(matrix), 1.0, rtol=0, atol=1e-12):
+        raise StudyError("diagonal must be 1", key=f"{key}.matrix")
+    if np.any(np.abs(matrix) > 1):
+        raise StudyError("entries must lie in [-1, 1]", key=f"{key}.matrix")
+    if n and np.linalg.eigvalsh(matrix).min() <= 1e-12:
+        raise StudyError(f"is not positive definite (smallest eigenvalue "
+                         f"{np.linalg.eigvalsh(matrix).min():.3g})", key=f"{key}.matrix")

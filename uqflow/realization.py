@@ -1,0 +1,95 @@
+"""Running realizations of a design on one solver: the unit of work a dask task does.
+
+Kept free of dask so the same code runs in-process (``workers = 0``), on a local cluster
+and on a remote one, and so a method's tests can evaluate a design directly.
+"""
+
+from __future__ import annotations
+
+import time
+import traceback
+
+import numpy as np
+import xarray as xr
+
+from uqflow.errors import SolverError
+
+STATUS_OK, STATUS_FAILED, STATUS_PENDING = "ok", "failed", "pending"
+
+
+def empty_runs(design: xr.Dataset, template: xr.Dataset) -> xr.Dataset:
+    """The runs dataset before anything ran: NaN outputs, every realization pending."""
+    n = design.sizes["realization"]
+    runs = design.copy()
+    for name, var in template.data_vars.items():
+        runs[name] = xr.Variable(("realization", *var.dims),
+                                 np.full((n, *var.shape), np.nan), dict(var.attrs))
+    runs = runs.assign_coords({c: template.coords[c] for c in template.coords})
+    runs["status"] = ("realization", np.full(n, STATUS_PENDING, dtype=object))
+    runs["message"] = ("realization", np.full(n, "", dtype=object))
+    runs["wall_time"] = ("realization", np.full(n, np.nan), {"units": "s"})
+    return runs
+
+
+def run_one(solver, params: dict, fields: dict | None, outputs: list[str]):
+    """One realization: (status, message, {output: array}, wall time).
+
+    A ``SolverError`` or any other exception, and any non-finite output, make the
+    realization failed with a one-line message; nothing propagates.
+    """
+    start = time.perf_counter()
+    try:
+        result = solver.run(params, fields) if fields else solver.run(params)
+        values = {name: np.asarray(result[name].values, dtype=float) for name in outputs}
+        bad = [name for name, v in values.items() if not np.all(np.isfinite(v))]
+        if bad:
+            status, message = STATUS_FAILED, f"non-finite output '{bad[0]}'"
+        else:
+            status, message = STATUS_OK, ""
+    except SolverError as exc:
+        values, status, message = {}, STATUS_FAILED, f"SolverError: {exc}"
+    except Exception as exc:  # a solver bug must not end the study; keep where it happened
+        where = traceback.extract_tb(exc.__traceback__)[-1]
+        values, status = {}, STATUS_FAILED
+        message = (f"{type(exc).__name__}: {exc} "
+                   f"(at {where.filename.rsplit('/', 1)[-1]}:{where.lineno})")
+    return status, " ".join(message.split()), values, time.perf_counter() - start
+
+
+def run_batch(solver, names: list[str], values: np.ndarray, outputs: list[str],
+              fields: list[dict] | None = None) -> dict:
+    """Run realizations given as rows of ``values``; returns plain arrays (cheap to ship)."""
+    statuses, messages, times = [], [], []
+    results = {name: [] for name in outputs}
+    for i, row in enumerate(values):
+        params = dict(zip(names, (float(v) for v in row)))
+        status, message, got, wall = run_one(solver, params, fields[i] if fields else None,
+                                             outputs)
+        statuses.append(status)
+        messages.append(message)
+        times.append(wall)
+        for name in outputs:
+            results[name].append(got.get(name))
+    return {"status": statuses, "message": messages, "wall_time": times, "outputs": results}
+
+
+def store_batch(runs: xr.Dataset, indices: np.ndarray, batch: dict) -> None:
+    """Write a finished batch into ``runs`` in place."""
+    for k, idx in enumerate(indices):
+        runs["status"].values[idx] = batch["status"][k]
+        runs["message"].values[idx] = batch["message"][k]
+        runs["wall_time"].values[idx] = batch["wall_time"][k]
+        for name, vals in batch["outputs"].items():
+            if vals[k] is not None and batch["status"][k] == STATUS_OK:
+                runs[name].values[idx] = vals[k]
+
+
+def evaluate_design(solver, design: xr.Dataset, outputs: list[str] | None = None) -> xr.Dataset:
+    """Run every realization of ``design`` in this process and return the runs dataset."""
+    template = solver.outputs()
+    outputs = list(template.data_vars) if outputs is None else list(outputs)
+    runs = empty_runs(design, template[outputs])
+    names = [str(p) for p in design["parameter"].values]
+    batch = run_batch(solver, names, design["inputs"].values, outputs)
+    store_batch(runs, np.arange(design.sizes["realization"]), batch)
+    return runs

@@ -1,0 +1,39 @@
+"""Points in the unit hypercube for Monte Carlo rules, from one seed and no global state.
+
+chaospy's own samplers draw from numpy's global random state; scipy.stats.qmc takes a
+Generator, so the same study seed gives the same design on every machine and worker count.
+The points are mapped to the inputs through their chaospy marginals (``InputSpace``).
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+from scipy.stats import qmc
+
+RULES = ("random", "lhs", "sobol", "halton")
+
+
+def unit_hypercube(rule: str, n_points: int, dimension: int,
+                   seed: np.random.SeedSequence) -> np.ndarray:
+    """``n_points`` points of (0, 1)^dimension, shape (n_points, dimension).
+
+    ``sobol`` and ``halton`` are scrambled (Owen / random permutation), so they are unbiased
+    and repeated designs with other seeds give an error estimate.
+    """
+    rng = np.random.default_rng(seed)
+    if dimension == 0:
+        return np.zeros((n_points, 0))
+    if rule == "random":
+        return rng.random((n_points, dimension))
+    if rule == "lhs":
+        return qmc.LatinHypercube(d=dimension, rng=rng).random(n_points)
+    if rule == "sobol":
+        with warnings.catch_warnings():
+            # Balance properties need powers of two; other counts are valid, only less even.
+            warnings.simplefilter("ignore", UserWarning)
+            return qmc.Sobol(d=dimension, scramble=True, rng=rng).random(n_points)
+    if rule == "halton":
+        return qmc.Halton(d=dimension, scramble=True, rng=rng).random(n_points)
+    raise ValueError(f"unknown sampling rule '{rule}' (known: {', '.join(RULES)})")

@@ -1,0 +1,69 @@
+"""The Solver contract: a scene in, a deterministic model out.
+
+A solver is built once per worker from its scene (``from_scene``), tells which parameters a
+study may make uncertain (``nominal``, dotted names, SI units) and what it returns
+(``outputs``: a template dataset), and runs one realization (``run``). It knows nothing of
+studies, methods or dask. Solvers register with ``@register_solver("name")`` or through the
+entry-point group ``uqflow.solvers``.
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Mapping
+from typing import ClassVar
+
+import numpy as np
+import xarray as xr
+
+from uqflow.errors import SceneError, SolverError
+from uqflow.registry import Registry
+
+__all__ = ["Solver", "SolverError", "SceneError", "register_solver", "get_solver",
+           "solver_registry"]
+
+solver_registry = Registry("uqflow.solvers", "solver")
+
+
+def register_solver(name: str):
+    """Class decorator: make a Solver available to study files as ``solver = name``."""
+    return solver_registry.register(name)
+
+
+def get_solver(name: str) -> type["Solver"]:
+    return solver_registry.get(name)
+
+
+class Solver(abc.ABC):
+    """Base class of every solver back-end."""
+
+    name: ClassVar[str] = ""
+
+    @classmethod
+    @abc.abstractmethod
+    def from_scene(cls, scene: Mapping) -> "Solver":
+        """Validate ``scene`` (raise ``SceneError`` naming the key) and build the model."""
+
+    @abc.abstractmethod
+    def nominal(self) -> dict[str, float]:
+        """Every parameter a study may make uncertain, by dotted name, with its nominal value."""
+
+    @abc.abstractmethod
+    def outputs(self) -> xr.Dataset:
+        """Template of ``run``'s result: names, dims, coords and ``units`` attributes."""
+
+    @abc.abstractmethod
+    def run(self, params: Mapping[str, float],
+            fields: Mapping[str, np.ndarray] | None = None) -> xr.Dataset:
+        """One realization with ``params`` overriding the nominal values."""
+
+    def parameter_units(self) -> dict[str, str]:
+        """Units of the parameters in ``nominal`` (SI); empty where dimensionless."""
+        return {}
+
+    def field_points(self, name: str) -> np.ndarray:
+        """Coordinates, shape (n_points, n_dims), where field ``name`` is evaluated."""
+        raise SceneError(f"solver '{self.name}' has no random field '{name}'", key="fields")
+
+    def describe(self) -> str:
+        return f"{self.name} solver"
