@@ -34,3 +34,7 @@ class SolverError(UqflowError):
 
     The executor records it as a failed realization and the study goes on.
     """
+
+
+class AccuracyWarning(UserWarning):
+    """An estimate may be inaccurate (large input C.V., unstable derivative, few samples)."""

@@ -6,7 +6,8 @@ or the solver: the executor runs the design, the store keeps it.
 
 Design (xr.Dataset): dims ``realization`` and ``parameter``; variable ``inputs``
 (realization, parameter) holds the parameter values; ``input_mean``/``input_std``/
-``input_cv``/``input_skewness`` (parameter) describe the inputs; methods add their own
+``input_cv``/``input_skewness``/``input_kurtosis`` (parameter) and ``input_correlation``
+(parameter, parameter_j; Gaussian-copula correlation) describe the inputs; methods add their own
 variables and attributes.
 
 Runs (xr.Dataset): the design's ``inputs`` plus every output (realization, *output dims),
@@ -84,11 +85,14 @@ def make_design(space: InputSpace, values: np.ndarray, **variables) -> xr.Datase
     n = values.shape[0]
     data = {"inputs": (("realization", "parameter"), values)}
     data.update({k: ("parameter", v) for k, v in space.summary().items()})
+    data["input_kurtosis"] = ("parameter", np.array([i.kurtosis for i in space.inputs]))
+    data["input_correlation"] = (("parameter", "parameter_j"), space.correlation)
     data.update(variables)
     units = [inp.units for inp in space.inputs]
     return xr.Dataset(
         data,
         coords={"realization": np.arange(n), "parameter": space.names,
+                "parameter_j": space.names,
                 "parameter_units": ("parameter", units)},
     )
 
@@ -125,7 +129,8 @@ def failure_warning(runs: xr.Dataset) -> list[str]:
 def finish_statistics(stats: xr.Dataset, design: xr.Dataset, runs: xr.Dataset,
                       method: str, warnings: list[str]) -> xr.Dataset:
     """Attach input summary, units, cost and warnings to a statistics dataset."""
-    for v in ("input_mean", "input_std", "input_cv", "input_skewness"):
+    for v in ("input_mean", "input_std", "input_cv", "input_skewness", "input_kurtosis",
+              "input_correlation"):
         if v in design:
             stats[v] = design[v]
     for out in output_names(runs):
