@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from importlib import import_module
 from importlib.metadata import entry_points
 
 from uqflow.errors import StudyError
@@ -10,11 +11,13 @@ from uqflow.errors import StudyError
 class Registry:
     """Classes by name; entry points of ``group`` are loaded on first lookup of a missing name."""
 
-    def __init__(self, group: str, what: str):
+    def __init__(self, group: str, what: str, builtins: tuple[str, ...] = ()):
         self.group = group
         self.what = what
+        self.builtins = builtins
         self._classes: dict[str, type] = {}
         self._entry_points_loaded = False
+        self._broken: dict[str, str] = {}
 
     def register(self, name: str):
         def decorator(cls):
@@ -27,12 +30,23 @@ class Registry:
         if self._entry_points_loaded:
             return
         self._entry_points_loaded = True
+        # Built-ins also resolve from a source checkout that was never pip-installed.
+        for module in self.builtins:
+            try:
+                import_module(module)
+            except ImportError:
+                pass
         for ep in entry_points(group=self.group):
-            if ep.name not in self._classes:
+            if ep.name in self._classes:
+                continue
+            try:
                 cls = ep.load()
-                self._classes.setdefault(ep.name, cls)
-                if getattr(cls, "name", None) in (None, ""):
-                    cls.name = ep.name
+            except Exception as exc:  # one broken plug-in must not hide the others
+                self._broken[ep.name] = f"{type(exc).__name__}: {exc}"
+                continue
+            self._classes.setdefault(ep.name, cls)
+            if not getattr(cls, "name", ""):
+                cls.name = ep.name
 
     def get(self, name: str) -> type:
         if name not in self._classes:
@@ -40,6 +54,9 @@ class Registry:
         try:
             return self._classes[name]
         except KeyError:
+            if name in self._broken:
+                raise StudyError(f"{self.what} '{name}' is installed but cannot be loaded "
+                                 f"({self._broken[name]})") from None
             known = ", ".join(sorted(self._classes)) or "none"
             raise StudyError(f"unknown {self.what} '{name}' (known: {known})") from None
 

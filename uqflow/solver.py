@@ -22,7 +22,7 @@ from uqflow.registry import Registry
 __all__ = ["Solver", "SolverError", "SceneError", "register_solver", "get_solver",
            "solver_registry"]
 
-solver_registry = Registry("uqflow.solvers", "solver")
+solver_registry = Registry("uqflow.solvers", "solver", builtins=("solvers.analytic",))
 
 
 def register_solver(name: str):

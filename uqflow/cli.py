@@ -1,0 +1,134 @@
+"""Command line: ``uqflow run | validate | report | list``.
+
+User errors print one line and exit 2; a study stopped by failing realizations exits 1;
+nothing prints a traceback unless ``UQFLOW_DEBUG`` is set.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+from uqflow.errors import StudyError, UqflowError
+
+EXIT_USAGE = 2
+EXIT_FAILED = 1
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="uqflow", description="Uncertainty propagation through "
+                                "particle solvers for solid mechanics.")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    run = sub.add_parser("run", help="run a study file and write its result and figures")
+    run.add_argument("study", type=Path)
+    run.add_argument("--workers", type=int, default=None,
+                     help="dask worker processes on this machine (0: run in this process)")
+    run.add_argument("--scheduler", default=None,
+                     help="address of an existing dask scheduler, e.g. tcp://10.0.0.5:8786")
+    mode = run.add_mutually_exclusive_group()
+    mode.add_argument("--resume", action="store_true",
+                      help="finish an interrupted study without redoing finished realizations")
+    mode.add_argument("--force", action="store_true", help="overwrite an existing result")
+    run.add_argument("--no-figures", action="store_true", help="write no PNG figures")
+    run.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    val = sub.add_parser("validate", help="check study files without running them")
+    val.add_argument("studies", type=Path, nargs="+")
+
+    rep = sub.add_parser("report", help="print the table and redraw the figures of a result")
+    rep.add_argument("result", type=Path)
+    rep.add_argument("--figures", type=Path, default=None,
+                     help="folder for the PNG figures (default: beside the result)")
+    rep.add_argument("--no-figures", action="store_true")
+
+    sub.add_parser("list", help="list the registered solvers and propagation methods")
+    return p
+
+
+def _run(args) -> int:
+    from uqflow import report
+    from uqflow.execute import run_study
+    from uqflow.study import load_study
+
+    if args.workers is not None and args.workers < 0:
+        raise StudyError("--workers must be >= 0")
+    study = load_study(args.study)
+    outcome = run_study(study, workers=args.workers, scheduler=args.scheduler,
+                        resume=args.resume, force=args.force, show_progress=not args.quiet)
+    if outcome.resumed:
+        print(f"resumed: {outcome.resumed} realizations were already done")
+    tree = report.open_result(outcome.path)
+    print(report.summary_table(tree))
+    for w in outcome.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    print(f"result: {outcome.path}")
+    if study.spec.output.figures and not args.no_figures:
+        for fig in report.write_figures(tree, report.figure_folder(outcome.path)):
+            print(f"figure: {fig}")
+    return 0
+
+
+def _validate(args) -> int:
+    from uqflow.study import load_study
+
+    for path in args.studies:
+        study = load_study(path)
+        print(f"{path}: ok ({study.spec.solver}, {study.spec.method.kind}, "
+              f"{len(study.space)} random inputs, outputs {', '.join(study.outputs)})")
+    return 0
+
+
+def _report(args) -> int:
+    from uqflow import report
+
+    tree = report.open_result(args.result)
+    print(report.summary_table(tree))
+    warnings = tree["statistics"].attrs.get("warnings", "") if "statistics" in tree.children \
+        else ""
+    for w in filter(None, warnings.split("\n")):
+        print(f"warning: {w}", file=sys.stderr)
+    if not args.no_figures:
+        folder = args.figures or report.figure_folder(args.result)
+        for fig in report.write_figures(tree, folder):
+            print(f"figure: {fig}")
+    return 0
+
+
+def _list(args) -> int:
+    from uqflow.methods import method_registry
+    from uqflow.solver import solver_registry
+
+    print("solvers:")
+    for name, doc in solver_registry.describe().items():
+        print(f"  {name:<16} {doc}")
+    print("methods:")
+    for name, doc in method_registry.describe().items():
+        print(f"  {name:<16} {doc}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    handler = {"run": _run, "validate": _validate, "report": _report, "list": _list}
+    try:
+        return handler[args.command](args)
+    except StudyError as exc:
+        if os.environ.get("UQFLOW_DEBUG"):
+            raise
+        print(f"uqflow: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except UqflowError as exc:
+        if os.environ.get("UQFLOW_DEBUG"):
+            raise
+        print(f"uqflow: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    except KeyboardInterrupt:
+        print("uqflow: interrupted; finish with --resume", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,180 @@
+"""Sobol' indices: variance-based sensitivity of every output to every input, with SALib.
+
+The design is Saltelli's: N base samples, each a block of D + 2 consecutive realizations
+(A, the D rows AB_i where column i comes from B, then B), or 2D + 2 with second order (the
+BA_i rows added before B). ``SALib.sample.sobol`` builds it on the unit hypercube from a
+scrambled Sobol' sequence; ``InputSpace.from_unit_hypercube`` maps it to the inputs.
+``SALib.analyze.sobol`` turns the outputs into first-order (S1), total (ST) and optionally
+second-order (S2) indices with bootstrap confidence half-widths. See docs/sobol.md.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import xarray as xr
+from pydantic import Field
+from SALib.analyze import sobol as salib_analyze
+from SALib.sample import sobol as salib_sample
+
+from uqflow.errors import StudyError
+from uqflow.methods.base import (MethodOptions, PropagationMethod, failure_warning,
+                                 finish_statistics, make_design, output_names,
+                                 register_method)
+
+FIRST_LABELS = ["S1", "S1_conf", "ST", "ST_conf"]
+SECOND_LABELS = ["S2", "S2_conf"]
+
+
+class SobolOptions(MethodOptions):
+    samples: int = Field(1024, ge=2, description=(
+        "base sample N; the study runs N(D+2) realizations, N(2D+2) with second order. "
+        "Powers of two keep the Sobol' sequence balanced and converge best"))
+    second_order: bool = Field(False, description="also estimate pairwise indices S2")
+    resamples: int = Field(1000, ge=2, description="bootstrap resamples of the intervals")
+    confidence: float = Field(0.95, gt=0, lt=1, description="level of the bootstrap intervals")
+
+
+def _problem(names: list[str]) -> dict:
+    return {"num_vars": len(names), "names": names, "bounds": [[0.0, 1.0]] * len(names)}
+
+
+@register_method("sobol")
+class Sobol(PropagationMethod):
+    """Sobol' sensitivity indices (S1, ST, optional S2) by Saltelli sampling, with SALib."""
+
+    Options = SobolOptions
+
+    def plan(self, space, fields, seed):
+        if space.is_correlated:
+            raise StudyError("sobol indices assume independent inputs; remove the correlation "
+                             "or use monte-carlo", key="method.kind")
+        if len(space) == 0:
+            raise StudyError("sobol indices need at least one uncertain input", key="inputs")
+        opts = self.options
+        # One draw for the sequence's scrambling, one for the bootstrap in analyze; the
+        # bootstrap seed travels with the design so a re-analysis gives the same intervals.
+        # SALib's analyze falls back to numpy's global state on a falsy seed, hence the +1.
+        state = seed.generate_state(2)
+        with warnings.catch_warnings():
+            # scipy warns when N is not a power of two: valid, only less balanced.
+            warnings.simplefilter("ignore", UserWarning)
+            u = salib_sample.sample(_problem(space.names), opts.samples,
+                                    calc_second_order=opts.second_order, scramble=True,
+                                    seed=int(state[0]))
+        design = make_design(space, space.from_unit_hypercube(u))
+        d = len(space)
+        design.attrs.update(
+            samples=opts.samples,
+            # ints, not bools: netCDF attributes cannot hold booleans
+            second_order=int(opts.second_order),
+            block_size=2 * d + 2 if opts.second_order else d + 2,
+            bootstrap_seed=int(state[1]) + 1,
+        )
+        return design
+
+    def analyze(self, design, runs):
+        opts = self.options
+        names = [str(p) for p in design["parameter"].values]
+        d = len(names)
+        second = bool(design.attrs.get("second_order", opts.second_order))
+        step = 2 * d + 2 if second else d + 2
+        n_rows = design.sizes["realization"]
+        n_base = n_rows // step
+        boot_seed = int(design.attrs.get("bootstrap_seed", 1)) or 1
+        outs = output_names(runs)
+        warnings_ = failure_warning(runs)
+
+        # Outputs on the design's rows; realizations missing from runs count as failed.
+        rows = np.asarray(runs["realization"].values, dtype=int)
+        good = np.zeros(n_rows, dtype=bool)
+        good[rows] = np.asarray(runs["status"].values == "ok")
+        values = {}
+        for out in outs:
+            y = np.full((n_rows, *runs[out].shape[1:]), np.nan)
+            y[rows] = runs[out].values
+            values[out] = y.reshape(n_rows, -1)
+            good &= np.all(np.isfinite(values[out]), axis=1)
+
+        # A failed row breaks its whole Saltelli block: AB_i is only useful next to its A and B.
+        keep = good[: n_base * step].reshape(n_base, step).all(axis=1)
+        kept = int(keep.sum())
+        if kept < n_base:
+            warnings_.append(f"{n_base - kept} of {n_base} base samples dropped: each held a "
+                             f"failed realization and a Saltelli block needs all {step} runs")
+        if kept < 2:
+            warnings_.append(f"only {kept} complete base sample(s): sobol indices are NaN")
+        row_keep = np.repeat(keep, step)
+
+        data = {}
+        problem = _problem(names)
+        for out in outs:
+            dims = runs[out].dims[1:]
+            shape = runs[out].shape[1:]
+            y = values[out][: n_base * step][row_keep]
+            m = y.shape[1]
+            ab = y.reshape(kept, step, m)[:, [0, step - 1]].reshape(2 * kept, m)
+            data[out] = (("statistic", *dims), _moments(ab).reshape(3, *shape))
+
+            first = np.full((4, d, m), np.nan)
+            pairs = np.full((2, d, d, m), np.nan)
+            flat = 0
+            for k in range(m):
+                col = y[:, k]
+                if kept < 2:
+                    continue
+                if np.ptp(col) == 0:
+                    flat += 1
+                    continue
+                with warnings.catch_warnings(record=True) as caught:
+                    warnings.simplefilter("always")
+                    si = salib_analyze.analyze(problem, col, calc_second_order=second,
+                                               num_resamples=opts.resamples,
+                                               conf_level=opts.confidence, seed=boot_seed,
+                                               print_to_console=False)
+                for w in caught:
+                    msg = f"{out}: SALib: {' '.join(str(w.message).split())}"
+                    if msg not in warnings_:
+                        warnings_.append(msg)
+                first[:, :, k] = [si[key] for key in FIRST_LABELS]
+                if second:
+                    pairs[:, :, :, k] = [si[key] for key in SECOND_LABELS]
+            if flat:
+                where = "" if not shape else f" at {flat} of {m} points"
+                warnings_.append(f"{out} has zero variance{where}: its sobol indices are NaN "
+                                 f"there (every input constant, or none acts on it)")
+            data[f"{out}_sobol"] = (("sobol_index", "parameter", *dims),
+                                    first.reshape(4, d, *shape),
+                                    {"long_name": "first-order and total sobol indices, "
+                                                  f"conf = half-width at {opts.confidence:g}"})
+            if second:
+                data[f"{out}_sobol2"] = (("sobol2_index", "parameter", "parameter_j", *dims),
+                                         pairs.reshape(2, d, d, *shape),
+                                         {"long_name": "second-order sobol indices (upper "
+                                                       "triangle), conf = half-width"})
+
+        coords = {"statistic": ["mean", "variance", "std"], "sobol_index": FIRST_LABELS,
+                  "parameter": names, "parameter_j": names}
+        if second:
+            coords["sobol2_index"] = SECOND_LABELS
+        stats = xr.Dataset(data, coords=coords)
+        stats = stats.assign_coords({c: runs[c] for c in runs.coords
+                                     if c not in coords and c != "realization"
+                                     and c in stats.dims})
+        # Indices are fractions of the output variance: unitless, unlike the moments.
+        for name in stats.data_vars:
+            if name.endswith(("_sobol", "_sobol2")):
+                stats[name].attrs["units"] = ""
+        stats = finish_statistics(stats, design, runs, self.name, warnings_)
+        stats.attrs.update(samples=n_base, samples_kept=kept, second_order=int(second),
+                           confidence=opts.confidence, resamples=opts.resamples)
+        return stats
+
+
+def _moments(y: np.ndarray) -> np.ndarray:
+    """Mean, variance and std (rows) of the A and B rows ``y`` (n, m): plain input samples."""
+    n, m = y.shape
+    mean = y.mean(axis=0) if n else np.full(m, np.nan)
+    var = y.var(axis=0, ddof=1) if n > 1 else np.full(m, np.nan)
+    return np.stack([mean, var, np.sqrt(var)])

@@ -1,0 +1,282 @@
+"""Study files: TOML validated with pydantic, resolved into the objects a run needs.
+
+``load_study(path)`` reads and checks everything a run needs before anything runs: the schema,
+the solver and its scene, the inputs against the solver's parameters, the method options,
+the outputs. Every problem is a one-line ``StudyError`` naming the file, the key and the
+reason. Relative paths resolve against the study file's folder.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from uqflow.errors import SceneError, StudyError
+from uqflow.inputs import DISTRIBUTIONS, InputSpace, RandomInput
+from uqflow.methods import PropagationMethod, get_method
+from uqflow.solver import Solver, get_solver
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=False)
+
+
+Number = float | None
+
+
+class InputSpec(_Strict):
+    name: str = Field(min_length=1)
+    distribution: str
+    mean: Number = None
+    std: Number = None
+    cv: Number = None
+    lower: Number = None
+    upper: Number = None
+    mu: Number = None
+    sigma: Number = None
+    shape: Number = None
+    scale: Number = None
+    alpha: Number = None
+    beta: Number = None
+    units: str = ""
+
+    @field_validator("distribution")
+    @classmethod
+    def _known(cls, v):
+        if v not in DISTRIBUTIONS:
+            raise ValueError(f"unknown distribution '{v}' (known: {', '.join(DISTRIBUTIONS)})")
+        return v
+
+    def parameters(self) -> dict:
+        return self.model_dump(exclude={"name", "distribution", "units"}, exclude_none=True)
+
+
+class CorrelationSpec(_Strict):
+    inputs: list[str] = Field(min_length=2)
+    matrix: list[list[float]]
+
+
+class ExecutionSpec(_Strict):
+    workers: int = Field(2, ge=0, description="dask worker processes; 0 runs in this process")
+    scheduler: str | None = Field(None, description="address of an existing dask scheduler")
+    seed: int = Field(0, ge=0)
+    batch: int | None = Field(None, ge=1, description="realizations per dask task")
+    max_failure_fraction: float = Field(0.1, ge=0, le=1)
+    checkpoint_interval: float = Field(2.0, ge=0, description="seconds between result writes")
+
+
+class OutputSpec(_Strict):
+    path: str | None = None
+    figures: bool = True
+
+
+class MethodSpec(BaseModel):
+    model_config = ConfigDict(extra="allow")
+    kind: str
+
+
+class StudySpec(_Strict):
+    name: str = Field(min_length=1)
+    description: str = ""
+    solver: str
+    scene: dict[str, Any] | str
+    outputs: list[str] | None = None
+    inputs: list[InputSpec] = Field(default_factory=list)
+    correlation: CorrelationSpec | None = None
+    fields: list[dict[str, Any]] = Field(default_factory=list)
+    method: MethodSpec
+    execution: ExecutionSpec = Field(default_factory=ExecutionSpec)
+    output: OutputSpec = Field(default_factory=OutputSpec)
+
+
+@dataclass
+class Study:
+    """A validated study, ready to run."""
+
+    spec: StudySpec
+    path: Path
+    text: str
+    solver_class: type[Solver]
+    scene: dict
+    solver: Solver
+    space: InputSpace
+    method: PropagationMethod
+    outputs: list[str]
+    output_path: Path
+    fields: list = field(default_factory=list)
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    @property
+    def sha256(self) -> str:
+        return hashlib.sha256(self.text.encode()).hexdigest()
+
+
+def _key(loc) -> str:
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        else:
+            out += ("." if out else "") + str(part)
+    return out
+
+
+def _reason(err: dict) -> str:
+    kind = err["type"]
+    if kind == "extra_forbidden":
+        return "unknown key"
+    if kind == "missing":
+        return "required key is missing"
+    msg = err["msg"]
+    return msg.removeprefix("Value error, ")
+
+
+def validation_error(exc: ValidationError, file: str, prefix: str = "") -> StudyError:
+    """The first pydantic error as a one-line StudyError naming file and key."""
+    err = exc.errors()[0]
+    loc = [p for p in err["loc"] if p not in ("function-after",)]
+    # Union members show up in loc (e.g. scene -> 'dict[str,any]'); keep the user's keys only.
+    loc = [p for p in loc if not (isinstance(p, str) and ("[" in p or p in ("str", "float")))]
+    key = _key(loc)
+    if prefix:
+        key = f"{prefix}.{key}" if key else prefix
+    return StudyError(_reason(err), file=file, key=key or None)
+
+
+def read_toml(path: Path, file_label: str) -> tuple[dict, str]:
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise StudyError("file not found", file=file_label) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise StudyError(f"cannot read: {exc}", file=file_label) from None
+    try:
+        return tomllib.loads(text), text
+    except tomllib.TOMLDecodeError as exc:
+        raise StudyError(f"not valid TOML: {exc}", file=file_label) from None
+
+
+def load_study(path: str | Path) -> Study:
+    """Read, validate and resolve a study file; raise ``StudyError`` on any problem."""
+    path = Path(path)
+    label = str(path)
+    raw, text = read_toml(path, label)
+    try:
+        spec = StudySpec.model_validate(raw)
+    except ValidationError as exc:
+        raise validation_error(exc, label) from None
+    try:
+        return _resolve(spec, path, text, label)
+    except SceneError as exc:
+        raise exc.located(label) from None
+    except StudyError as exc:
+        raise exc.located(label) from None
+
+
+def _resolve(spec: StudySpec, path: Path, text: str, label: str) -> Study:
+    folder = path.parent
+    try:
+        solver_class = get_solver(spec.solver)
+    except StudyError as exc:
+        raise StudyError(exc.reason, key="solver") from None
+
+    scene, scene_label = _load_scene(spec.scene, folder)
+    try:
+        solver = solver_class.from_scene(scene)
+    except SceneError as exc:
+        raise SceneError(exc.reason, file=scene_label or label, key=exc.key) from None
+
+    nominal = solver.nominal()
+    for i, inp in enumerate(spec.inputs):
+        if inp.name not in nominal:
+            known = ", ".join(nominal) if len(nominal) <= 12 else \
+                ", ".join(list(nominal)[:12]) + ", ..."
+            raise StudyError(f"'{inp.name}' is not a parameter of this solver (it has {known})",
+                             key=f"inputs[{i}].name")
+    inputs = []
+    for i, inp in enumerate(spec.inputs):
+        try:
+            inputs.append(RandomInput.from_spec({"name": inp.name,
+                                                 "distribution": inp.distribution,
+                                                 "units": inp.units or
+                                                 solver.parameter_units().get(inp.name, ""),
+                                                 **inp.parameters()}))
+        except StudyError as exc:
+            field_name = (exc.key or "").rsplit(".", 1)[-1]
+            raise StudyError(exc.reason, key=f"inputs[{i}].{field_name}") from None
+    space = InputSpace(inputs, _correlation(spec, inputs))
+
+    if spec.fields:
+        raise StudyError("no propagation method of this uqflow version takes random fields",
+                         key="fields")
+
+    template = solver.outputs()
+    outputs = list(template.data_vars) if spec.outputs is None else list(spec.outputs)
+    for i, name in enumerate(outputs):
+        if name not in template.data_vars:
+            raise StudyError(f"the solver has no output '{name}' "
+                             f"(it has {', '.join(template.data_vars)})", key=f"outputs[{i}]")
+    if not outputs:
+        raise StudyError("at least one output is needed", key="outputs")
+
+    try:
+        method_class = get_method(spec.method.kind)
+    except StudyError as exc:
+        raise StudyError(exc.reason, key="method.kind") from None
+    options = {k: v for k, v in (spec.method.model_extra or {}).items()}
+    try:
+        method = method_class(**options)
+    except ValidationError as exc:
+        raise validation_error(exc, label, prefix="method") from None
+    except StudyError as exc:
+        raise StudyError(exc.reason, key=exc.key or "method") from None
+
+    out = spec.output.path or f"results/{spec.name}.nc"
+    output_path = (folder / out).resolve() if not Path(out).is_absolute() else Path(out)
+    if output_path.suffix != ".nc":
+        raise StudyError(f"a result file ends in .nc, got '{out}'", key="output.path")
+    return Study(spec=spec, path=path, text=text, solver_class=solver_class, scene=scene,
+                 solver=solver, space=space, method=method, outputs=outputs,
+                 output_path=output_path)
+
+
+def _load_scene(scene, folder: Path) -> tuple[dict, str | None]:
+    if isinstance(scene, dict):
+        return scene, None
+    scene_path = folder / scene
+    raw, _ = read_toml(scene_path, str(scene_path))
+    return raw, str(scene_path)
+
+
+def _correlation(spec: StudySpec, inputs: list[RandomInput]) -> np.ndarray | None:
+    corr = spec.correlation
+    if corr is None:
+        return None
+    names = [i.name for i in inputs]
+    for j, name in enumerate(corr.inputs):
+        if name not in names:
+            raise StudyError(f"'{name}' is not one of the study's inputs",
+                             key=f"correlation.inputs[{j}]")
+    if len(set(corr.inputs)) != len(corr.inputs):
+        raise StudyError("an input is named twice", key="correlation.inputs")
+    m = len(corr.inputs)
+    sub = np.asarray(corr.matrix, dtype=float) if all(len(r) == m for r in corr.matrix) \
+        else None
+    if sub is None or sub.shape != (m, m):
+        raise StudyError(f"must be {m}x{m}, one row per name in correlation.inputs",
+                         key="correlation.matrix")
+    full = np.eye(len(inputs))
+    idx = [names.index(n) for n in corr.inputs]
+    full[np.ix_(idx, idx)] = sub
+    from uqflow.inputs import check_correlation
+    check_correlation(full, len(inputs))
+    return full
