@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import chaospy
 import numpy as np
-from scipy import optimize, special, stats
+from scipy import integrate, optimize, special, stats
 
 from uqflow.errors import StudyError
 
@@ -26,6 +26,15 @@ _NATIVE = {
     "uniform": {"lower", "upper"},
     "weibull": {"shape", "scale", "lower"},
     "beta": {"alpha", "beta", "lower", "upper"},
+}
+# Native keys that also go with the moment form (the support), by distribution.
+_SUPPORT = {
+    "normal": set(),
+    "truncnormal": {"lower", "upper"},
+    "lognormal": set(),
+    "uniform": set(),
+    "weibull": {"lower"},
+    "beta": {"lower", "upper"},
 }
 
 
@@ -87,9 +96,17 @@ class RandomInput:
     def from_spec(cls, spec: dict) -> "RandomInput":
         """Build from a study-file table (``name``, ``distribution``, parameters, ``units``)."""
         spec = dict(spec)
-        name = spec.pop("name")
+        name = spec.pop("name", None)
+        if not isinstance(name, str) or not name:
+            raise StudyError(f"every input needs a name (a string), got {name!r}",
+                             key="inputs.name")
+        if "distribution" not in spec:
+            raise StudyError(f"missing (one of {', '.join(DISTRIBUTIONS)})",
+                             key=f"inputs.{name}.distribution")
         kind = spec.pop("distribution")
         units = spec.pop("units", "") or ""
+        if not isinstance(units, str):
+            raise StudyError(f"must be a string, got {units!r}", key=f"inputs.{name}.units")
         dist, moments = make_distribution(kind, spec, key=f"inputs.{name}")
         return cls(name=name, distribution=dist, kind=kind, units=units, moments=moments)
 
@@ -103,7 +120,7 @@ def make_distribution(kind: str, params: dict, key: str = "input"):
 
     Raises ``StudyError`` naming ``key`` for impossible parameters.
     """
-    if kind not in DISTRIBUTIONS:
+    if not isinstance(kind, str) or kind not in DISTRIBUTIONS:
         raise StudyError(f"unknown distribution '{kind}' (known: {', '.join(DISTRIBUTIONS)})",
                          key=f"{key}.distribution")
     params = {k: v for k, v in params.items() if v is not None}
@@ -139,10 +156,23 @@ def make_distribution(kind: str, params: dict, key: str = "input"):
 
     builder = _BUILDERS[kind]
     if moment_form:
+        # Native shape parameters next to mean+std/cv would be silently ignored: refuse them.
+        # Only the support bounds (lower/upper) go with the moment form.
+        mixed = sorted(set(params) & (_NATIVE[kind] - _SUPPORT[kind]))
+        if mixed:
+            raise StudyError(f"give either mean and std/cv or the native parameters "
+                             f"({', '.join(sorted(_NATIVE[kind]))}), not both",
+                             key=f"{key}.{mixed[0]}")
         if std == 0:
+            builder.check_point(mean, params, key)
             return _point(mean)
         return builder.from_moments(mean, std, params, key)
     return builder.from_native(params, key)
+
+
+def _spread_key(params, key):
+    """The key a spread error should name: the one the study file used."""
+    return f"{key}.{'cv' if 'cv' in params else 'std'}"
 
 
 def _point(value: float):
@@ -161,6 +191,10 @@ def _need(params, names, key, kind):
 
 class _Normal:
     @staticmethod
+    def check_point(mean, params, key):
+        pass
+
+    @staticmethod
     def from_moments(mean, std, params, key):
         return chaospy.Normal(mean, std), (mean, std**2, 0.0, 3 * std**4)
 
@@ -171,9 +205,13 @@ class _Normal:
 
 class _LogNormal:
     @staticmethod
-    def from_moments(mean, std, params, key):
+    def check_point(mean, params, key):
         if mean <= 0:
             raise StudyError(f"a lognormal mean must be > 0, got {mean:g}", key=f"{key}.mean")
+
+    @staticmethod
+    def from_moments(mean, std, params, key):
+        _LogNormal.check_point(mean, params, key)
         s2 = math.log1p((std / mean) ** 2)
         return _LogNormal._make(math.log(mean) - s2 / 2, math.sqrt(s2))
 
@@ -189,11 +227,21 @@ class _LogNormal:
     @staticmethod
     def _make(mu, sigma):
         dist = chaospy.LogNormal(mu, sigma)
-        m = [math.exp(r * mu + 0.5 * r * r * sigma * sigma) for r in (1, 2, 3, 4)]
-        return dist, _central_from_raw(m)
+        # Closed forms in w = exp(sigma^2) - 1: differences of raw moments would cancel
+        # catastrophically at small C.V. (at C.V. 1e-8 they return noise).
+        m = math.exp(mu + 0.5 * sigma * sigma)
+        w = math.expm1(sigma * sigma)
+        var = m * m * w
+        mu3 = m**3 * w * w * (w + 3)
+        mu4 = var * var * (3 + w * (16 + w * (15 + w * (6 + w))))
+        return dist, (m, var, mu3, mu4)
 
 
 class _Uniform:
+    @staticmethod
+    def check_point(mean, params, key):
+        pass
+
     @staticmethod
     def from_moments(mean, std, params, key):
         half = math.sqrt(3.0) * std
@@ -213,6 +261,16 @@ class _Uniform:
 
 
 class _Weibull:
+    # Shapes searched for a requested C.V.: 0.1 .. 1e9 covers C.V. ~ 430 .. 1.3e-9.
+    SHAPES = (0.1, 1.0e9)
+
+    @staticmethod
+    def check_point(mean, params, key):
+        shift = float(params.get("lower", 0.0))
+        if mean < shift:
+            raise StudyError(f"a Weibull mean must be >= its lower bound {shift:g}",
+                             key=f"{key}.mean")
+
     @staticmethod
     def from_moments(mean, std, params, key):
         shift = float(params.get("lower", 0.0))
@@ -222,16 +280,18 @@ class _Weibull:
         cv = std / (mean - shift)
 
         def cv_of(k):
-            g1, g2 = special.gamma(1 + 1 / k), special.gamma(1 + 2 / k)
-            return math.sqrt(max(g2 / g1**2 - 1, 0.0))
+            return math.sqrt(math.expm1(_log_raw_ratio(2, k)))
 
-        # cv falls monotonically with shape; shape 0.1 .. 500 covers cv ~ 430 .. 0.003.
-        lo, hi = 0.1, 500.0
+        # cv falls monotonically with shape; solve in log(shape).
+        lo, hi = _Weibull.SHAPES
         if not cv_of(hi) < cv < cv_of(lo):
-            raise StudyError(f"cv {cv:g} is outside what a Weibull can have "
-                             f"({cv_of(hi):.3g} .. {cv_of(lo):.3g})", key=f"{key}.cv")
-        shape = optimize.brentq(lambda k: cv_of(k) - cv, lo, hi, xtol=1e-14, rtol=1e-14)
-        scale = (mean - shift) / special.gamma(1 + 1 / shape)
+            raise StudyError(f"C.V. {cv:g} (of mean - lower) is outside what a Weibull can have "
+                             f"here ({cv_of(hi):.3g} .. {cv_of(lo):.3g})",
+                             key=_spread_key(params, key))
+        log_shape = optimize.brentq(lambda t: cv_of(math.exp(t)) / cv - 1,
+                                    math.log(lo), math.log(hi), xtol=1e-15, rtol=1e-15)
+        shape = math.exp(log_shape)
+        scale = (mean - shift) / math.exp(_lgamma1p(1 / shape))
         return _Weibull._make(shape, scale, shift, key)
 
     @staticmethod
@@ -246,21 +306,89 @@ class _Weibull:
             raise StudyError(f"shape must be > 0, got {shape:g}", key=f"{key}.shape")
         if scale <= 0:
             raise StudyError(f"scale must be > 0, got {scale:g}", key=f"{key}.scale")
-        raw = [scale**r * special.gamma(1 + r / shape) for r in (1, 2, 3, 4)]
-        m1, var, mu3, mu4 = _central_from_raw(raw)
-        return chaospy.Weibull(shape, scale, shift), (m1 + shift, var, mu3, mu4)
+        if shape < _Weibull.SHAPES[0] / 2:
+            raise StudyError(f"shape must be >= {_Weibull.SHAPES[0] / 2:g} (its fourth moment "
+                             f"overflows below), got {shape:g}", key=f"{key}.shape")
+        m1 = scale * math.exp(_lgamma1p(1 / shape))
+        c2, c3, c4 = _weibull_relative_moments(shape)
+        moments = (m1 + shift, c2 * m1**2, c3 * m1**3, c4 * m1**4)
+        if not all(math.isfinite(v) for v in moments):
+            raise StudyError(f"the moments of a Weibull with shape {shape:g} and scale "
+                             f"{scale:g} overflow", key=f"{key}.scale")
+        return chaospy.Weibull(shape, scale, shift), moments
+
+
+_EULER_GAMMA = 0.57721566490153286
+_ZETA_N = np.arange(2, 40)
+_ZETA = special.zeta(_ZETA_N.astype(float), 1)
+
+
+def _lgamma1p(x: float) -> float:
+    """log Gamma(1 + x), accurate also for tiny x (where gammaln(1 + x) loses digits)."""
+    if abs(x) < 0.2:
+        return float(-_EULER_GAMMA * x + np.sum((-1.0) ** _ZETA_N * _ZETA * x**_ZETA_N / _ZETA_N))
+    return float(special.gammaln(1 + x))
+
+
+def _log_raw_ratio(r: int, shape: float) -> float:
+    """log(E[X^r] / E[X]^r) of a Weibull, summed as one series at large shape (no cancellation)."""
+    x = 1.0 / shape
+    if r * x < 0.2:
+        n = _ZETA_N
+        return float(np.sum((-1.0) ** n * _ZETA * (float(r) ** n - r) * x**n / n))
+    return _lgamma1p(r * x) - r * _lgamma1p(x)
+
+
+def _weibull_relative_moments(shape: float) -> tuple[float, float, float]:
+    """Central moments 2, 3, 4 of a Weibull divided by mean^2, mean^3, mean^4.
+
+    At small shape the raw-moment formulas are exact enough; at large shape (small C.V.) they
+    cancel catastrophically, so the third and fourth are integrated over log X instead:
+    with S = log E, E ~ Exp(1), X / E[X] = exp(S / shape - log Gamma(1 + 1/shape)).
+    """
+    c2 = math.expm1(_log_raw_ratio(2, shape))
+    if shape < 2:
+        e2, e3, e4 = (math.exp(_log_raw_ratio(r, shape)) for r in (2, 3, 4))
+        return c2, e3 - 3 * e2 + 2, e4 - 4 * e3 + 6 * e2 - 3
+    l1 = _lgamma1p(1 / shape)
+
+    def integrand(s, j):
+        return math.expm1(s / shape - l1) ** j * math.exp(s - math.exp(s))
+
+    # Absolute tolerances on the scale of std^j: the third moment passes through 0 (shape 3.6).
+    c3, c4 = (integrate.quad(integrand, -60.0, 6.0, args=(j,), epsabs=1e-13 * c2 ** (j / 2),
+                             epsrel=1e-13, limit=200)[0] for j in (3, 4))
+    return c2, c3, c4
 
 
 class _Beta:
+    # Beyond this alpha + beta, scipy's incomplete-beta inverse loses accuracy (and returns
+    # NaN near 1e16); such a beta (C.V. ~ 1e-6 or less, skewness ~ 1e-6) is sampled as the
+    # normal with its mean and std. Its reported moments stay the beta's.
+    NORMAL_ABOVE = 1.0e12
+
+    @staticmethod
+    def check_point(mean, params, key):
+        lo, hi = float(params.get("lower", 0.0)), float(params.get("upper", 1.0))
+        if not hi > lo:
+            raise StudyError(f"upper ({hi:g}) must exceed lower ({lo:g})", key=f"{key}.upper")
+        if not lo <= mean <= hi:
+            raise StudyError(f"mean {mean:g} is not inside [{lo:g}, {hi:g}]", key=f"{key}.mean")
+
     @staticmethod
     def from_moments(mean, std, params, key):
         lo, hi = float(params.get("lower", 0.0)), float(params.get("upper", 1.0))
         if not hi > lo:
             raise StudyError(f"upper ({hi:g}) must exceed lower ({lo:g})", key=f"{key}.upper")
         m, s = (mean - lo) / (hi - lo), std / (hi - lo)
-        if not 0 < m < 1 or s * s >= m * (1 - m):
+        if not 0 < m < 1:
+            raise StudyError(f"mean {mean:g} is not strictly inside [{lo:g}, {hi:g}]",
+                             key=f"{key}.mean")
+        if s * s >= m * (1 - m):
             raise StudyError(f"no beta distribution on [{lo:g}, {hi:g}] has mean {mean:g} and "
-                             f"std {std:g}", key=f"{key}.std")
+                             f"std {std:g} (the std must be below "
+                             f"{math.sqrt(m * (1 - m)) * (hi - lo):.4g})",
+                             key=_spread_key(params, key))
         nu = m * (1 - m) / (s * s) - 1
         return _Beta._make(m * nu, (1 - m) * nu, lo, hi, key)
 
@@ -278,13 +406,23 @@ class _Beta:
         if not hi > lo:
             raise StudyError(f"upper ({hi:g}) must exceed lower ({lo:g})", key=f"{key}.upper")
         w = hi - lo
-        m1, var, mu3, mu4 = (float(x) for x in stats.beta(a, b).stats(moments="mvsk"))
+        m1, var, skew, exkurt = (float(x) for x in stats.beta(a, b).stats(moments="mvsk"))
         std = math.sqrt(var)
-        moments = (lo + w * m1, w * w * var, mu3 * (w * std) ** 3, (mu4 + 3) * (w * std) ** 4)
+        moments = (lo + w * m1, w * w * var, skew * (w * std) ** 3,
+                   (exkurt + 3) * (w * std) ** 4)
+        if a + b > _Beta.NORMAL_ABOVE:
+            return chaospy.Normal(moments[0], w * std), moments
         return chaospy.Beta(a, b, lower=lo, upper=hi), moments
 
 
 class _TruncNormal:
+    @staticmethod
+    def check_point(mean, params, key):
+        lo, hi = float(params.get("lower", -math.inf)), float(params.get("upper", math.inf))
+        _TruncNormal._check_bounds(lo, hi, key)
+        if not lo <= mean <= hi:
+            raise StudyError(f"mean {mean:g} is not inside [{lo:g}, {hi:g}]", key=f"{key}.mean")
+
     @staticmethod
     def from_moments(mean, std, params, key):
         lo, hi = float(params.get("lower", -math.inf)), float(params.get("upper", math.inf))
@@ -298,10 +436,13 @@ class _TruncNormal:
             m, v = _truncnorm_mv(mu, sigma, lo, hi)
             return [(m - mean) / std, (math.sqrt(v) - std) / std]
 
-        sol = optimize.least_squares(residual, [mean, math.log(std)], xtol=1e-14, ftol=1e-14)
-        if not sol.success or max(abs(r) for r in sol.fun) > 1e-8:
+        # gtol too: near the uniform limit the std hardly changes with sigma, and the default
+        # gtol stopped there with a 3e-8 residual (and a false "no truncated normal" error).
+        sol = optimize.least_squares(residual, [mean, math.log(std)], xtol=1e-15, ftol=1e-15,
+                                     gtol=1e-15)
+        if not sol.success or max(abs(r) for r in sol.fun) > 1e-10:
             raise StudyError(f"no truncated normal on [{lo:g}, {hi:g}] has mean {mean:g} and "
-                             f"std {std:g}", key=f"{key}.std")
+                             f"std {std:g}", key=_spread_key(params, key))
         return _TruncNormal._make(sol.x[0], math.exp(sol.x[1]), lo, hi, key)
 
     @staticmethod
@@ -365,7 +506,11 @@ class InputSpace:
         n = len(inputs)
         if correlation is None:
             correlation = np.eye(n)
-        correlation = np.asarray(correlation, dtype=float)
+        try:
+            correlation = np.asarray(correlation, dtype=float)
+        except (TypeError, ValueError):
+            raise StudyError(f"must be an {n}x{n} matrix of numbers (one row per input)",
+                             key=f"{key}.matrix") from None
         check_correlation(correlation, n, key)
         self.correlation = correlation
         self._cholesky = np.linalg.cholesky(correlation) if n else np.zeros((0, 0))
@@ -397,7 +542,8 @@ class InputSpace:
         u = np.clip(np.asarray(u, dtype=float), 1e-15, 1 - 1e-15)
         if self.is_correlated:
             z = stats.norm.ppf(u) @ self._cholesky.T
-            u = stats.norm.cdf(z)
+            # A correlated z can reach where cdf rounds to exactly 1 (or 0): an infinite input.
+            u = np.clip(stats.norm.cdf(z), 1e-15, 1 - 1e-15)
         return np.column_stack([inp.inverse_cdf(u[:, k]) for k, inp in enumerate(self.inputs)]) \
             if len(self) else np.zeros((u.shape[0], 0))
 

@@ -1,30 +1,605 @@
-"""Tables and figures from a result file."""
+"""Tables and figures from a result file (see docs/results.md).
+
+``summary_table(tree)`` is the text ``uqflow run`` and ``uqflow report`` print: one row per
+output, the cost of the study and the inputs' summary. ``write_figures(tree, folder)`` draws
+the PNG figures that apply to the result's method and outputs and returns their paths.
+
+A field output (one with dimensions besides ``realization``, e.g. ``y(t)``) gets one table row,
+taken at its point of largest std; the row says where, and a note gives the range of the mean
+over the field.
+
+Figures are drawn on ``matplotlib.figure.Figure`` objects with the Agg canvas: no pyplot, so
+nothing is ever shown, no figure stays registered after saving, and the backend of a user's
+interactive session (a notebook calling ``write_figures``) is left alone.
+"""
 
 from __future__ import annotations
 
+import math
+import warnings
 from pathlib import Path
 
+import numpy as np
 import xarray as xr
 
+from uqflow.errors import StudyError
 from uqflow.store import open_result
 
-__all__ = ["open_result", "summary_table", "write_figures", "figure_folder"]
+__all__ = ["open_result", "summary_table", "write_figures", "figure_folder", "FigureWarning"]
+
+#: Individual Monte Carlo runs drawn faintly behind the mean ± 2 std band of a field output.
+FAINT_RUNS = 12
+
+
+class FigureWarning(UserWarning):
+    """A figure could not be drawn; the others are still written."""
 
 
 def figure_folder(result_path: Path) -> Path:
+    """The folder for a result's figures: ``<stem>_figures`` beside the result file."""
     result_path = Path(result_path)
     return result_path.with_name(result_path.stem + "_figures")
 
 
-def summary_table(tree: xr.DataTree) -> str:
-    stats = tree["statistics"].to_dataset()
-    lines = []
-    for name, var in stats.data_vars.items():
-        if "statistic" in var.dims and var.ndim == 1:
-            vals = {str(s): float(v) for s, v in zip(stats["statistic"].values, var.values)}
-            lines.append(f"{name}: " + ", ".join(f"{k} {v:.6g}" for k, v in vals.items()))
-    return "\n".join(lines)
+# --------------------------------------------------------------------------- reading a tree
 
+def _parts(tree: xr.DataTree) -> tuple[dict, xr.Dataset | None, xr.Dataset | None]:
+    """Root attributes, runs and statistics (None when absent)."""
+    runs = tree["runs"].to_dataset() if "runs" in tree.children else None
+    stats = tree["statistics"].to_dataset() if "statistics" in tree.children else None
+    if runs is None and stats is None:
+        raise StudyError("has neither a 'runs' nor a 'statistics' group: not a uqflow "
+                         "result file")
+    return dict(tree.attrs), runs, stats
+
+
+def _outputs(stats: xr.Dataset) -> list[str]:
+    """The outputs analysed: every statistics variable with a ``statistic`` dimension."""
+    return [str(v) for v in stats.data_vars if "statistic" in stats[v].dims]
+
+
+def _stat(stats: xr.Dataset, out: str, label: str) -> xr.DataArray | None:
+    if label not in stats["statistic"].values:
+        return None
+    return stats[out].sel(statistic=label)
+
+
+def _units(stats: xr.Dataset | None, runs: xr.Dataset | None, out: str) -> str:
+    for ds in (stats, runs):
+        if ds is not None and out in ds and ds[out].attrs.get("units"):
+            return str(ds[out].attrs["units"])
+    return ""
+
+
+def _label(name: str, units: str) -> str:
+    """An axis label: the name, with the units in brackets when the result gives any."""
+    return f"{name} [{units}]" if units else name
+
+
+def _focus(stats: xr.Dataset, out: str) -> dict[str, int]:
+    """Index of a field output's point of largest std ({} for a scalar output)."""
+    std = _stat(stats, out, "std")
+    if std is None or std.ndim == 0:
+        return {}
+    values = np.asarray(std.values, dtype=float)
+    flat = np.where(np.isfinite(values), values, -np.inf).ravel()
+    at = np.unravel_index(int(np.argmax(flat)), values.shape)
+    return {d: int(i) for d, i in zip(std.dims, at)}
+
+
+def _where(ds: xr.Dataset, focus: dict[str, int]) -> str:
+    """'t = 0 s' for a focus point, by coordinate value when there is one."""
+    parts = []
+    for dim, i in focus.items():
+        if dim in ds.coords:
+            coord = ds[dim]
+            units = coord.attrs.get("units", "")
+            value = coord.values[i]
+            text = f"{value:.4g}" if isinstance(value, (float, np.floating)) else str(value)
+            parts.append(f"{dim} = {text}{' ' + units if units else ''}")
+        else:
+            parts.append(f"{dim}[{i}]")
+    return ", ".join(parts)
+
+
+def _num(x) -> str:
+    """A number for the table: 6 significant digits, 'nan' for missing."""
+    try:
+        x = float(x)
+    except (TypeError, ValueError):
+        return str(x)
+    if math.isnan(x):
+        return "nan"
+    return f"{x:.6g}"
+
+
+def _cell(stats: xr.Dataset, out: str, label: str, focus: dict[str, int]) -> str:
+    value = _stat(stats, out, label)
+    return "-" if value is None else _num(value.isel(focus))
+
+
+def _seconds(t) -> str:
+    try:
+        t = float(t)
+    except (TypeError, ValueError):
+        return "?"
+    if not math.isfinite(t):
+        return "?"
+    if t < 120:
+        return f"{t:.3g} s"
+    if t < 7200:
+        return f"{t / 60:.3g} min"
+    return f"{t / 3600:.3g} h"
+
+
+def _grid(header: list[str], rows: list[list[str]], right: set[int]) -> list[str]:
+    """A fixed-width table; columns in ``right`` are right-aligned."""
+    widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
+
+    def line(cells):
+        return "  ".join(c.rjust(w) if i in right else c.ljust(w)
+                         for i, (c, w) in enumerate(zip(cells, widths))).rstrip()
+
+    return [line(header), "  ".join("-" * w for w in widths), *map(line, rows)]
+
+
+# --------------------------------------------------------------------------- the table
+
+def summary_table(tree: xr.DataTree) -> str:
+    """A readable summary of a result: outputs, cost, inputs (or, unfinished, its runs)."""
+    attrs, runs, stats = _parts(tree)
+    name = attrs.get("study_name", "?")
+    method = str(stats.attrs.get("method") if stats is not None else
+                 attrs.get("method", "?"))
+    if stats is None:
+        return "\n".join(_unfinished(name, method, attrs, runs))
+
+    state = "complete" if int(attrs.get("complete", 1)) else "incomplete"
+    if attrs.get("stopped_early"):
+        state += f", {attrs['stopped_early']}"
+    lines = [f"study '{name}' ({method}, {state})", ""]
+
+    outs = _outputs(stats)
+    extra_header, extra = _method_column(stats, method)
+    rows, notes = [], []
+    for out in outs:
+        focus = _focus(stats, out)
+        at = stats[out].isel(focus)
+        row = [out, _units(stats, runs, out) or "-", _where(stats, focus) or "-",
+               _cell(stats, out, "mean", focus), _cell(stats, out, "std", focus)]
+        if extra_header:
+            row.append(extra(out, focus, at))
+        rows.append(row)
+        if focus and _stat(stats, out, "mean") is not None:
+            mean = np.asarray(_stat(stats, out, "mean").values, dtype=float)
+            size = int(np.prod(mean.shape))
+            notes.append(f"{out} is a field of {size} points ({', '.join(stats[out].dims[1:])}):"
+                         f" its row is at the point of largest std; the mean ranges over "
+                         f"{_num(np.nanmin(mean))} .. {_num(np.nanmax(mean))}")
+    header = ["output", "units", "at", "mean", "std"] + ([extra_header] if extra_header else [])
+    if not any(r[2] != "-" for r in rows):  # scalar outputs only: no 'at' column
+        header.pop(2)
+        for r in rows:
+            r.pop(2)
+        right = {2, 3}
+    else:
+        right = {3, 4}
+    lines += _grid(header, rows, right) if rows else ["(no outputs)"]
+    lines += notes
+    lines.append("")
+    lines.append(_cost_line(stats, attrs, method))
+    failure = _first_failure(runs)
+    if failure:
+        lines.append(failure)
+    lines += [""] + _inputs_table(stats)
+    n_warn = len([w for w in str(stats.attrs.get("warnings", "")).split("\n") if w])
+    if n_warn:
+        lines += ["", f"{n_warn} warning{'s' if n_warn > 1 else ''} recorded with the "
+                      f"statistics (attribute 'warnings')"]
+    return "\n".join(lines).rstrip()
+
+
+def _method_column(stats: xr.Dataset, method: str):
+    """Header and cell function of the method-specific column (None: no column)."""
+    if method == "monte-carlo" and "ci_low" in stats["statistic"].values:
+        level = float(stats.attrs.get("confidence", 0.95))
+
+        def ci(out, focus, at):
+            return f"{_num(at.sel(statistic='ci_low'))} .. {_num(at.sel(statistic='ci_high'))}"
+
+        return f"{100 * level:g} % CI of the mean", ci
+    if method == "taylor":
+        order = stats.attrs.get("order", "?")
+        variance = stats.attrs.get("variance", "")
+        text = f"Taylor order {order}" + (f", {variance} variance" if variance else "")
+        return "expansion", lambda out, focus, at: text
+    if method == "sobol":
+        def top(out, focus, at):
+            var = f"{out}_sobol"
+            if var not in stats:
+                return "-"
+            si = stats[var].isel(focus)
+            params = [str(p) for p in si["parameter"].values]
+            s1 = si.sel(sobol_index="S1").values
+            st = si.sel(sobol_index="ST").values
+            order = sorted(range(len(params)),
+                           key=lambda k: -st[k] if np.isfinite(st[k]) else math.inf)
+            shown = [f"{params[k]} {s1[k]:.2f}/{st[k]:.2f}" for k in order[:4]]
+            if len(params) > 4:
+                shown.append(f"+{len(params) - 4} more")
+            return ", ".join(shown)
+
+        return "S1/ST per input (largest ST first)", top
+    return None, None
+
+
+def _cost_line(stats: xr.Dataset, attrs: dict, method: str) -> str:
+    runs_ = stats.attrs.get("solver_runs", attrs.get("solver_runs", "?"))
+    failed = stats.attrs.get("failed_runs", attrs.get("failed_runs", "?"))
+    detail = []
+    if method == "monte-carlo" and stats.attrs.get("rule"):
+        detail.append(f"rule {stats.attrs['rule']}")
+    if method == "sobol" and "samples" in stats.attrs:
+        detail.append(f"{stats.attrs['samples']} base samples, {stats.attrs.get('samples_kept', '?')}"
+                      f" kept")
+    return (f"cost: {runs_} solver runs, {failed} failed, solver wall time "
+            f"{_seconds(stats.attrs.get('solver_wall_time'))}, elapsed "
+            f"{_seconds(attrs.get('elapsed_time'))}, method {method}"
+            + (f" ({', '.join(detail)})" if detail else ""))
+
+
+def _inputs_table(stats: xr.Dataset) -> list[str]:
+    if "parameter" not in stats.coords or stats.sizes.get("parameter", 0) == 0:
+        return ["inputs: none uncertain"]
+    params = [str(p) for p in stats["parameter"].values]
+    units = [str(u) for u in stats["parameter_units"].values] \
+        if "parameter_units" in stats.coords else [""] * len(params)
+
+    def col(name):
+        return stats[name].values if name in stats else np.full(len(params), np.nan)
+
+    mean, std, cv, skew = col("input_mean"), col("input_std"), col("input_cv"), \
+        col("input_skewness")
+    rows = []
+    for k, p in enumerate(params):
+        # A zero-mean input has no C.V. (the store keeps inf); say so rather than print inf.
+        cv_text = "n/a (mean 0)" if mean[k] == 0 else f"{cv[k]:.3g}"
+        rows.append([p, units[k] or "-", _num(mean[k]), _num(std[k]), cv_text,
+                     f"{skew[k]:.3g}"])
+    return _grid(["input", "units", "mean", "std", "C.V.", "skewness"], rows, {2, 3, 4, 5})
+
+
+def _status(runs: xr.Dataset) -> np.ndarray:
+    return np.asarray(runs["status"].values).astype(str)
+
+
+def _first_failure(runs: xr.Dataset | None) -> str | None:
+    if runs is None or "status" not in runs:
+        return None
+    failed = np.flatnonzero(_status(runs) == "failed")
+    if failed.size == 0:
+        return None
+    r = int(failed[0])
+    message = str(runs["message"].values[r]) if "message" in runs else ""
+    index = runs["realization"].values[r] if "realization" in runs.coords else r
+    return f"first failure, realization {index}: {message or '(no message)'}"
+
+
+def _unfinished(name: str, method: str, attrs: dict, runs: xr.Dataset | None) -> list[str]:
+    lines = [f"study '{name}' ({method}): no statistics: the study did not finish",
+             "(it was stopped by failing realizations, interrupted, or is still running)", ""]
+    if runs is None or "status" not in runs:
+        return lines + ["no runs recorded"]
+    status = _status(runs)
+    counts = {s: int((status == s).sum()) for s in ("ok", "failed", "pending")}
+    others = sorted(set(status) - set(counts))
+    counts.update({s: int((status == s).sum()) for s in others})
+    lines.append(f"runs: {status.size} planned: "
+                 + ", ".join(f"{n} {s}" for s, n in counts.items()))
+    wall = runs["wall_time"].values if "wall_time" in runs else np.array([np.nan])
+    lines.append(f"solver wall time so far {_seconds(np.nansum(wall))}")
+    failure = _first_failure(runs)
+    if failure:
+        lines.append(failure)
+    return lines
+
+
+# --------------------------------------------------------------------------- figures
 
 def write_figures(tree: xr.DataTree, folder: Path) -> list[Path]:
-    return []
+    """Draw the figures that apply to this result into ``folder``; return the paths written.
+
+    ``<output>_histogram.png`` (Monte Carlo, scalar output), ``<output>_band.png`` (output
+    with one dimension: mean ± 2 std over it), ``<output>_convergence.png`` (Monte Carlo),
+    ``<output>_sobol.png`` (sobol) and ``<output>_contributions.png`` (taylor). A result
+    without statistics gets none. A figure that fails is skipped with a ``FigureWarning``.
+    """
+    attrs, runs, stats = _parts(tree)
+    if stats is None:
+        return []
+    folder = Path(folder)
+    method = str(stats.attrs.get("method", attrs.get("method", "")))
+    study = str(attrs.get("study_name", "study"))
+    ctx = _Context(study, method, runs, stats)
+    written = []
+    for out in _outputs(stats):
+        for kind, draw in _FIGURES:
+            try:
+                fig = draw(ctx, out)
+            except Exception as exc:  # one broken figure must not cost the others
+                warnings.warn(f"figure {out}_{kind}.png not written: {type(exc).__name__}: "
+                              f"{exc}", FigureWarning, stacklevel=2)
+                continue
+            if fig is None:
+                continue
+            folder.mkdir(parents=True, exist_ok=True)
+            path = folder / f"{out}_{kind}.png"
+            _save(fig, path)
+            written.append(path)
+    return written
+
+
+class _Context:
+    def __init__(self, study, method, runs, stats):
+        self.study, self.method, self.runs, self.stats = study, method, runs, stats
+
+    def units(self, out):
+        return _units(self.stats, self.runs, out)
+
+    def ok_values(self, out) -> np.ndarray | None:
+        """The outputs of the ok runs (realization first), None without runs."""
+        if self.runs is None or out not in self.runs or "status" not in self.runs:
+            return None
+        ok = _status(self.runs) == "ok"
+        return np.asarray(self.runs[out].values, dtype=float)[ok]
+
+    def title(self, out, what, focus=None):
+        where = f" at {_where(self.stats, focus)}" if focus else ""
+        return f"{self.study}: {out}{where}\n{what}"
+
+
+def _figure(width=6.4, height=4.2, rows=1):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width, height), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(rows, 1, sharex=True) if rows > 1 else fig.subplots()
+    return fig, axes
+
+
+def _save(fig, path: Path) -> None:
+    fig.savefig(path, dpi=110, format="png")
+    fig.clear()  # not registered with pyplot: dropping the last reference frees it
+
+
+def _histogram(ctx: _Context, out: str):
+    if ctx.method != "monte-carlo" or ctx.stats[out].ndim != 1:
+        return None
+    y = ctx.ok_values(out)
+    if y is None:
+        return None
+    y = y[np.isfinite(y)]
+    if y.size < 2:
+        return None
+    units = ctx.units(out)
+    fig, ax = _figure()
+    edges = np.histogram_bin_edges(y, bins="auto")
+    bins = edges if len(edges) <= 61 else 60
+    ax.hist(y, bins=bins, color="#9ab7d3", edgecolor="white", linewidth=0.4)
+    lo, hi = np.quantile(y, [0.025, 0.975])
+    ax.axvspan(lo, hi, color="#f2c14e", alpha=0.25, zorder=0,
+               label=f"central 95 % of runs: {lo:.4g} .. {hi:.4g}")
+    mean = float(_stat(ctx.stats, out, "mean"))
+    ax.axvline(mean, color="#c0392b", linewidth=2, label=f"mean {mean:.4g}")
+    for q in (lo, hi):
+        ax.axvline(q, color="#b8860b", linewidth=1, linestyle="--")
+    ax.set_xlabel(_label(out, units))
+    ax.set_ylabel("realizations per bin")
+    ax.set_title(ctx.title(out, f"Monte Carlo: distribution of {y.size} ok runs"))
+    ax.legend(loc="best", fontsize="small")
+    return fig
+
+
+def _band(ctx: _Context, out: str):
+    var = ctx.stats[out]
+    if var.ndim != 2:
+        return None
+    dim = var.dims[1]
+    mean, std = _stat(ctx.stats, out, "mean"), _stat(ctx.stats, out, "std")
+    if mean is None or std is None:
+        return None
+    x, xlabel = _coordinate(ctx.stats, dim)
+    m, s = np.asarray(mean.values, float), np.asarray(std.values, float)
+    units = ctx.units(out)
+    fig, ax = _figure()
+    if ctx.method == "monte-carlo":
+        y = ctx.ok_values(out)
+        if y is not None and y.shape[0]:
+            pick = np.linspace(0, y.shape[0] - 1, min(FAINT_RUNS, y.shape[0])).astype(int)
+            for i, r in enumerate(pick):
+                ax.plot(x, y[r], color="0.45", linewidth=0.7, alpha=0.35,
+                        label=f"{len(pick)} of the runs" if i == 0 else None)
+    ax.fill_between(x, m - 2 * s, m + 2 * s, color="#9ab7d3", alpha=0.5,
+                    label="mean ± 2 std", linewidth=0)
+    ax.plot(x, m, color="#1f4e79", linewidth=2, label="mean")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(_label(out, units))
+    ax.set_title(ctx.title(out, f"{_method_name(ctx.method)}: mean ± 2 std over {dim}"))
+    ax.legend(loc="best", fontsize="small")
+    return fig
+
+
+def _convergence(ctx: _Context, out: str):
+    trace_name = f"{out}_trace"
+    if ctx.method != "monte-carlo" or trace_name not in ctx.stats:
+        return None
+    trace = ctx.stats[trace_name]
+    counts = np.asarray(ctx.stats["trace_samples"].values, float)
+    if counts.size < 2:
+        return None
+    focus = _focus(ctx.stats, out)
+    trace = trace.isel(focus)
+    mean = np.asarray(trace.sel(trace_statistic="mean").values, float)
+    stderr = np.asarray(trace.sel(trace_statistic="stderr").values, float)
+    std = np.asarray(trace.sel(trace_statistic="std").values, float)
+    units = ctx.units(out)
+    fig, (ax, ax2) = _figure(height=5.2, rows=2)
+    ax.fill_between(counts, mean - 1.96 * stderr, mean + 1.96 * stderr, color="#9ab7d3",
+                    alpha=0.6, linewidth=0, label="± 1.96 stderr")
+    ax.plot(counts, mean, color="#1f4e79", marker="o", markersize=3, label="running mean")
+    ax.axhline(mean[-1], color="#c0392b", linestyle="--", linewidth=1,
+               label=f"final mean {mean[-1]:.4g}")
+    ax.set_ylabel(_label(f"mean of {out}", units))
+    ax.legend(loc="best", fontsize="small")
+    ax2.plot(counts, std, color="#2e7d32", marker="o", markersize=3, label="running std")
+    ax2.set_ylabel(_label(f"std of {out}", units))
+    ax2.set_xlabel("number of samples")
+    ax2.set_xscale("log")
+    ax.set_title(ctx.title(out, "Monte Carlo convergence", focus))
+    return fig
+
+
+def _sobol(ctx: _Context, out: str):
+    name = f"{out}_sobol"
+    if ctx.method != "sobol" or name not in ctx.stats:
+        return None
+    si = ctx.stats[name]
+    params = [str(p) for p in si["parameter"].values]
+    fields = si.dims[2:]
+    if len(fields) == 1:
+        return _sobol_lines(ctx, out, si, params, fields[0])
+    focus = _focus(ctx.stats, out)
+    si = si.isel(focus)
+    fig, ax = _figure(width=max(5.0, 1.1 * len(params) + 2.5))
+    x = np.arange(len(params))
+    w = 0.38
+    for offset, idx, color in ((-w / 2, "S1", "#1f4e79"), (w / 2, "ST", "#e08e2b")):
+        val = np.asarray(si.sel(sobol_index=idx).values, float)
+        conf = np.abs(np.asarray(si.sel(sobol_index=f"{idx}_conf").values, float))
+        ax.bar(x + offset, val, w, yerr=conf, capsize=3, color=color,
+               label={"S1": "first order S1", "ST": "total ST"}[idx],
+               error_kw={"elinewidth": 1, "ecolor": "0.2"})
+    ax.axhline(0, color="0.3", linewidth=0.8)
+    ax.set_xticks(x, [_input_label(ctx.stats, k) for k in range(len(params))])
+    ax.set_xlabel("input")
+    ax.set_ylabel("Sobol' index (fraction of the variance)")
+    level = ctx.stats.attrs.get("confidence", 0.95)
+    ax.set_title(ctx.title(out, f"Sobol' indices, error bars: {100 * float(level):g} % "
+                                f"bootstrap half-widths", focus))
+    ax.legend(loc="best", fontsize="small")
+    return fig
+
+
+def _sobol_lines(ctx, out, si, params, dim):
+    x, xlabel = _coordinate(ctx.stats, dim)
+    fig, ax = _figure()
+    colors = _colors(len(params))
+    for k, p in enumerate(params):
+        for idx, style in (("S1", "-"), ("ST", "--")):
+            val = np.asarray(si.sel(sobol_index=idx).isel(parameter=k).values, float)
+            conf = np.abs(np.asarray(si.sel(sobol_index=f"{idx}_conf").isel(parameter=k)
+                                     .values, float))
+            ax.plot(x, val, style, color=colors[k], label=f"{idx} {p}")
+            ax.fill_between(x, val - conf, val + conf, color=colors[k], alpha=0.12,
+                            linewidth=0)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("Sobol' index (fraction of the variance)")
+    level = ctx.stats.attrs.get("confidence", 0.95)
+    ax.set_title(ctx.title(out, f"Sobol' indices over {dim} (S1 solid, ST dashed; bands: "
+                                f"{100 * float(level):g} % half-widths)"))
+    ax.legend(loc="best", fontsize="small", ncol=2)
+    return fig
+
+
+def _contributions(ctx: _Context, out: str):
+    name = f"{out}_gradient"
+    stats = ctx.stats
+    if ctx.method != "taylor" or name not in stats or "input_std" not in stats:
+        return None
+    g = stats[name]
+    s = stats["input_std"]
+    contrib = (g * s) ** 2  # (parameter, *dims): g_k^2 s_k^2
+    params = [str(p) for p in stats["parameter"].values]
+    units = ctx.units(out)
+    vunits = f"({units})²" if units else ""
+    variance = _stat(stats, out, "variance")
+    note = _contribution_note(stats)
+    fields = contrib.dims[1:]
+    if len(fields) == 1:
+        dim = fields[0]
+        x, xlabel = _coordinate(stats, dim)
+        fig, ax = _figure()
+        c = np.nan_to_num(np.asarray(contrib.transpose("parameter", dim).values, float))
+        ax.stackplot(x, c, labels=[f"{p}: g² s²" for p in params],
+                     colors=_colors(len(params)), alpha=0.8)
+        if variance is not None:
+            ax.plot(x, np.asarray(variance.values, float), color="k", linewidth=1.5,
+                    linestyle="--", label="variance (Taylor estimate)")
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(_label(f"variance of {out}", vunits))
+        ax.set_title(ctx.title(out, f"Taylor: contributions g_k² s_k² to the variance{note}"))
+        ax.legend(loc="best", fontsize="small")
+        return fig
+    focus = _focus(stats, out)
+    c = np.asarray(contrib.isel(focus).values, float)
+    total = float(np.nansum(c))
+    fig, ax = _figure(width=max(5.0, 1.0 * len(params) + 2.5))
+    x = np.arange(len(params))
+    bars = ax.bar(x, c, 0.6, color=_colors(len(params)))
+    for bar, value in zip(bars, c):
+        if total > 0 and np.isfinite(value):
+            ax.annotate(f"{100 * value / total:.1f} %", (bar.get_x() + bar.get_width() / 2,
+                                                          bar.get_height()),
+                        ha="center", va="bottom", fontsize="small")
+    if variance is not None:
+        v = float(variance.isel(focus))
+        ax.axhline(v, color="k", linestyle="--", linewidth=1,
+                   label=f"variance (Taylor estimate) {v:.4g}")
+        ax.legend(loc="best", fontsize="small")
+    ax.set_xticks(x, [_input_label(stats, k) for k in range(len(params))])
+    ax.set_xlabel("input")
+    ax.set_ylabel(_label(f"g_k² s_k², variance of {out}", vunits))
+    ax.margins(y=0.12)
+    ax.set_title(ctx.title(out, f"Taylor: contribution of each input to the variance{note}",
+                           focus))
+    return fig
+
+
+def _contribution_note(stats: xr.Dataset) -> str:
+    """What the bars leave out of the variance, if anything."""
+    rho = stats["input_correlation"].values if "input_correlation" in stats else None
+    if rho is not None and np.any(rho[~np.eye(rho.shape[0], dtype=bool)] != 0):
+        return "\n(correlated inputs: cross terms not shown)"
+    if stats.attrs.get("variance") == "second-order":
+        return "\n(first-order terms only; the variance adds curvature terms)"
+    return ""
+
+
+def _coordinate(ds: xr.Dataset, dim: str) -> tuple[np.ndarray, str]:
+    if dim in ds.coords and np.issubdtype(ds[dim].dtype, np.number):
+        return np.asarray(ds[dim].values), _label(dim, ds[dim].attrs.get("units", ""))
+    return np.arange(ds.sizes[dim]), f"{dim} (index)"
+
+
+def _input_label(stats: xr.Dataset, k: int) -> str:
+    p = str(stats["parameter"].values[k])
+    if "parameter_units" in stats.coords and str(stats["parameter_units"].values[k]):
+        return f"{p}\n[{stats['parameter_units'].values[k]}]"
+    return p
+
+
+def _colors(n: int) -> list:
+    from matplotlib import colormaps
+
+    cmap = colormaps["tab10" if n <= 10 else "tab20"]
+    return [cmap(i % cmap.N) for i in range(n)]
+
+
+def _method_name(method: str) -> str:
+    return {"monte-carlo": "Monte Carlo", "taylor": "Taylor", "sobol": "Sobol'"}.get(
+        method, method)
+
+
+_FIGURES = [("histogram", _histogram), ("band", _band), ("convergence", _convergence),
+            ("sobol", _sobol), ("contributions", _contributions)]

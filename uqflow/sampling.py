@@ -22,18 +22,25 @@ def unit_hypercube(rule: str, n_points: int, dimension: int,
     ``sobol`` and ``halton`` are scrambled (Owen / random permutation), so they are unbiased
     and repeated designs with other seeds give an error estimate.
     """
+    if rule not in RULES:
+        raise ValueError(f"unknown sampling rule '{rule}' (known: {', '.join(RULES)})")
+    n_points, dimension = int(n_points), int(dimension)
+    if n_points < 0 or dimension < 0:
+        raise ValueError(f"need n_points >= 0 and dimension >= 0, got {n_points}, {dimension}")
     rng = np.random.default_rng(seed)
     if dimension == 0:
         return np.zeros((n_points, 0))
     if rule == "random":
-        return rng.random((n_points, dimension))
-    if rule == "lhs":
-        return qmc.LatinHypercube(d=dimension, rng=rng).random(n_points)
-    if rule == "sobol":
+        u = rng.random((n_points, dimension))
+    elif rule == "lhs":
+        u = qmc.LatinHypercube(d=dimension, rng=rng).random(n_points)
+    elif rule == "sobol":
         with warnings.catch_warnings():
             # Balance properties need powers of two; other counts are valid, only less even.
             warnings.simplefilter("ignore", UserWarning)
-            return qmc.Sobol(d=dimension, scramble=True, rng=rng).random(n_points)
-    if rule == "halton":
-        return qmc.Halton(d=dimension, scramble=True, rng=rng).random(n_points)
-    raise ValueError(f"unknown sampling rule '{rule}' (known: {', '.join(RULES)})")
+            u = qmc.Sobol(d=dimension, scramble=True, rng=rng).random(n_points)
+    else:
+        u = qmc.Halton(d=dimension, scramble=True, rng=rng).random(n_points)
+    # Generator.random and the digital (Sobol, Halton) points lie in [0, 1): 0 itself can come
+    # out (with tiny probability). Keep the promise of the open interval.
+    return np.maximum(u, np.finfo(float).tiny)

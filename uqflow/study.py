@@ -8,14 +8,17 @@ reason. Relative paths resolve against the study file's folder.
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import tomllib
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, ValidationError,
+                      field_validator)
 
 from uqflow.errors import SceneError, StudyError
 from uqflow.inputs import DISTRIBUTIONS, InputSpace, RandomInput
@@ -27,7 +30,15 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=False)
 
 
-Number = float | None
+def _not_bool(value):
+    # pydantic's lax mode reads true/false as 1/0; in a TOML file a boolean is never a number.
+    if isinstance(value, bool):
+        raise ValueError(f"must be a number, got {str(value).lower()}")
+    return value
+
+
+Number = Annotated[float | None, BeforeValidator(_not_bool)]
+Int = Annotated[int, BeforeValidator(_not_bool)]
 
 
 class InputSpec(_Strict):
@@ -63,16 +74,18 @@ class CorrelationSpec(_Strict):
 
 
 class ExecutionSpec(_Strict):
-    workers: int = Field(2, ge=0, description="dask worker processes; 0 runs in this process")
+    workers: Int = Field(2, ge=0, description="dask worker processes; 0 runs in this process")
     scheduler: str | None = Field(None, description="address of an existing dask scheduler")
-    seed: int = Field(0, ge=0)
-    batch: int | None = Field(None, ge=1, description="realizations per dask task")
-    max_failure_fraction: float = Field(0.1, ge=0, le=1)
-    checkpoint_interval: float = Field(2.0, ge=0, description="seconds between result writes")
+    seed: Int = Field(0, ge=0)
+    batch: Annotated[int | None, BeforeValidator(_not_bool)] = Field(
+        None, ge=1, description="realizations per dask task")
+    max_failure_fraction: Annotated[float, BeforeValidator(_not_bool)] = Field(0.1, ge=0, le=1)
+    checkpoint_interval: Annotated[float, BeforeValidator(_not_bool)] = Field(
+        2.0, ge=0, description="seconds between result writes")
 
 
 class OutputSpec(_Strict):
-    path: str | None = None
+    path: str | None = Field(None, min_length=1)
     figures: bool = True
 
 
@@ -93,6 +106,16 @@ class StudySpec(_Strict):
     method: MethodSpec
     execution: ExecutionSpec = Field(default_factory=ExecutionSpec)
     output: OutputSpec = Field(default_factory=OutputSpec)
+
+    @field_validator("scene", mode="before")
+    @classmethod
+    def _table_or_path(cls, v):
+        if not isinstance(v, (dict, str)):
+            raise ValueError("must be an inline table of scene options or the path of a "
+                             f"scene file, got {_shown(v)}")
+        if isinstance(v, str) and not v.strip():
+            raise ValueError("the path of a scene file must not be empty")
+        return v
 
 
 @dataclass
@@ -130,26 +153,98 @@ def _key(loc) -> str:
     return out
 
 
+_MISSING = object()
+
+
+def _user_loc(loc, data) -> tuple:
+    """``loc`` without pydantic's own entries, walking the user's data alongside.
+
+    pydantic puts the member of a union it tried (``'dict[str,any]'``, ``'str'``, ``'float'``,
+    ``"literal['auto']"``, ``'function-after[...]'``) into ``loc``. A part is the user's key
+    if it indexes the data at that point; a missing key is the user's key only as the last
+    part; below a scalar nothing is.
+    """
+    out, here = [], data
+    for i, part in enumerate(loc):
+        last = i == len(loc) - 1
+        if isinstance(here, dict) and isinstance(part, str):
+            if part in here:
+                out.append(part)
+                here = here[part]
+            elif last and here is not _MISSING:
+                out.append(part)
+        elif isinstance(here, list) and isinstance(part, int) and 0 <= part < len(here):
+            out.append(part)
+            here = here[part]
+        elif here is _MISSING or isinstance(here, (dict, list)):
+            # Data unknown (no raw data given): keep what does not look like a union member.
+            if isinstance(part, int) or not any(c in part for c in "[]-") and \
+                    part not in ("str", "int", "float", "bool", "list", "dict", "none"):
+                out.append(part)
+    return tuple(out)
+
+
+def _shown(value) -> str:
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, dict):
+        return "a table"
+    if isinstance(value, list):
+        return "an array"
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
 def _reason(err: dict) -> str:
     kind = err["type"]
     if kind == "extra_forbidden":
         return "unknown key"
     if kind == "missing":
         return "required key is missing"
-    msg = err["msg"]
-    return msg.removeprefix("Value error, ")
+    return err["msg"].removeprefix("Value error, ").removeprefix("Assertion failed, ")
 
 
-def validation_error(exc: ValidationError, file: str, prefix: str = "") -> StudyError:
-    """The first pydantic error as a one-line StudyError naming file and key."""
-    err = exc.errors()[0]
-    loc = [p for p in err["loc"] if p not in ("function-after",)]
-    # Union members show up in loc (e.g. scene -> 'dict[str,any]'); keep the user's keys only.
-    loc = [p for p in loc if not (isinstance(p, str) and ("[" in p or p in ("str", "float")))]
+def _value_at(data, loc):
+    here = data
+    for part in loc:
+        try:
+            here = here[part]
+        except (KeyError, IndexError, TypeError):
+            return _MISSING
+    return here
+
+
+def validation_error(exc: ValidationError, file: str, prefix: str = "",
+                     data: Any = None) -> StudyError:
+    """The first pydantic error as a one-line StudyError naming file and key.
+
+    ``data`` (the validated input, optional) lets the key be the user's even where pydantic
+    adds union members to the error location. Errors of the other members of the same union
+    (same key) join the reason: "Input should be 'auto' or a valid boolean".
+    """
+    errors = exc.errors()
+    raw = _MISSING if data is None else data
+    loc = _user_loc(errors[0]["loc"], raw)
+    value = _value_at(raw, loc) if raw is not _MISSING else _MISSING
+    reason = _reason(errors[0])
+    for err in errors[1:]:
+        if _user_loc(err["loc"], raw) != loc or err["type"] in ("missing", "extra_forbidden"):
+            continue
+        more = _reason(err)
+        if more.startswith("Input should be ") and reason.startswith("Input should be "):
+            more = more.removeprefix("Input should be ")
+        if more not in reason:
+            reason = f"{reason} or {more}"
+    if errors[0]["type"] not in ("missing", "extra_forbidden", "value_error",
+                                 "assertion_error") and value is not _MISSING and \
+            "got" not in reason:
+        reason = f"{reason}, got {_shown(value)}"
     key = _key(loc)
+    if key == "inputs" and errors[0]["type"] == "list_type":
+        reason += " (write each input as an [[inputs]] table, with double brackets)"
     if prefix:
         key = f"{prefix}.{key}" if key else prefix
-    return StudyError(_reason(err), file=file, key=key or None)
+    return StudyError(reason, file=file, key=key or None)
 
 
 def read_toml(path: Path, file_label: str) -> tuple[dict, str]:
@@ -173,7 +268,7 @@ def load_study(path: str | Path) -> Study:
     try:
         spec = StudySpec.model_validate(raw)
     except ValidationError as exc:
-        raise validation_error(exc, label) from None
+        raise validation_error(exc, label, data=raw) from None
     try:
         return _resolve(spec, path, text, label)
     except SceneError as exc:
@@ -189,7 +284,7 @@ def _resolve(spec: StudySpec, path: Path, text: str, label: str) -> Study:
     except StudyError as exc:
         raise StudyError(exc.reason, key="solver") from None
 
-    scene, scene_label = _load_scene(spec.scene, folder)
+    scene, scene_label = _load_scene(spec.scene, folder, label)
     try:
         solver = solver_class.from_scene(scene)
     except SceneError as exc:
@@ -202,6 +297,12 @@ def _resolve(spec: StudySpec, path: Path, text: str, label: str) -> Study:
                 ", ".join(list(nominal)[:12]) + ", ..."
             raise StudyError(f"'{inp.name}' is not a parameter of this solver (it has {known})",
                              key=f"inputs[{i}].name")
+    seen: dict[str, int] = {}
+    for i, inp in enumerate(spec.inputs):
+        if inp.name in seen:
+            raise StudyError(f"input '{inp.name}' is declared twice (also inputs[{seen[inp.name]}])",
+                             key=f"inputs[{i}].name")
+        seen[inp.name] = i
     inputs = []
     for i, inp in enumerate(spec.inputs):
         try:
@@ -236,9 +337,10 @@ def _resolve(spec: StudySpec, path: Path, text: str, label: str) -> Study:
     try:
         method = method_class(**options)
     except ValidationError as exc:
-        raise validation_error(exc, label, prefix="method") from None
+        raise validation_error(exc, label, prefix="method", data=options) from None
     except StudyError as exc:
         raise StudyError(exc.reason, key=exc.key or "method") from None
+    _check_plan(method, space, spec.execution.seed)
 
     out = spec.output.path or f"results/{spec.name}.nc"
     output_path = (folder / out).resolve() if not Path(out).is_absolute() else Path(out)
@@ -249,12 +351,28 @@ def _resolve(spec: StudySpec, path: Path, text: str, label: str) -> Study:
                  output_path=output_path)
 
 
-def _load_scene(scene, folder: Path) -> tuple[dict, str | None]:
+def _load_scene(scene, folder: Path, label: str) -> tuple[dict, str | None]:
+    """The scene table: inline, or read from a TOML file relative to the study's folder."""
     if isinstance(scene, dict):
         return scene, None
     scene_path = folder / scene
+    if not scene_path.is_file():
+        what = "is a folder, not a scene file" if scene_path.is_dir() else "no such scene file"
+        raise StudyError(f"{what}: {scene_path}", key="scene")
     raw, _ = read_toml(scene_path, str(scene_path))
     return raw, str(scene_path)
+
+
+def _check_plan(method: PropagationMethod, space: InputSpace, seed: int) -> None:
+    """Plan once, dry, so that a method's own checks of the input space (sobol: independent
+    inputs; taylor: steps that survive rounding, ...) fail here, naming the study file,
+    rather than when the study starts. The dry space maps the unit hypercube to zeros
+    instead of through the marginals: the costly part of a large sampling design."""
+    dry = copy.copy(space)
+    dry.from_unit_hypercube = lambda u: np.zeros((np.shape(u)[0], len(space)))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        method.plan(dry, None, np.random.SeedSequence(seed))
 
 
 def _correlation(spec: StudySpec, inputs: list[RandomInput]) -> np.ndarray | None:

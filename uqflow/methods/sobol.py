@@ -120,11 +120,10 @@ class Sobol(PropagationMethod):
             first = np.full((4, d, m), np.nan)
             pairs = np.full((2, d, d, m), np.nan)
             flat = 0
-            for k in range(m):
+            for k in range(m) if kept >= 2 else ():
                 col = y[:, k]
-                if kept < 2:
-                    continue
-                if np.ptp(col) == 0:
+                # SALib divides by the output's std; a constant output has no indices.
+                if np.ptp(col) <= 8 * np.finfo(float).eps * np.abs(col).max():
                     flat += 1
                     continue
                 with warnings.catch_warnings(record=True) as caught:
