@@ -1,0 +1,138 @@
+"""Accuracy bought per solver run: Monte Carlo rules, Taylor and Sobol on exact models.
+
+For every method and budget the error against the exact answer is the root mean square over
+independent repetitions (different seeds), so a line is the typical error a user gets, not one
+lucky draw. Runs in-process (the solver is closed-form): this measures accuracy, not speed.
+
+    python benchmarks/accuracy_vs_runs.py [--repeats 20]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from benchmarks._record import FIGURES, write_section  # noqa: E402
+from solvers.analytic import AnalyticSolver  # noqa: E402
+from uqflow.inputs import InputSpace, RandomInput  # noqa: E402
+from uqflow.methods import get_method  # noqa: E402
+from uqflow.realization import evaluate_design  # noqa: E402
+
+PI = math.pi
+
+
+def ishigami():
+    space = InputSpace([RandomInput.from_spec(dict(name=f"x{i}", distribution="uniform",
+                                                   lower=-PI, upper=PI)) for i in (1, 2, 3)])
+    return ("Ishigami (a=7, b=0.1), X_i ~ U(-pi, pi)", AnalyticSolver.from_scene(
+        {"model": "ishigami"}), space, 3.5, 13.844587940719254)
+
+
+def power_law(cv=0.15, p=3.0):
+    space = InputSpace([RandomInput.from_spec(dict(name="x", distribution="lognormal",
+                                                   mean=1.0, cv=cv))])
+    mean = (1 + cv * cv) ** (p * (p - 1) / 2)
+    second = (1 + cv * cv) ** (2 * p * (2 * p - 1) / 2)
+    return (f"power law X^{p:g}, X lognormal C.V. {cv:g}", AnalyticSolver.from_scene(
+        {"model": "power", "p": p}), space, mean, second - mean**2)
+
+
+def errors(method, solver, space, exact_mean, exact_var, seed):
+    design = method.plan(space, None, np.random.SeedSequence(seed))
+    stats = method.analyze(design, evaluate_design(solver, design))
+    mean = float(stats["y"].sel(statistic="mean"))
+    var = float(stats["y"].sel(statistic="variance"))
+    return (design.sizes["realization"], abs(mean - exact_mean) / abs(exact_mean),
+            abs(var - exact_var) / exact_var)
+
+
+def measure(repeats: int):
+    rows = []
+    for problem in (ishigami(), power_law()):
+        title, solver, space, m, v = problem
+        for rule in ("random", "lhs", "sobol"):
+            for n in (64, 256, 1024, 4096, 16384):
+                method = get_method("monte-carlo")(samples=n, rule=rule)
+                errs = np.array([errors(method, solver, space, m, v, s)
+                                 for s in range(repeats)])
+                rows.append((title, f"monte-carlo/{rule}", int(errs[0, 0]),
+                             _rms(errs[:, 1]), _rms(errs[:, 2])))
+        for n in (64, 256, 1024, 4096):
+            method = get_method("sobol")(samples=n, resamples=10)
+            errs = np.array([errors(method, solver, space, m, v, s)
+                             for s in range(max(repeats // 4, 3))])
+            rows.append((title, "sobol", int(errs[0, 0]), _rms(errs[:, 1]), _rms(errs[:, 2])))
+        for order in (1, 2):
+            method = get_method("taylor")(order=order, step_check=False)
+            runs, em, ev = errors(method, solver, space, m, v, 0)
+            rows.append((title, f"taylor/order {order}", runs, em, ev))
+    return rows
+
+
+def _rms(x):
+    return float(np.sqrt(np.mean(np.square(x))))
+
+
+def figure(rows, path: Path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    problems = list(dict.fromkeys(r[0] for r in rows))
+    fig, axes = plt.subplots(2, len(problems), figsize=(6 * len(problems), 8), squeeze=False)
+    for col, problem in enumerate(problems):
+        for row, (label, k) in enumerate((("mean", 3), ("variance", 4))):
+            ax = axes[row, col]
+            for method in dict.fromkeys(r[1] for r in rows if r[0] == problem):
+                pts = [(r[2], max(r[k], 1e-17)) for r in rows if r[0] == problem and
+                       r[1] == method]
+                x, y = zip(*pts)
+                style = "o" if method.startswith("taylor") else "o-"
+                ax.loglog(x, y, style, label=method)
+            ax.set_xlabel("solver runs")
+            ax.set_ylabel(f"relative error of the {label} (RMS)")
+            ax.set_title(problem, fontsize=9)
+            ax.grid(True, which="both", alpha=0.3)
+            ax.legend(fontsize=7)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def record(rows, repeats):
+    fig_path = FIGURES / "accuracy_vs_runs.png"
+    figure(rows, fig_path)
+    lines = ["| problem | method | solver runs | rel. error of mean | rel. error of variance |",
+             "|---|---|---:|---:|---:|"]
+    lines += [f"| {r[0]} | {r[1]} | {r[2]} | {r[3]:.2e} | {r[4]:.2e} |" for r in rows]
+    body = (f"Root-mean-square relative error over {repeats} seeds (Sobol: "
+            f"{max(repeats // 4, 3)}; Taylor is deterministic: one run). Sobol's runs are "
+            f"N(D+2) for base sample N.\n\n" + "\n".join(lines) +
+            "\n\n![error against solver runs](docs/figures/accuracy_vs_runs.png)\n\n"
+            "What it shows: random Monte Carlo falls like runs^-1/2 whatever the model; LHS "
+            "and scrambled Sobol points fall faster on these smooth integrands. Taylor costs "
+            "2n+1 runs and is the cheapest by orders of magnitude on the smooth power law at "
+            "C.V. 0.15, where its bias is small, and useless on Ishigami, which is far from "
+            "quadratic over its input range: its error does not fall with more effort.")
+    write_section("accuracy-vs-runs", "Accuracy against solver runs", body)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--repeats", type=int, default=20)
+    args = parser.parse_args()
+    rows = measure(args.repeats)
+    for r in rows:
+        print(f"{r[0][:30]:30} {r[1]:22} {r[2]:7d} {r[3]:.2e} {r[4]:.2e}")
+    record(rows, args.repeats)
+
+
+if __name__ == "__main__":
+    main()
