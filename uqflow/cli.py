@@ -9,9 +9,10 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import warnings
 from pathlib import Path
 
-from uqflow.errors import StudyError, UqflowError
+from uqflow.errors import AccuracyWarning, StudyError, UqflowError
 
 EXIT_USAGE = 2
 EXIT_FAILED = 1
@@ -56,14 +57,17 @@ def _run(args) -> int:
     if args.workers is not None and args.workers < 0:
         raise StudyError("--workers must be >= 0")
     study = load_study(args.study)
-    outcome = run_study(study, workers=args.workers, scheduler=args.scheduler,
-                        resume=args.resume, force=args.force, show_progress=not args.quiet)
+    with warnings.catch_warnings():
+        # Methods also return their warnings in the result; print each once, below the table.
+        warnings.simplefilter("ignore", AccuracyWarning)
+        outcome = run_study(study, workers=args.workers, scheduler=args.scheduler,
+                            resume=args.resume, force=args.force, show_progress=not args.quiet)
     if outcome.resumed:
         print(f"resumed: {outcome.resumed} realizations were already done")
     tree = report.open_result(outcome.path)
     print(report.summary_table(tree))
-    for w in outcome.warnings:
-        print(f"warning: {w}", file=sys.stderr)
+    for message in outcome.warnings:
+        print(f"warning: {message}", file=sys.stderr)
     print(f"result: {outcome.path}")
     if study.spec.output.figures and not args.no_figures:
         for fig in report.write_figures(tree, report.figure_folder(outcome.path)):
@@ -86,10 +90,10 @@ def _report(args) -> int:
 
     tree = report.open_result(args.result)
     print(report.summary_table(tree))
-    warnings = tree["statistics"].attrs.get("warnings", "") if "statistics" in tree.children \
+    notes = tree["statistics"].attrs.get("warnings", "") if "statistics" in tree.children \
         else ""
-    for w in filter(None, warnings.split("\n")):
-        print(f"warning: {w}", file=sys.stderr)
+    for message in filter(None, notes.split("\n")):
+        print(f"warning: {message}", file=sys.stderr)
     if not args.no_figures:
         folder = args.figures or report.figure_folder(args.result)
         for fig in report.write_figures(tree, folder):

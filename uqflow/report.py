@@ -172,10 +172,11 @@ def summary_table(tree: xr.DataTree) -> str:
         rows.append(row)
         if focus and _stat(stats, out, "mean") is not None:
             mean = np.asarray(_stat(stats, out, "mean").values, dtype=float)
-            size = int(np.prod(mean.shape))
-            notes.append(f"{out} is a field of {size} points ({', '.join(stats[out].dims[1:])}):"
-                         f" its row is at the point of largest std; the mean ranges over "
-                         f"{_num(np.nanmin(mean))} .. {_num(np.nanmax(mean))}")
+            finite = mean[np.isfinite(mean)]
+            span = f"{_num(finite.min())} .. {_num(finite.max())}" if finite.size else "nan"
+            notes.append(f"{out} is a field of {mean.size} points "
+                         f"({', '.join(stats[out].dims[1:])}): its row is at the point of "
+                         f"largest std; the mean ranges over {span}")
     header = ["output", "units", "at", "mean", "std"] + ([extra_header] if extra_header else [])
     if not any(r[2] != "-" for r in rows):  # scalar outputs only: no 'at' column
         header.pop(2)
@@ -240,8 +241,8 @@ def _cost_line(stats: xr.Dataset, attrs: dict, method: str) -> str:
     if method == "monte-carlo" and stats.attrs.get("rule"):
         detail.append(f"rule {stats.attrs['rule']}")
     if method == "sobol" and "samples" in stats.attrs:
-        detail.append(f"{stats.attrs['samples']} base samples, {stats.attrs.get('samples_kept', '?')}"
-                      f" kept")
+        kept = stats.attrs.get("samples_kept", "?")
+        detail.append(f"{stats.attrs['samples']} base samples, {kept} kept")
     return (f"cost: {runs_} solver runs, {failed} failed, solver wall time "
             f"{_seconds(stats.attrs.get('solver_wall_time'))}, elapsed "
             f"{_seconds(attrs.get('elapsed_time'))}, method {method}"
@@ -395,6 +396,7 @@ def _histogram(ctx: _Context, out: str):
     for q in (lo, hi):
         ax.axvline(q, color="#b8860b", linewidth=1, linestyle="--")
     ax.set_xlabel(_label(out, units))
+    _sci(ax, "x")
     ax.set_ylabel("realizations per bin")
     ax.set_title(ctx.title(out, f"Monte Carlo: distribution of {y.size} ok runs"))
     ax.legend(loc="best", fontsize="small")
@@ -425,6 +427,7 @@ def _band(ctx: _Context, out: str):
     ax.plot(x, m, color="#1f4e79", linewidth=2, label="mean")
     ax.set_xlabel(xlabel)
     ax.set_ylabel(_label(out, units))
+    _sci(ax, "y")
     ax.set_title(ctx.title(out, f"{_method_name(ctx.method)}: mean ± 2 std over {dim}"))
     ax.legend(loc="best", fontsize="small")
     return fig
@@ -451,9 +454,11 @@ def _convergence(ctx: _Context, out: str):
     ax.axhline(mean[-1], color="#c0392b", linestyle="--", linewidth=1,
                label=f"final mean {mean[-1]:.4g}")
     ax.set_ylabel(_label(f"mean of {out}", units))
+    _sci(ax, "y")
     ax.legend(loc="best", fontsize="small")
     ax2.plot(counts, std, color="#2e7d32", marker="o", markersize=3, label="running std")
     ax2.set_ylabel(_label(f"std of {out}", units))
+    _sci(ax2, "y")
     ax2.set_xlabel("number of samples")
     ax2.set_xscale("log")
     ax.set_title(ctx.title(out, "Monte Carlo convergence", focus))
@@ -538,28 +543,37 @@ def _contributions(ctx: _Context, out: str):
                     linestyle="--", label="variance (Taylor estimate)")
         ax.set_xlabel(xlabel)
         ax.set_ylabel(_label(f"variance of {out}", vunits))
+        _sci(ax, "y")
         ax.set_title(ctx.title(out, f"Taylor: contributions g_k² s_k² to the variance{note}"))
         ax.legend(loc="best", fontsize="small")
         return fig
     focus = _focus(stats, out)
     c = np.asarray(contrib.isel(focus).values, float)
-    total = float(np.nansum(c))
-    fig, ax = _figure(width=max(5.0, 1.0 * len(params) + 2.5))
-    x = np.arange(len(params))
-    bars = ax.bar(x, c, 0.6, color=_colors(len(params)))
+    labels = [_input_label(stats, k) for k in range(len(params))]
+    colors = _colors(len(params))
+    v = float(variance.isel(focus)) if variance is not None else float(np.nansum(c))
+    rest = v - float(np.nansum(c))
+    if note and abs(rest) > 1e-9 * abs(v):
+        # What the per-input terms leave out (cross terms, curvature), so the bars add up.
+        c = np.append(c, rest)
+        labels.append("correlation\ncross terms" if "correlated" in note else "curvature\nterms")
+        colors.append("0.6")
+    fig, ax = _figure(width=max(6.4, 1.0 * len(c) + 2.5))
+    x = np.arange(len(c))
+    bars = ax.bar(x, c, 0.6, color=colors)
     for bar, value in zip(bars, c):
-        if total > 0 and np.isfinite(value):
-            ax.annotate(f"{100 * value / total:.1f} %", (bar.get_x() + bar.get_width() / 2,
-                                                          bar.get_height()),
+        if v > 0 and np.isfinite(value):
+            ax.annotate(f"{100 * value / v:.1f} %", (bar.get_x() + bar.get_width() / 2,
+                                                     max(bar.get_height(), 0.0)),
                         ha="center", va="bottom", fontsize="small")
-    if variance is not None:
-        v = float(variance.isel(focus))
-        ax.axhline(v, color="k", linestyle="--", linewidth=1,
-                   label=f"variance (Taylor estimate) {v:.4g}")
-        ax.legend(loc="best", fontsize="small")
-    ax.set_xticks(x, [_input_label(stats, k) for k in range(len(params))])
+    ax.axhline(v, color="k", linestyle="--", linewidth=1,
+               label=f"variance (Taylor estimate) {v:.4g} = 100 %")
+    ax.axhline(0, color="0.3", linewidth=0.8)
+    ax.legend(loc="best", fontsize="small")
+    ax.set_xticks(x, labels)
     ax.set_xlabel("input")
     ax.set_ylabel(_label(f"g_k² s_k², variance of {out}", vunits))
+    _sci(ax, "y")
     ax.margins(y=0.12)
     ax.set_title(ctx.title(out, f"Taylor: contribution of each input to the variance{note}",
                            focus))
@@ -570,10 +584,18 @@ def _contribution_note(stats: xr.Dataset) -> str:
     """What the bars leave out of the variance, if anything."""
     rho = stats["input_correlation"].values if "input_correlation" in stats else None
     if rho is not None and np.any(rho[~np.eye(rho.shape[0], dtype=bool)] != 0):
-        return "\n(correlated inputs: cross terms not shown)"
+        return "\n(correlated inputs: cross terms 2 g_k g_j s_k s_j rho_kj apart)"
     if stats.attrs.get("variance") == "second-order":
-        return "\n(first-order terms only; the variance adds curvature terms)"
+        return "\n(second-order variance: the curvature terms apart)"
     return ""
+
+
+def _sci(ax, axis: str) -> None:
+    """Powers of ten outside 1e-3 .. 1e4 go into the axis' offset text, not every tick."""
+    try:
+        ax.ticklabel_format(axis=axis, style="sci", scilimits=(-3, 4))
+    except AttributeError:  # not a ScalarFormatter (log axis)
+        pass
 
 
 def _coordinate(ds: xr.Dataset, dim: str) -> tuple[np.ndarray, str]:

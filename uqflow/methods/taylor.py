@@ -207,8 +207,12 @@ class Taylor(PropagationMethod):
 
         cv = design["input_cv"].values
         for k in st.active:
+            if not np.isfinite(cv[k]):
+                warnings.append(
+                    f"input '{names[k]}' has mean 0, so no C.V. tells how far Taylor's expansion "
+                    f"reaches; check the estimate against monte-carlo")
             # 1e-9: a C.V. given as exactly the limit comes back from the moments rounded
-            if cv[k] > opts.cv_warning * (1 + 1e-9):
+            elif cv[k] > opts.cv_warning * (1 + 1e-9):
                 warnings.append(
                     f"input '{names[k]}' has C.V. {cv[k]:.3g} > {opts.cv_warning:g}: Taylor "
                     f"expansions lose accuracy at large C.V. (seed 000 sec. 4.1 keeps C.V. "

@@ -1,0 +1,350 @@
+"""The report: summary table and PNG figures of result files, and ``uqflow report``."""
+
+import math
+import re
+import struct
+import textwrap
+import warnings
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from uqflow import report
+from uqflow.cli import main
+from uqflow.errors import AccuracyWarning, StudyError
+from uqflow.execute import StudyFailed, run_study
+from uqflow.methods import method_registry
+from uqflow.study import load_study
+
+# A figure that fails to draw is skipped with a FigureWarning: here that is a test failure.
+pytestmark = pytest.mark.filterwarnings("error::uqflow.report.FigureWarning")
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+ISHIGAMI = ('{ model = "ishigami" }', "".join(f"""
+[[inputs]]
+name = "x{i}"
+distribution = "uniform"
+lower = -3.141592653589793
+upper = 3.141592653589793
+""" for i in (1, 2, 3)))
+
+DECAY = ('{ model = "exponential_decay" }', """
+[[inputs]]
+name = "alpha"
+distribution = "normal"
+mean = 1.5
+std = 0.2
+
+[[inputs]]
+name = "beta"
+distribution = "uniform"
+lower = 0.1
+upper = 0.2
+""")
+
+FAULTY = ('{ model = "faulty", raise_above = 0.5 }', """
+[[inputs]]
+name = "x"
+distribution = "normal"
+mean = 0.0
+std = 1.0
+units = "mm"
+""")
+
+LINEAR_CORRELATED = ('{ model = "linear", coefficients = [2.0, -1.0], offset = 1.0 }', """
+[[inputs]]
+name = "x1"
+distribution = "normal"
+mean = 10.0
+std = 1.0
+
+[[inputs]]
+name = "x2"
+distribution = "normal"
+mean = 5.0
+std = 1.0
+
+[correlation]
+inputs = ["x1", "x2"]
+matrix = [[1.0, 0.6], [0.6, 1.0]]
+""")
+
+MC = 'kind = "monte-carlo"\nsamples = 256'
+TAYLOR = 'kind = "taylor"'
+SOBOL = 'kind = "sobol"\nsamples = 64\nresamples = 100'
+
+
+def registered(kind):
+    return pytest.mark.skipif(kind not in method_registry.describe(),
+                              reason=f"method '{kind}' is not registered (yet)")
+
+
+def write_study(folder, name, model, method, execution="workers = 0"):
+    scene, inputs = model
+    text = textwrap.dedent(f"""\
+        name = "{name}"
+        solver = "analytic"
+        scene = {scene}
+        """) + inputs + f"\n[method]\n{method}\n\n[execution]\n{execution}\n" \
+        f'\n[output]\npath = "results/{name}.nc"\nfigures = false\n'
+    path = folder / f"{name}.toml"
+    path.write_text(text)
+    return path
+
+
+def run(folder, name, model, method, **kw):
+    """Run a study in this process; returns the result path (relative to the study file)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", AccuracyWarning)  # taylor: large input C.V.
+        out = run_study(load_study(write_study(folder, name, model, method, **kw)),
+                        show_progress=False)
+    assert out.path == folder / "results" / f"{name}.nc"
+    return out.path
+
+
+@pytest.fixture(scope="module")
+def studies(tmp_path_factory):
+    """Result files, each study run once for the whole module."""
+    folder = tmp_path_factory.mktemp("studies")
+    cache = {}
+
+    def get(name, model, method):
+        if name not in cache:
+            cache[name] = run(folder, name, model, method)
+        return cache[name]
+
+    return get
+
+
+def assert_png(path):
+    assert path.exists(), path
+    data = path.read_bytes()
+    assert len(data) > 1000
+    assert data[:8] == PNG_SIGNATURE
+    assert data[12:16] == b"IHDR"
+    width, height = struct.unpack(">II", data[16:24])
+    assert width > 200 and height > 200
+
+
+def table_row(table, first):
+    """The cells of the table row whose first cell is ``first`` (split on 2+ spaces)."""
+    for line in table.splitlines():
+        cells = re.split(r"\s{2,}", line.strip())
+        if cells[0] == first:
+            return cells
+    raise AssertionError(f"no row '{first}' in:\n{table}")
+
+
+def close(text, value):
+    """``text`` is ``value`` to the digits it shows (6 significant: relative 5e-6)."""
+    return math.isclose(float(text), float(value), rel_tol=5e-6, abs_tol=1e-300)
+
+
+# --------------------------------------------------------------------------- the table
+
+def test_monte_carlo_table_shows_the_statistics(studies):
+    tree = report.open_result(studies("mc", ISHIGAMI, MC))
+    stats = tree["statistics"].to_dataset()
+    table = report.summary_table(tree)
+    assert "study 'mc' (monte-carlo, complete)" in table
+    header = table_row(table, "output")
+    assert header == ["output", "units", "mean", "std", "95 % CI of the mean"]
+    name, units, mean, std, ci = table_row(table, "y")
+    assert units == "-"
+    y = stats["y"]
+    assert close(mean, y.sel(statistic="mean"))
+    assert close(std, y.sel(statistic="std"))
+    lo, hi = ci.split(" .. ")
+    assert close(lo, y.sel(statistic="ci_low")) and close(hi, y.sel(statistic="ci_high"))
+    assert float(lo) < float(mean) < float(hi)
+    assert re.search(r"cost: 256 solver runs, 0 failed, solver wall time [\d.e+-]+ m?s, "
+                     r"elapsed [\d.e+-]+ m?s, method monte-carlo", table)
+    # zero-mean inputs: the C.V. is undefined rather than printed as inf
+    assert table_row(table, "x2") == ["x2", "-", "0", "1.8138", "n/a (mean 0)", "0"]
+
+
+def test_field_output_gets_one_row_at_its_largest_std(studies):
+    tree = report.open_result(studies("mc_decay", DECAY, MC))
+    stats = tree["statistics"].to_dataset()
+    table = report.summary_table(tree)
+    std = stats["y"].sel(statistic="std")
+    k = int(np.argmax(std.values))
+    cells = table_row(table, "y")
+    assert cells[2] == f"t = {stats['t'].values[k]:.4g} s"
+    assert close(cells[3], stats["y"].sel(statistic="mean")[k])
+    assert close(cells[4], std[k])
+    assert "y is a field of 21 points (t): its row is at the point of largest std" in table
+    mean = stats["y"].sel(statistic="mean")
+    lo, hi = re.search(r"the mean ranges over (\S+) \.\. (\S+)", table).groups()
+    assert close(lo, mean.min()) and close(hi, mean.max())
+    cv = stats["input_cv"].sel(parameter="beta")
+    assert table_row(table, "beta")[4] == f"{float(cv):.3g}"
+
+
+@registered("taylor")
+def test_taylor_table_names_the_order(studies):
+    tree = report.open_result(studies("taylor", ISHIGAMI, TAYLOR))
+    stats = tree["statistics"].to_dataset()
+    table = report.summary_table(tree)
+    cells = table_row(table, "y")
+    assert close(cells[2], stats["y"].sel(statistic="mean"))
+    assert cells[-1].startswith(f"Taylor order {stats.attrs['order']}")
+    assert "method taylor" in table
+
+
+@registered("sobol")
+def test_sobol_table_lists_indices_by_total_index(studies):
+    tree = report.open_result(studies("sobol", ISHIGAMI, SOBOL))
+    si = tree["statistics"]["y_sobol"]
+    cells = table_row(report.summary_table(tree), "y")
+    entries = cells[-1].split(", ")
+    assert len(entries) == 3
+    st = [float(e.split()[1].split("/")[1]) for e in entries]
+    assert st == sorted(st, reverse=True)
+    for entry in entries:
+        p, pair = entry.split()
+        s1, st_ = pair.split("/")
+        assert s1 == f"{float(si.sel(sobol_index='S1', parameter=p)):.2f}"
+        assert st_ == f"{float(si.sel(sobol_index='ST', parameter=p)):.2f}"
+
+
+def test_study_stopped_by_failures_shows_status_and_first_failure(tmp_path, capsys):
+    with pytest.raises(StudyFailed):
+        run(tmp_path, "faulty", FAULTY, 'kind = "monte-carlo"\nsamples = 200')
+    path = tmp_path / "results" / "faulty.nc"
+    tree = report.open_result(path)
+    assert "statistics" not in tree.children
+    table = report.summary_table(tree)
+    status = tree["runs"]["status"].values.astype(str)
+    counts = {s: int((status == s).sum()) for s in ("ok", "failed", "pending")}
+    assert counts["failed"] > 0
+    assert (f"runs: 200 planned: {counts['ok']} ok, {counts['failed']} failed, "
+            f"{counts['pending']} pending") in table
+    first = int(np.flatnonzero(status == "failed")[0])
+    assert (f"first failure, realization {first}: SolverError: diverged"
+            in table)
+    assert report.write_figures(tree, tmp_path / "figs") == []
+    assert main(["report", str(path)]) == 0
+    assert "no statistics" in capsys.readouterr().out
+
+
+def test_failed_runs_in_a_complete_study_are_reported(tmp_path):
+    path = run(tmp_path, "tolerant", FAULTY, 'kind = "monte-carlo"\nsamples = 100',
+               execution="workers = 0\nmax_failure_fraction = 0.6")
+    tree = report.open_result(path)
+    failed = tree["statistics"].attrs["failed_runs"]
+    table = report.summary_table(tree)
+    assert failed > 0
+    assert f"100 solver runs, {failed} failed" in table
+    assert "first failure, realization" in table
+    assert table_row(table, "x")[1] == "mm"
+    assert "1 warning recorded" in table
+
+
+def test_a_file_without_uqflow_groups_is_a_study_error(tmp_path):
+    path = tmp_path / "plain.nc"
+    xr.Dataset({"a": ("x", [1.0, 2.0])}).to_netcdf(path, engine="netcdf4")
+    with pytest.raises(StudyError, match="not a uqflow result"):
+        report.summary_table(report.open_result(path))
+
+
+# --------------------------------------------------------------------------- figures
+
+def test_monte_carlo_scalar_figures(studies, tmp_path):
+    import matplotlib.pyplot as plt
+
+    tree = report.open_result(studies("mc", ISHIGAMI, MC))
+    before = plt.get_fignums()
+    paths = report.write_figures(tree, tmp_path / "figs")
+    assert [p.name for p in paths] == ["y_histogram.png", "y_convergence.png"]
+    for p in paths:
+        assert p.parent == tmp_path / "figs"
+        assert_png(p)
+    assert plt.get_fignums() == before  # nothing left open in pyplot
+
+
+def test_monte_carlo_time_series_figures(studies, tmp_path):
+    tree = report.open_result(studies("mc_decay", DECAY, MC))
+    paths = report.write_figures(tree, tmp_path)
+    assert [p.name for p in paths] == ["y_band.png", "y_convergence.png"]
+    for p in paths:
+        assert_png(p)
+
+
+@registered("taylor")
+@pytest.mark.parametrize("name, model, expected", [
+    ("taylor", ISHIGAMI, ["y_contributions.png"]),
+    ("taylor_decay", DECAY, ["y_band.png", "y_contributions.png"]),
+    ("taylor_correlated", LINEAR_CORRELATED, ["y_contributions.png"]),  # with cross terms
+])
+def test_taylor_figures(studies, tmp_path, name, model, expected):
+    tree = report.open_result(studies(name, model, TAYLOR))
+    paths = report.write_figures(tree, tmp_path)
+    assert [p.name for p in paths] == expected
+    for p in paths:
+        assert_png(p)
+
+
+@registered("sobol")
+@pytest.mark.parametrize("name, model, expected", [
+    ("sobol", ISHIGAMI, ["y_sobol.png"]),
+    ("sobol_decay", DECAY, ["y_band.png", "y_sobol.png"]),
+])
+def test_sobol_figures(studies, tmp_path, name, model, expected):
+    tree = report.open_result(studies(name, model, SOBOL))
+    paths = report.write_figures(tree, tmp_path)
+    assert [p.name for p in paths] == expected
+    for p in paths:
+        assert_png(p)
+
+
+def test_two_dimensional_field_is_summarised_without_failing(studies, tmp_path):
+    """An output over (t, k): no band or histogram, a table row and the convergence trace."""
+    tree = report.open_result(studies("mc_decay", DECAY, MC))
+    runs = tree["runs"].to_dataset()
+    stats = tree["statistics"].to_dataset()
+    scale = xr.DataArray([1.0, 3.0], dims="k")
+    runs["z"] = runs["y"] * scale
+    for v in ("y", "y_trace"):
+        stats[v.replace("y", "z")] = stats[v] * scale
+    stats["z"].loc[dict(statistic="variance")] = stats["y"].sel(statistic="variance") * scale**2
+    runs, stats = runs.drop_vars("y"), stats.drop_vars(["y", "y_trace"])
+    tree2 = xr.DataTree.from_dict({"/": xr.Dataset(attrs=tree.attrs), "runs": runs,
+                                   "statistics": stats})
+    table = report.summary_table(tree2)
+    assert table_row(table, "z")[2] == "t = 0 s, k[1]"
+    names = [p.name for p in report.write_figures(tree2, tmp_path)]
+    assert names == ["z_convergence.png"]
+
+
+# --------------------------------------------------------------------------- the CLI
+
+def test_cli_report_prints_table_and_writes_figures(studies, capsys):
+    path = studies("mc", ISHIGAMI, MC)
+    assert report.figure_folder(path) == path.parent / "mc_figures"
+    assert main(["report", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "study 'mc' (monte-carlo, complete)" in out
+    for name in ("y_histogram.png", "y_convergence.png"):
+        assert f"figure: {path.parent / 'mc_figures' / name}" in out
+        assert_png(path.parent / "mc_figures" / name)
+
+
+def test_cli_report_no_figures(studies, tmp_path, capsys):
+    path = studies("mc", ISHIGAMI, MC)
+    assert main(["report", str(path), "--no-figures",
+                 "--figures", str(tmp_path / "elsewhere")]) == 0
+    assert "figure:" not in capsys.readouterr().out
+    assert not (tmp_path / "elsewhere").exists()
+
+
+def test_cli_report_on_a_missing_file_is_one_line_and_exit_2(tmp_path, capsys):
+    missing = tmp_path / "nope.nc"
+    assert main(["report", str(missing)]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    lines = captured.err.strip().splitlines()
+    assert lines == [f"uqflow: error: {missing}: no such result file"]
+    assert not report.figure_folder(missing).exists()
