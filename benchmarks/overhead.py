@@ -62,7 +62,7 @@ def cluster_startup() -> float:
     from dask.distributed import Client, LocalCluster
     start = time.perf_counter()
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=None) as cluster, Client(cluster):
+                      dashboard_address=":0") as cluster, Client(cluster):
         pass
     return time.perf_counter() - start
 

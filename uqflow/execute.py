@@ -232,7 +232,7 @@ def _run_on_dask(study, workers, scheduler, names, values, batches, record):
     if scheduler is None:
         threads = str(max(1, (os.cpu_count() or 1) // max(workers, 1)))
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.ERROR,
+                               dashboard_address=":0", silence_logs=logging.ERROR,
                                env={"NUMBA_NUM_THREADS": threads, "OMP_NUM_THREADS": threads,
                                     "OPENBLAS_NUM_THREADS": threads, "MKL_NUM_THREADS": threads})
     try:

@@ -430,20 +430,23 @@ class _TruncNormal:
         if not lo < mean < hi:
             raise StudyError(f"mean {mean:g} is not inside [{lo:g}, {hi:g}]", key=f"{key}.mean")
 
-        # Find the parent normal whose truncation has the requested mean and std.
+        # Find the parent normal whose truncation has the requested mean and std. Solved in
+        # units of the requested std around its mean (mu = mean + std z0, sigma = std e^z1),
+        # so the solver's steps and tolerances fit any magnitude (1e-12 .. 1e12).
+        lo_s, hi_s = (lo - mean) / std, (hi - mean) / std
+
         def residual(z):
-            mu, sigma = z[0], math.exp(z[1])
-            m, v = _truncnorm_mv(mu, sigma, lo, hi)
-            return [(m - mean) / std, (math.sqrt(v) - std) / std]
+            sigma = math.exp(z[1])
+            m, v = _truncnorm_mv((lo_s - z[0]) / sigma, (hi_s - z[0]) / sigma)
+            return [z[0] + sigma * m, sigma * math.sqrt(v) - 1.0]
 
         # gtol too: near the uniform limit the std hardly changes with sigma, and the default
         # gtol stopped there with a 3e-8 residual (and a false "no truncated normal" error).
-        sol = optimize.least_squares(residual, [mean, math.log(std)], xtol=1e-15, ftol=1e-15,
-                                     gtol=1e-15)
+        sol = optimize.least_squares(residual, [0.0, 0.0], xtol=1e-15, ftol=1e-15, gtol=1e-15)
         if not sol.success or max(abs(r) for r in sol.fun) > 1e-10:
             raise StudyError(f"no truncated normal on [{lo:g}, {hi:g}] has mean {mean:g} and "
                              f"std {std:g}", key=_spread_key(params, key))
-        return _TruncNormal._make(sol.x[0], math.exp(sol.x[1]), lo, hi, key)
+        return _TruncNormal._make(mean + std * sol.x[0], std * math.exp(sol.x[1]), lo, hi, key)
 
     @staticmethod
     def from_native(params, key):
@@ -462,16 +465,19 @@ class _TruncNormal:
     def _make(mu, sigma, lo, hi, key):
         _TruncNormal._check_bounds(lo, hi, key)
         a, b = (lo - mu) / sigma, (hi - mu) / sigma
-        m1, var, skew, exkurt = (float(x) for x in
-                                 stats.truncnorm(a, b, loc=mu, scale=sigma).stats(moments="mvsk"))
-        std = math.sqrt(var)
+        # Standardized moments, scaled here: scipy's own loc/scale path fails at 1e+-12.
+        m1, var, skew, exkurt = (float(x) for x in stats.truncnorm.stats(a, b, moments="mvsk"))
+        if not (math.isfinite(m1) and var > 0):
+            raise StudyError(f"the normal(mu={mu:g}, sigma={sigma:g}) has no usable mass in "
+                             f"[{lo:g}, {hi:g}]", key=f"{key}.sigma")
+        std = sigma * math.sqrt(var)
         return (chaospy.TruncNormal(lower=lo, upper=hi, mu=mu, sigma=sigma),
-                (m1, var, skew * std**3, (exkurt + 3) * std**4))
+                (mu + sigma * m1, std * std, skew * std**3, (exkurt + 3) * std**4))
 
 
-def _truncnorm_mv(mu, sigma, lo, hi):
-    a, b = (lo - mu) / sigma, (hi - mu) / sigma
-    m, v = stats.truncnorm.stats(a, b, loc=mu, scale=sigma, moments="mv")
+def _truncnorm_mv(a, b):
+    """Mean and variance of the standard normal truncated to [a, b]."""
+    m, v = stats.truncnorm.stats(a, b, moments="mv")
     return float(m), float(v)
 
 

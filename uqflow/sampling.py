@@ -27,6 +27,11 @@ def unit_hypercube(rule: str, n_points: int, dimension: int,
     n_points, dimension = int(n_points), int(dimension)
     if n_points < 0 or dimension < 0:
         raise ValueError(f"need n_points >= 0 and dimension >= 0, got {n_points}, {dimension}")
+    # scipy's qmc engines spawn a child from the Generator's SeedSequence, i.e. they advance
+    # the caller's object: the same seed object passed twice gave two designs. Use a copy.
+    if isinstance(seed, np.random.SeedSequence):
+        seed = np.random.SeedSequence(seed.entropy, spawn_key=seed.spawn_key,
+                                      pool_size=seed.pool_size)
     rng = np.random.default_rng(seed)
     if dimension == 0:
         return np.zeros((n_points, 0))

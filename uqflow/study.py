@@ -9,12 +9,13 @@ reason. Relative paths resolve against the study file's folder.
 from __future__ import annotations
 
 import copy
+import difflib
 import hashlib
 import tomllib
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, get_args
 
 import numpy as np
 from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, ValidationError,
@@ -86,7 +87,7 @@ class ExecutionSpec(_Strict):
 
 class OutputSpec(_Strict):
     path: str | None = Field(None, min_length=1)
-    figures: bool = True
+    figures: bool = Field(True, strict=True, description="write PNG figures beside the result")
 
 
 class MethodSpec(BaseModel):
@@ -201,6 +202,8 @@ def _reason(err: dict) -> str:
         return "unknown key"
     if kind == "missing":
         return "required key is missing"
+    if kind in ("model_type", "model_attributes_type", "dict_type"):
+        return "must be a table"
     return err["msg"].removeprefix("Value error, ").removeprefix("Assertion failed, ")
 
 
@@ -214,19 +217,57 @@ def _value_at(data, loc):
     return here
 
 
+def _model_at(model, loc) -> type[BaseModel] | None:
+    """The pydantic model that holds the last key of ``loc``, starting from ``model``."""
+    for part in loc:
+        if isinstance(part, int):
+            continue
+        info = model.model_fields.get(part) if model is not None else None
+        if info is None:
+            return None
+        model = _model_in(info.annotation)
+    return model
+
+
+def _model_in(annotation) -> type[BaseModel] | None:
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation
+    for arg in get_args(annotation):
+        found = _model_in(arg)
+        if found is not None:
+            return found
+    return None
+
+
+def _unknown_key(name, model, extra_known=()) -> str:
+    known = [*extra_known, *(model.model_fields if model is not None else ())]
+    if not known:
+        return "unknown key"
+    close = difflib.get_close_matches(str(name), known, n=1)
+    if close:
+        return f"unknown key (did you mean '{close[0]}'?)"
+    return f"unknown key (known: {', '.join(known)})"
+
+
 def validation_error(exc: ValidationError, file: str, prefix: str = "",
-                     data: Any = None) -> StudyError:
+                     data: Any = None, model: type[BaseModel] | None = None,
+                     extra_known: tuple[str, ...] = ()) -> StudyError:
     """The first pydantic error as a one-line StudyError naming file and key.
 
     ``data`` (the validated input, optional) lets the key be the user's even where pydantic
     adds union members to the error location. Errors of the other members of the same union
-    (same key) join the reason: "Input should be 'auto' or a valid boolean".
+    (same key) join the reason: "Input should be 'auto' or a valid boolean". ``model`` (the
+    validated model class) lets an unknown key suggest the known ones; ``extra_known`` adds
+    keys handled outside it (``kind`` beside a method's options).
     """
     errors = exc.errors()
     raw = _MISSING if data is None else data
     loc = _user_loc(errors[0]["loc"], raw)
     value = _value_at(raw, loc) if raw is not _MISSING else _MISSING
     reason = _reason(errors[0])
+    if errors[0]["type"] == "extra_forbidden" and loc and model is not None:
+        holder = _model_at(model, loc[:-1])
+        reason = _unknown_key(loc[-1], holder, extra_known if len(loc) == 1 else ())
     for err in errors[1:]:
         if _user_loc(err["loc"], raw) != loc or err["type"] in ("missing", "extra_forbidden"):
             continue
@@ -235,9 +276,11 @@ def validation_error(exc: ValidationError, file: str, prefix: str = "",
             more = more.removeprefix("Input should be ")
         if more not in reason:
             reason = f"{reason} or {more}"
-    if errors[0]["type"] not in ("missing", "extra_forbidden", "value_error",
-                                 "assertion_error") and value is not _MISSING and \
-            "got" not in reason:
+    kind = errors[0]["type"]
+    reason = reason.replace(" after validation", "")
+    if value is not _MISSING and "got" not in reason and \
+            kind not in ("missing", "extra_forbidden", "value_error", "assertion_error") and \
+            (not isinstance(value, (dict, list)) or kind.endswith("_type")):
         reason = f"{reason}, got {_shown(value)}"
     key = _key(loc)
     if key == "inputs" and errors[0]["type"] == "list_type":
@@ -268,7 +311,7 @@ def load_study(path: str | Path) -> Study:
     try:
         spec = StudySpec.model_validate(raw)
     except ValidationError as exc:
-        raise validation_error(exc, label, data=raw) from None
+        raise validation_error(exc, label, data=raw, model=StudySpec) from None
     try:
         return _resolve(spec, path, text, label)
     except SceneError as exc:
@@ -337,7 +380,9 @@ def _resolve(spec: StudySpec, path: Path, text: str, label: str) -> Study:
     try:
         method = method_class(**options)
     except ValidationError as exc:
-        raise validation_error(exc, label, prefix="method", data=options) from None
+        raise validation_error(exc, label, prefix="method", data=options,
+                               model=getattr(method_class, "Options", None),
+                               extra_known=("kind",)) from None
     except StudyError as exc:
         raise StudyError(exc.reason, key=exc.key or "method") from None
     _check_plan(method, space, spec.execution.seed)
@@ -384,8 +429,9 @@ def _correlation(spec: StudySpec, inputs: list[RandomInput]) -> np.ndarray | Non
         if name not in names:
             raise StudyError(f"'{name}' is not one of the study's inputs",
                              key=f"correlation.inputs[{j}]")
-    if len(set(corr.inputs)) != len(corr.inputs):
-        raise StudyError("an input is named twice", key="correlation.inputs")
+    for j, name in enumerate(corr.inputs):
+        if name in corr.inputs[:j]:
+            raise StudyError(f"'{name}' is named twice", key=f"correlation.inputs[{j}]")
     m = len(corr.inputs)
     sub = np.asarray(corr.matrix, dtype=float) if all(len(r) == m for r in corr.matrix) \
         else None
