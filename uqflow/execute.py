@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import os
 import time
 from dataclasses import dataclass, field
@@ -20,7 +19,7 @@ import xarray as xr
 
 from uqflow import progress as progress_mod
 from uqflow.errors import StudyError, UqflowError
-from uqflow.realization import (STATUS_FAILED, STATUS_OK, STATUS_PENDING, empty_runs,
+from uqflow.realization import (STATUS_FAILED, STATUS_PENDING, empty_runs,
                                 run_batch, store_batch)
 from uqflow.store import now, read_runs, versions, write_result
 from uqflow.study import Study

@@ -8,6 +8,7 @@ points of the unit hypercube to parameter values. Samplers live in ``uqflow.samp
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass, field
 
 import chaospy
@@ -130,7 +131,8 @@ def make_distribution(kind: str, params: dict, key: str = "input"):
             raise StudyError(f"'{k}' is not a parameter of a {kind} distribution "
                              f"(it takes {', '.join(sorted(allowed))})", key=f"{key}.{k}")
     for k, v in params.items():
-        if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
+        if not isinstance(v, numbers.Real) or isinstance(v, (bool, np.bool_)) \
+                or not math.isfinite(v):
             raise StudyError(f"must be a finite number, got {v!r}", key=f"{key}.{k}")
 
     moment_form = "mean" in params
@@ -515,7 +517,7 @@ class InputSpace:
         try:
             correlation = np.asarray(correlation, dtype=float)
         except (TypeError, ValueError):
-            raise StudyError(f"must be an {n}x{n} matrix of numbers (one row per input)",
+            raise StudyError(f"must be a {n}x{n} matrix of numbers (one row per input)",
                              key=f"{key}.matrix") from None
         check_correlation(correlation, n, key)
         self.correlation = correlation

@@ -19,8 +19,9 @@ def unit_hypercube(rule: str, n_points: int, dimension: int,
                    seed: np.random.SeedSequence) -> np.ndarray:
     """``n_points`` points of (0, 1)^dimension, shape (n_points, dimension).
 
-    ``sobol`` and ``halton`` are scrambled (Owen / random permutation), so they are unbiased
-    and repeated designs with other seeds give an error estimate.
+    ``sobol`` and ``halton`` are scrambled (LMS + digital shift / random digit permutations),
+    so they are unbiased and repeated designs with other seeds give an error estimate.
+    ``seed`` is not advanced: the same seed (object or value) always gives the same points.
     """
     if rule not in RULES:
         raise ValueError(f"unknown sampling rule '{rule}' (known: {', '.join(RULES)})")

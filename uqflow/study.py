@@ -1,18 +1,18 @@
 """Study files: TOML validated with pydantic, resolved into the objects a run needs.
 
 ``load_study(path)`` reads and checks everything a run needs before anything runs: the schema,
-the solver and its scene, the inputs against the solver's parameters, the method options,
-the outputs. Every problem is a one-line ``StudyError`` naming the file, the key and the
-reason. Relative paths resolve against the study file's folder.
+the solver and its scene, the inputs against the solver's parameters, the correlation, the
+outputs, the method options and the method's own demands on the inputs (``check``).
+Every problem is a one-line ``StudyError`` ``<file>: <key>: <reason>`` naming the key as the
+user wrote it (``inputs[0].cv``, ``method.samples``, ``scene.model``). Relative paths resolve
+against the study file's folder. The reference for users is docs/study-files.md.
 """
 
 from __future__ import annotations
 
-import copy
 import difflib
 import hashlib
 import tomllib
-import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, get_args
@@ -38,6 +38,7 @@ def _not_bool(value):
     return value
 
 
+Float = Annotated[float, BeforeValidator(_not_bool)]
 Number = Annotated[float | None, BeforeValidator(_not_bool)]
 Int = Annotated[int, BeforeValidator(_not_bool)]
 
@@ -71,7 +72,7 @@ class InputSpec(_Strict):
 
 class CorrelationSpec(_Strict):
     inputs: list[str] = Field(min_length=2)
-    matrix: list[list[float]]
+    matrix: list[list[Float]]
 
 
 class ExecutionSpec(_Strict):
@@ -80,9 +81,8 @@ class ExecutionSpec(_Strict):
     seed: Int = Field(0, ge=0)
     batch: Annotated[int | None, BeforeValidator(_not_bool)] = Field(
         None, ge=1, description="realizations per dask task")
-    max_failure_fraction: Annotated[float, BeforeValidator(_not_bool)] = Field(0.1, ge=0, le=1)
-    checkpoint_interval: Annotated[float, BeforeValidator(_not_bool)] = Field(
-        2.0, ge=0, description="seconds between result writes")
+    max_failure_fraction: Float = Field(0.1, ge=0, le=1)
+    checkpoint_interval: Float = Field(2.0, ge=0, description="seconds between result writes")
 
 
 class OutputSpec(_Strict):
@@ -333,6 +333,9 @@ def _resolve(spec: StudySpec, path: Path, text: str, label: str) -> Study:
     except SceneError as exc:
         raise SceneError(exc.reason, file=scene_label or label, key=exc.key) from None
 
+    if not spec.inputs:
+        raise StudyError("a study needs at least one uncertain input: add an [[inputs]] table",
+                         key="inputs")
     nominal = solver.nominal()
     for i, inp in enumerate(spec.inputs):
         if inp.name not in nominal:
@@ -343,8 +346,8 @@ def _resolve(spec: StudySpec, path: Path, text: str, label: str) -> Study:
     seen: dict[str, int] = {}
     for i, inp in enumerate(spec.inputs):
         if inp.name in seen:
-            raise StudyError(f"input '{inp.name}' is declared twice (also inputs[{seen[inp.name]}])",
-                             key=f"inputs[{i}].name")
+            raise StudyError(f"input '{inp.name}' is declared twice "
+                             f"(also inputs[{seen[inp.name]}])", key=f"inputs[{i}].name")
         seen[inp.name] = i
     inputs = []
     for i, inp in enumerate(spec.inputs):
@@ -385,7 +388,7 @@ def _resolve(spec: StudySpec, path: Path, text: str, label: str) -> Study:
                                extra_known=("kind",)) from None
     except StudyError as exc:
         raise StudyError(exc.reason, key=exc.key or "method") from None
-    _check_plan(method, space, spec.execution.seed)
+    method.check(space, None)
 
     out = spec.output.path or f"results/{spec.name}.nc"
     output_path = (folder / out).resolve() if not Path(out).is_absolute() else Path(out)
@@ -406,18 +409,6 @@ def _load_scene(scene, folder: Path, label: str) -> tuple[dict, str | None]:
         raise StudyError(f"{what}: {scene_path}", key="scene")
     raw, _ = read_toml(scene_path, str(scene_path))
     return raw, str(scene_path)
-
-
-def _check_plan(method: PropagationMethod, space: InputSpace, seed: int) -> None:
-    """Plan once, dry, so that a method's own checks of the input space (sobol: independent
-    inputs; taylor: steps that survive rounding, ...) fail here, naming the study file,
-    rather than when the study starts. The dry space maps the unit hypercube to zeros
-    instead of through the marginals: the costly part of a large sampling design."""
-    dry = copy.copy(space)
-    dry.from_unit_hypercube = lambda u: np.zeros((np.shape(u)[0], len(space)))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        method.plan(dry, None, np.random.SeedSequence(seed))
 
 
 def _correlation(spec: StudySpec, inputs: list[RandomInput]) -> np.ndarray | None:

@@ -19,9 +19,13 @@ from uqflow.errors import SceneError, SolverError
 from uqflow.solver import Solver, register_solver
 
 
+def _is_number(v):
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+
+
 def _number(scene, key, default, *, positive=False, nonnegative=False):
     value = scene.get(key, default)
-    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+    if not _is_number(value) or not math.isfinite(value):
         raise SceneError(f"must be a finite number, got {value!r}", key=f"scene.{key}")
     if positive and value <= 0:
         raise SceneError(f"must be > 0, got {value!r}", key=f"scene.{key}")
@@ -30,10 +34,30 @@ def _number(scene, key, default, *, positive=False, nonnegative=False):
     return float(value)
 
 
+def _array(value, ndim):
+    """``value`` as a float array of ``ndim`` dims if it is a (nested) list of real numbers."""
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    if not isinstance(value, (list, tuple)):
+        return None
+    flat, level = list(value), 1
+    while level < ndim:
+        if not all(isinstance(v, (list, tuple)) for v in flat):
+            return None
+        flat, level = [x for v in flat for x in v], level + 1
+    if not all(_is_number(v) for v in flat):  # strings, bools, nested lists, None
+        return None
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):  # ragged
+        return None
+    return arr if arr.ndim == ndim else None
+
+
 def _numbers(scene, key, default):
     value = scene.get(key, default)
-    arr = np.asarray(value, dtype=float) if isinstance(value, (list, tuple)) else None
-    if arr is None or arr.ndim != 1 or arr.size == 0 or not np.all(np.isfinite(arr)):
+    arr = _array(value, 1)
+    if arr is None or arr.size == 0 or not np.all(np.isfinite(arr)):
         raise SceneError(f"must be a non-empty list of finite numbers, got {value!r}",
                          key=f"scene.{key}")
     return arr
@@ -89,7 +113,7 @@ class Polynomial:
         if q is None:
             self.q = np.zeros((n, n))
         else:
-            self.q = np.asarray(q, dtype=float) if isinstance(q, list) else None
+            self.q = _array(q, 2)
             if self.q is None or self.q.shape != (n, n) or not np.all(np.isfinite(self.q)):
                 raise SceneError(f"must be a {n}x{n} matrix of finite numbers",
                                  key="scene.quadratic")
@@ -112,10 +136,15 @@ class PowerLaw:
         self.outputs = _scalar("y")
 
     def __call__(self, p, fields):
-        x = p["x"]
+        x = float(p["x"])
         if x < 0 and self.p != int(self.p):
             raise SolverError(f"x = {x:g} < 0 has no real power {self.p:g}")
-        return {"y": x**self.p}
+        if x == 0 and self.p < 0:
+            raise SolverError(f"x = 0 has no power {self.p:g}")
+        try:
+            return {"y": x**self.p}
+        except OverflowError:
+            raise SolverError(f"x = {x:g} to the power {self.p:g} overflows") from None
 
 
 class ExponentialDecay:
@@ -131,9 +160,15 @@ class ExponentialDecay:
                 raise SceneError(f"unknown key '{sorted(unknown)[0]}' (takes start, stop, num)",
                                  key="scene.t")
             num = t.get("num", 21)
-            if not isinstance(num, int) or num < 1:
+            if not isinstance(num, int) or isinstance(num, bool) or num < 1:
                 raise SceneError(f"must be an integer >= 1, got {num!r}", key="scene.t.num")
-            self.t = np.linspace(_number(t, "start", 0.0), _number(t, "stop", 10.0), num)
+            ends = []
+            for k, default in (("start", 0.0), ("stop", 10.0)):
+                v = t.get(k, default)
+                if not _is_number(v) or not math.isfinite(v):
+                    raise SceneError(f"must be a finite number, got {v!r}", key=f"scene.t.{k}")
+                ends.append(float(v))
+            self.t = np.linspace(*ends, num)
         else:
             self.t = _numbers(scene, "t", t)
         self.parameters = {"alpha": 1.5, "beta": 0.15}
@@ -163,10 +198,17 @@ class RandomEBar:
         self.outputs = _scalar("end_displacement", "m")
 
     def __call__(self, p, fields):
-        e = fields["E"] if fields and "E" in fields else np.full(self.x.size, p["bar.E"])
+        if fields and "E" in fields:
+            e = np.asarray(fields["E"], dtype=float).reshape(-1)
+            if e.size != self.x.size:
+                raise SolverError(f"field E has {e.size} values, the bar has {self.x.size} "
+                                  f"points")
+        else:
+            e = np.full(self.x.size, float(p["bar.E"]))
         if np.any(~(e > 0)):
             i = int(np.flatnonzero(~(e > 0))[0])
-            raise SolverError(f"E <= 0 at point {i} (x = {self.x[i]:.4g} m): {e[i]:.4g} Pa")
+            raise SolverError(f"E is not > 0 at point {i} (x = {self.x[i]:.4g} m): "
+                              f"{e[i]:.4g} Pa")
         return {"end_displacement": self.force / self.area * float(np.sum(self.dx / e))}
 
 
@@ -220,7 +262,7 @@ class AnalyticSolver(Solver):
         if not isinstance(scene, Mapping):
             raise SceneError("must be a table", key="scene")
         name = scene.get("model")
-        if name not in MODELS:
+        if not isinstance(name, str) or name not in MODELS:
             raise SceneError(f"unknown analytic model {name!r} (known: {', '.join(MODELS)})",
                              key="scene.model")
         model_cls = MODELS[name]
@@ -263,7 +305,10 @@ class AnalyticSolver(Solver):
         p = dict(self.model.parameters)
         p.update(params)
         values = self.model(p, fields)
+        # A shallow copy has its own Variables (sharing the template's arrays); giving each a
+        # new array leaves the template alone and skips xarray's merge (~0.5 ms a run).
         ds = self._template.copy(deep=False)
         for out, value in values.items():
-            ds[out] = ds[out].copy(data=np.asarray(value, dtype=float).reshape(ds[out].shape))
+            var = ds.variables[out]
+            var.values = np.asarray(value, dtype=float).reshape(var.shape).copy()
         return ds

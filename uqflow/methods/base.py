@@ -57,6 +57,10 @@ class PropagationMethod(abc.ABC):
     def __init__(self, **options):
         self.options = self.Options(**options)
 
+    def check(self, space: InputSpace, fields: list | None) -> None:
+        """Raise ``StudyError`` if this method cannot treat ``space``; cheap, run at load time
+        (so ``uqflow validate`` catches it) and again by ``plan``."""
+
     @abc.abstractmethod
     def plan(self, space: InputSpace, fields: list | None,
              seed: np.random.SeedSequence) -> xr.Dataset:
@@ -81,7 +85,8 @@ class PropagationMethod(abc.ABC):
 
 def make_design(space: InputSpace, values: np.ndarray, **variables) -> xr.Dataset:
     """A design dataset from an (n_realizations, n_inputs) array of parameter values."""
-    values = np.asarray(values, dtype=float).reshape(-1, len(space))
+    values = np.asarray(values, dtype=float)
+    values = values.reshape(values.shape[0] if values.ndim else 1, len(space))
     n = values.shape[0]
     data = {"inputs": (("realization", "parameter"), values)}
     data.update({k: ("parameter", v) for k, v in space.summary().items()})
@@ -133,10 +138,12 @@ def finish_statistics(stats: xr.Dataset, design: xr.Dataset, runs: xr.Dataset,
               "input_correlation"):
         if v in design:
             stats[v] = design[v]
-    for out in output_names(runs):
-        for name in stats.data_vars:
-            if name == out or name.startswith(out + "_"):
-                stats[name].attrs.setdefault("units", runs[out].attrs.get("units", ""))
+    outputs = sorted(output_names(runs), key=len, reverse=True)
+    for name in stats.data_vars:
+        # y_max is its own output, not y's "_max" extra: the longest matching name owns it.
+        owner = next((o for o in outputs if name == o or name.startswith(o + "_")), None)
+        if owner is not None:
+            stats[name].attrs.setdefault("units", runs[owner].attrs.get("units", ""))
     stats.attrs.update(cost_attrs(runs))
     stats.attrs["method"] = method
     stats.attrs["warnings"] = "\n".join(warnings)

@@ -52,10 +52,13 @@ class MonteCarlo(PropagationMethod):
             return False
         for out in output_names(runs):
             y = runs[out].values[ok]
-            mean = y.mean(axis=0)
-            stderr = y.std(axis=0, ddof=1) / np.sqrt(y.shape[0])
+            mean, var = _mean_var(y)
+            stderr = np.sqrt(var / y.shape[0])
+            # A field output is judged against its largest |mean|: elements crossing zero
+            # would otherwise never reach any relative target.
+            scale = np.maximum(np.abs(mean), np.max(np.abs(mean)))
             with np.errstate(divide="ignore", invalid="ignore"):
-                rel = np.where(stderr == 0, 0.0, stderr / np.abs(mean))
+                rel = np.where(stderr == 0, 0.0, stderr / scale)
             if not np.all(rel <= target):
                 return False
         return True
@@ -74,8 +77,7 @@ class MonteCarlo(PropagationMethod):
             if n == 0:
                 block = np.full((len(labels),) + runs[out].shape[1:], np.nan)
             else:
-                mean = y.mean(axis=0)
-                var = y.var(axis=0, ddof=1) if n > 1 else np.full(mean.shape, np.nan)
+                mean, var = _mean_var(y)
                 std = np.sqrt(var)
                 stderr = std / np.sqrt(n)
                 quant = np.quantile(y, opts.quantiles, axis=0)
@@ -116,6 +118,24 @@ class MonteCarlo(PropagationMethod):
         c = counts.reshape(shape).astype(float)
         mean = y.mean(axis=0) + s1 / c
         var = np.maximum(s2 - s1**2 / c, 0.0) / (c - 1)
+        # Prefixes of equal values: exactly their value and variance 0 (not rounding noise).
+        const = (np.minimum.accumulate(y, axis=0) == np.maximum.accumulate(y, axis=0))[counts - 1]
+        mean = np.where(const, y[0], mean)
+        var = np.where(const, 0.0, var)
         block = np.stack([mean, np.sqrt(var), np.sqrt(var / c)], axis=1)
         return (("trace_samples", "trace_statistic", *dims), block,
                 {"long_name": "running estimates against sample count"}), counts
+
+
+def _mean_var(y):
+    """Mean and unbiased variance over axis 0 (NaN variance below two samples).
+
+    Columns whose values are all equal (zero-std inputs, an output that does not depend on
+    them) get exactly that value and variance 0: the two-pass formula leaves ~1e-32 of
+    rounding noise there, which would read as a (tiny) error estimate.
+    """
+    n = y.shape[0]
+    mean = y.mean(axis=0)
+    var = y.var(axis=0, ddof=1) if n > 1 else np.full(np.shape(mean), np.nan)
+    const = np.all(y == y[0], axis=0)
+    return np.where(const, y[0], mean), np.where(const & (n > 1), 0.0, var)

@@ -46,12 +46,15 @@ class Sobol(PropagationMethod):
 
     Options = SobolOptions
 
-    def plan(self, space, fields, seed):
+    def check(self, space, fields):
         if space.is_correlated:
             raise StudyError("sobol indices assume independent inputs; remove the correlation "
                              "or use monte-carlo", key="method.kind")
         if len(space) == 0:
             raise StudyError("sobol indices need at least one uncertain input", key="inputs")
+
+    def plan(self, space, fields, seed):
+        self.check(space, fields)
         opts = self.options
         # One draw for the sequence's scrambling, one for the bootstrap in analyze; the
         # bootstrap seed travels with the design so a re-analysis gives the same intervals.

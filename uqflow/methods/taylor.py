@@ -68,18 +68,32 @@ class Taylor(PropagationMethod):
     Options = TaylorOptions
 
     # ------------------------------------------------------------------ plan
-    def plan(self, space, fields, seed):
+    def check(self, space, fields):
         if fields:
             raise StudyError("the taylor method takes scalar inputs only, not random fields",
                              key="fields")
+        opts = self.options
+        h = opts.step * space.stds
+        active = np.flatnonzero(h > 0)
+        rho = space.correlation
+        if opts.variance == "second-order" and \
+                any(rho[k, j] != 0 for k in active for j in active if k < j):
+            raise _independence_error()
+        mu, smallest = space.means, (0.5 if opts.step_check else 1.0) * h
+        lost = [space.names[k] for k in active
+                if mu[k] + smallest[k] == mu[k] or mu[k] - smallest[k] == mu[k]]
+        if lost:
+            raise StudyError(f"the std of '{lost[0]}' is too small next to its mean for a "
+                             f"finite difference (mean + step rounds to the mean); give it "
+                             f"std 0 or a larger step", key="method.step")
+
+    def plan(self, space, fields, seed):
+        self.check(space, fields)
         opts = self.options
         names, mu = space.names, space.means
         h = opts.step * space.stds
         active = np.flatnonzero(h > 0)
         rho = space.correlation
-        correlated = any(rho[k, j] != 0 for k in active for j in active if k < j)
-        if opts.variance == "second-order" and correlated:
-            raise _independence_error()
 
         offsets, labels = [np.zeros(len(space))], ["mean"]
 
@@ -104,13 +118,6 @@ class Taylor(PropagationMethod):
                               f"{names[j]}{'+' if sj > 0 else '-'}h")
         offsets = np.array(offsets)
         values = mu + offsets
-        smallest = (0.5 if opts.step_check else 1.0) * h
-        lost = [names[k] for k in active
-                if mu[k] + smallest[k] == mu[k] or mu[k] - smallest[k] == mu[k]]
-        if lost:
-            raise StudyError(f"the std of '{lost[0]}' is too small next to its mean for a "
-                             f"finite difference (mean + step rounds to the mean); give it "
-                             f"std 0 or a larger step", key="method.step")
         design = make_design(space, values,
                              step=("parameter", h, {"long_name": "finite-difference step h_k"}))
         # Coordinates, not data variables: everything in runs with a realization dim is
