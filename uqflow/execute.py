@@ -19,8 +19,8 @@ import xarray as xr
 
 from uqflow import progress as progress_mod
 from uqflow.errors import StudyError, UqflowError
-from uqflow.realization import (STATUS_FAILED, STATUS_PENDING, empty_runs,
-                                run_batch, store_batch)
+from uqflow.realization import (STATUS_FAILED, STATUS_PENDING, batch_arguments,
+                                empty_runs, run_batch, store_batch)
 from uqflow.store import now, read_runs, versions, write_result
 from uqflow.study import Study
 
@@ -54,8 +54,8 @@ def _worker_solver(solver_class, scene: dict):
     return _SOLVERS[key]
 
 
-def _work(solver_class, scene, names, values, outputs):
-    return run_batch(_worker_solver(solver_class, scene), names, values, outputs)
+def _work(solver_class, scene, names, outputs, arguments):
+    return run_batch(_worker_solver(solver_class, scene), names, outputs=outputs, **arguments)
 
 
 # --- on the client --------------------------------------------------------------------------
@@ -138,7 +138,6 @@ def run_study(study: Study, *, workers: int | None = None, scheduler: str | None
 
     design = runs.drop_vars([*study.outputs, *_RUN_COLUMNS], errors="ignore")
     names = [str(p) for p in runs["parameter"].values]
-    values = runs["inputs"].values
     n_total = runs.sizes["realization"]
     size = _batch_size(study, pending.size, workers if scheduler is None else 2)
     batches = [pending[i:i + size] for i in range(0, pending.size, size)]
@@ -157,11 +156,12 @@ def run_study(study: Study, *, workers: int | None = None, scheduler: str | None
     stop_reason = None
     if workers == 0 and scheduler is None:
         for k, idx in enumerate(batches):
-            stop_reason = record(k, run_batch(study.solver, names, values[idx], study.outputs))
+            stop_reason = record(k, run_batch(study.solver, names, outputs=study.outputs,
+                                              **batch_arguments(runs, idx, study.fields)))
             if stop_reason:
                 break
     else:
-        stop_reason = _run_on_dask(study, workers, scheduler, names, values, batches, record)
+        stop_reason = _run_on_dask(study, workers, scheduler, names, runs, batches, record)
     bar.close()
 
     if stop_reason and stop_reason.startswith("failed:"):
@@ -224,7 +224,7 @@ def _base_enough():
     return PropagationMethod.enough
 
 
-def _run_on_dask(study, workers, scheduler, names, values, batches, record):
+def _run_on_dask(study, workers, scheduler, names, runs, batches, record):
     from dask.distributed import Client, LocalCluster, as_completed
 
     cluster = None
@@ -243,8 +243,9 @@ def _run_on_dask(study, workers, scheduler, names, values, batches, record):
                          key="execution.scheduler") from None
     stop_reason = None
     try:
-        futures = {client.submit(_work, study.solver_class, study.scene, names, values[idx],
-                                 study.outputs, pure=False): k for k, idx in enumerate(batches)}
+        futures = {client.submit(_work, study.solver_class, study.scene, names, study.outputs,
+                                 batch_arguments(runs, idx, study.fields), pure=False): k
+                   for k, idx in enumerate(batches)}
         for future in as_completed(futures):
             stop_reason = record(futures[future], future.result())
             if stop_reason:

@@ -6,6 +6,8 @@ and on a remote one, and so a method's tests can evaluate a design directly.
 
 from __future__ import annotations
 
+import inspect
+import re
 import time
 import traceback
 
@@ -31,7 +33,19 @@ def empty_runs(design: xr.Dataset, template: xr.Dataset) -> xr.Dataset:
     return runs
 
 
-def run_one(solver, params: dict, fields: dict | None, outputs: list[str]):
+def germ_variable(field_name: str) -> str:
+    """Name of the design variable holding a field's KL germs (netCDF-safe)."""
+    return "germ_" + re.sub(r"[^0-9A-Za-z_]", "_", field_name)
+
+
+def _takes_seed(solver) -> bool:
+    try:
+        return "seed" in inspect.signature(solver.run).parameters
+    except (TypeError, ValueError):
+        return False
+
+
+def run_one(solver, params: dict, fields, outputs: list[str], seed: int | None = None):
     """One realization: (status, message, {output: array}, wall time).
 
     A ``SolverError`` or any other exception, and any non-finite output, make the
@@ -39,7 +53,8 @@ def run_one(solver, params: dict, fields: dict | None, outputs: list[str]):
     """
     start = time.perf_counter()
     try:
-        result = solver.run(params, fields) if fields else solver.run(params)
+        kwargs = {"seed": seed} if seed is not None and _takes_seed(solver) else {}
+        result = solver.run(params, fields, **kwargs) if fields else solver.run(params, **kwargs)
         values = {name: np.asarray(result[name].values, dtype=float) for name in outputs}
         bad = [name for name, v in values.items() if not np.all(np.isfinite(v))]
         if bad:
@@ -57,20 +72,45 @@ def run_one(solver, params: dict, fields: dict | None, outputs: list[str]):
 
 
 def run_batch(solver, names: list[str], values: np.ndarray, outputs: list[str],
-              fields: list[dict] | None = None) -> dict:
-    """Run realizations given as rows of ``values``; returns plain arrays (cheap to ship)."""
+              fields: list | None = None, germs: dict | None = None,
+              seeds: np.ndarray | None = None) -> dict:
+    """Run realizations given as rows of ``values``; returns plain arrays (cheap to ship).
+
+    ``fields`` are the study's RandomFields and ``germs`` their germs for these rows
+    (``germ_variable(name)`` -> (rows, modes)); ``seeds`` the per-realization seeds, passed
+    to solvers whose ``run`` takes ``seed`` (e.g. for a random grid).
+    """
+    if fields:
+        from uqflow.fields import FieldSample
+
     statuses, messages, times = [], [], []
     results = {name: [] for name in outputs}
     for i, row in enumerate(values):
         params = dict(zip(names, (float(v) for v in row)))
-        status, message, got, wall = run_one(solver, params, fields[i] if fields else None,
-                                             outputs)
+        sample = None
+        if fields:
+            sample = FieldSample(fields, {f.name: germs[germ_variable(f.name)][i]
+                                          for f in fields})
+        seed = int(seeds[i]) if seeds is not None else None
+        status, message, got, wall = run_one(solver, params, sample, outputs, seed)
         statuses.append(status)
         messages.append(message)
         times.append(wall)
         for name in outputs:
             results[name].append(got.get(name))
     return {"status": statuses, "message": messages, "wall_time": times, "outputs": results}
+
+
+def batch_arguments(runs: xr.Dataset, indices: np.ndarray, fields: list | None) -> dict:
+    """The per-row inputs of ``run_batch`` for realizations ``indices`` of ``runs``."""
+    args = {"values": runs["inputs"].values[indices]}
+    if fields:
+        args["fields"] = fields
+        args["germs"] = {germ_variable(f.name): runs[germ_variable(f.name)].values[indices]
+                         for f in fields}
+    if "realization_seed" in runs:
+        args["seeds"] = runs["realization_seed"].values[indices]
+    return args
 
 
 def store_batch(runs: xr.Dataset, indices: np.ndarray, batch: dict) -> None:
@@ -84,12 +124,14 @@ def store_batch(runs: xr.Dataset, indices: np.ndarray, batch: dict) -> None:
                 runs[name].values[idx] = vals[k]
 
 
-def evaluate_design(solver, design: xr.Dataset, outputs: list[str] | None = None) -> xr.Dataset:
+def evaluate_design(solver, design: xr.Dataset, outputs: list[str] | None = None,
+                    fields: list | None = None) -> xr.Dataset:
     """Run every realization of ``design`` in this process and return the runs dataset."""
     template = solver.outputs()
     outputs = list(template.data_vars) if outputs is None else list(outputs)
     runs = empty_runs(design, template[outputs])
     names = [str(p) for p in design["parameter"].values]
-    batch = run_batch(solver, names, design["inputs"].values, outputs)
-    store_batch(runs, np.arange(design.sizes["realization"]), batch)
+    every = np.arange(design.sizes["realization"])
+    batch = run_batch(solver, names, outputs=outputs, **batch_arguments(runs, every, fields))
+    store_batch(runs, every, batch)
     return runs

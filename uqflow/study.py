@@ -333,9 +333,9 @@ def _resolve(spec: StudySpec, path: Path, text: str, label: str) -> Study:
     except SceneError as exc:
         raise SceneError(exc.reason, file=scene_label or label, key=exc.key) from None
 
-    if not spec.inputs:
-        raise StudyError("a study needs at least one uncertain input: add an [[inputs]] table",
-                         key="inputs")
+    if not spec.inputs and not spec.fields:
+        raise StudyError("a study needs at least one uncertain input: add an [[inputs]] or "
+                         "a [[fields]] table", key="inputs")
     nominal = solver.nominal()
     for i, inp in enumerate(spec.inputs):
         if inp.name not in nominal:
@@ -362,9 +362,7 @@ def _resolve(spec: StudySpec, path: Path, text: str, label: str) -> Study:
             raise StudyError(exc.reason, key=f"inputs[{i}].{field_name}") from None
     space = InputSpace(inputs, _correlation(spec, inputs))
 
-    if spec.fields:
-        raise StudyError("no propagation method of this uqflow version takes random fields",
-                         key="fields")
+    fields = _random_fields(spec, solver, label)
 
     template = solver.outputs()
     outputs = list(template.data_vars) if spec.outputs is None else list(spec.outputs)
@@ -388,7 +386,7 @@ def _resolve(spec: StudySpec, path: Path, text: str, label: str) -> Study:
                                extra_known=("kind",)) from None
     except StudyError as exc:
         raise StudyError(exc.reason, key=exc.key or "method") from None
-    method.check(space, None)
+    method.check(space, fields)
 
     out = spec.output.path or f"results/{spec.name}.nc"
     output_path = (folder / out).resolve() if not Path(out).is_absolute() else Path(out)
@@ -396,7 +394,40 @@ def _resolve(spec: StudySpec, path: Path, text: str, label: str) -> Study:
         raise StudyError(f"a result file ends in .nc, got '{out}'", key="output.path")
     return Study(spec=spec, path=path, text=text, solver_class=solver_class, scene=scene,
                  solver=solver, space=space, method=method, outputs=outputs,
-                 output_path=output_path)
+                 output_path=output_path, fields=fields)
+
+
+def _random_fields(spec: StudySpec, solver: Solver, label: str) -> list:
+    """Validate the [[fields]] tables and build their KL bases on the solver's points."""
+    if not spec.fields:
+        return []
+    from uqflow.fields import FieldSpec, RandomField
+
+    fields, driven = [], {}
+    for i, raw in enumerate(spec.fields):
+        try:
+            fspec = FieldSpec.model_validate(raw)
+        except ValidationError as exc:
+            raise validation_error(exc, label, prefix=f"fields[{i}]") from None
+        if fspec.name in (f.name for f in fields):
+            raise StudyError(f"field '{fspec.name}' is declared twice", key=f"fields[{i}].name")
+        points = None
+        for j, target in enumerate(fspec.targets):
+            where = f"fields[{i}].parameters[{j}]" if fspec.parameters else f"fields[{i}].name"
+            if target in driven:
+                raise StudyError(f"'{target}' is already driven by field '{driven[target]}'",
+                                 key=where)
+            try:
+                target_points = np.asarray(solver.field_points(target), dtype=float)
+            except SceneError as exc:
+                raise StudyError(exc.reason, key=where) from None
+            points = target_points if points is None else points
+            driven[target] = fspec.name
+        try:
+            fields.append(RandomField(fspec, points))
+        except (ValueError, StudyError) as exc:
+            raise StudyError(str(getattr(exc, "reason", exc)), key=f"fields[{i}]") from None
+    return fields
 
 
 def _load_scene(scene, folder: Path, label: str) -> tuple[dict, str | None]:

@@ -198,7 +198,11 @@ class RandomEBar:
         self.outputs = _scalar("end_displacement", "m")
 
     def __call__(self, p, fields):
-        if fields and "E" in fields:
+        if fields and "bar.E" in fields:
+            # A study's random field (uqflow.fields.FieldSample), around the sampled mean E.
+            e = fields.values("bar.E", self.x, mean=float(p["bar.E"]), lower=0.0)
+        elif fields and "E" in fields:
+            # Direct API use: the field's values at field_points("E").
             e = np.asarray(fields["E"], dtype=float).reshape(-1)
             if e.size != self.x.size:
                 raise SolverError(f"field E has {e.size} values, the bar has {self.x.size} "
@@ -284,7 +288,7 @@ class AnalyticSolver(Solver):
         return dict(getattr(self.model, "units", {}))
 
     def field_points(self, name: str) -> np.ndarray:
-        if name == "E" and isinstance(self.model, RandomEBar):
+        if name in ("E", "bar.E") and isinstance(self.model, RandomEBar):
             return self.model.x[:, None]
         return super().field_points(name)
 

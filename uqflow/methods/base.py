@@ -27,6 +27,7 @@ import numpy as np
 import xarray as xr
 from pydantic import BaseModel, ConfigDict
 
+from uqflow.errors import StudyError
 from uqflow.inputs import InputSpace
 from uqflow.registry import Registry
 
@@ -57,9 +58,15 @@ class PropagationMethod(abc.ABC):
     def __init__(self, **options):
         self.options = self.Options(**options)
 
+    #: whether ``plan`` draws random-field germs (``[[fields]]`` in a study)
+    accepts_fields: ClassVar[bool] = False
+
     def check(self, space: InputSpace, fields: list | None) -> None:
         """Raise ``StudyError`` if this method cannot treat ``space``; cheap, run at load time
         (so ``uqflow validate`` catches it) and again by ``plan``."""
+        if fields and not self.accepts_fields:
+            raise StudyError(f"method '{self.name}' takes no random fields; use kl-weibull, or "
+                             f"drop the [[fields]] tables", key="fields")
 
     @abc.abstractmethod
     def plan(self, space: InputSpace, fields: list | None,

@@ -40,6 +40,7 @@ class MonteCarlo(PropagationMethod):
     Options = MonteCarloOptions
 
     def plan(self, space, fields, seed):
+        self.check(space, fields)
         u = unit_hypercube(self.options.rule, self.options.samples, len(space), seed)
         design = make_design(space, space.from_unit_hypercube(u))
         design.attrs["rule"] = self.options.rule

@@ -47,6 +47,7 @@ class Sobol(PropagationMethod):
     Options = SobolOptions
 
     def check(self, space, fields):
+        super().check(space, fields)
         if space.is_correlated:
             raise StudyError("sobol indices assume independent inputs; remove the correlation "
                              "or use monte-carlo", key="method.kind")

@@ -69,9 +69,7 @@ class Taylor(PropagationMethod):
 
     # ------------------------------------------------------------------ plan
     def check(self, space, fields):
-        if fields:
-            raise StudyError("the taylor method takes scalar inputs only, not random fields",
-                             key="fields")
+        super().check(space, fields)
         opts = self.options
         h = opts.step * space.stds
         active = np.flatnonzero(h > 0)
