@@ -39,8 +39,9 @@ def _parser() -> argparse.ArgumentParser:
     val = sub.add_parser("validate", help="check study files without running them")
     val.add_argument("studies", type=Path, nargs="+")
 
-    rep = sub.add_parser("report", help="print the table and redraw the figures of a result")
-    rep.add_argument("result", type=Path)
+    rep = sub.add_parser("report", help="print the table and redraw the figures of results; "
+                         "a solver may add a comparison across several results")
+    rep.add_argument("results", type=Path, nargs="+")
     rep.add_argument("--figures", type=Path, default=None,
                      help="folder for the PNG figures (default: beside the result)")
     rep.add_argument("--no-figures", action="store_true")
@@ -88,16 +89,28 @@ def _validate(args) -> int:
 def _report(args) -> int:
     from uqflow import report
 
-    tree = report.open_result(args.result)
-    print(report.summary_table(tree))
-    notes = tree["statistics"].attrs.get("warnings", "") if "statistics" in tree.children \
-        else ""
-    for message in filter(None, notes.split("\n")):
-        print(f"warning: {message}", file=sys.stderr)
-    if not args.no_figures:
-        folder = args.figures or report.figure_folder(args.result)
-        for fig in report.write_figures(tree, folder):
-            print(f"figure: {fig}")
+    trees = []
+    for path in args.results:
+        tree = report.open_result(path)
+        trees.append(tree)
+        if len(args.results) > 1:
+            print(f"== {path}")
+        print(report.summary_table(tree))
+        notes = tree["statistics"].attrs.get("warnings", "") \
+            if "statistics" in tree.children else ""
+        for message in filter(None, notes.split("\n")):
+            print(f"warning: {message}", file=sys.stderr)
+        if not args.no_figures:
+            folder = args.figures or report.figure_folder(path)
+            for fig in report.write_figures(tree, folder):
+                print(f"figure: {fig}")
+    text, figures = report.solver_report(trees, args.figures or
+                                         report.figure_folder(args.results[0]).parent,
+                                         figures=not args.no_figures)
+    if text:
+        print(text)
+    for fig in figures:
+        print(f"figure: {fig}")
     return 0
 
 

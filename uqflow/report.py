@@ -625,3 +625,24 @@ def _method_name(method: str) -> str:
 
 _FIGURES = [("histogram", _histogram), ("band", _band), ("convergence", _convergence),
             ("sobol", _sobol), ("contributions", _contributions)]
+
+
+def solver_report(trees: list, folder: Path, figures: bool = True) -> tuple[str, list[Path]]:
+    """What the results' solver adds: its ``report(trees, folder, figures)`` classmethod, if any.
+
+    A solver knows the comparisons its users look at (the gamut bar prints the seed's Table 1
+    beside ours and draws the seed's figures); results of different solvers are not mixed.
+    """
+    from uqflow.solver import get_solver
+
+    solvers = {str(t.attrs.get("solver", "")) for t in trees}
+    if len(solvers) != 1 or "" in solvers:
+        return "", []
+    try:
+        solver_class = get_solver(solvers.pop())
+    except StudyError:
+        return "", []
+    hook = getattr(solver_class, "report", None)
+    if hook is None:
+        return "", []
+    return hook(trees, Path(folder), figures=figures)

@@ -333,9 +333,6 @@ def _resolve(spec: StudySpec, path: Path, text: str, label: str) -> Study:
     except SceneError as exc:
         raise SceneError(exc.reason, file=scene_label or label, key=exc.key) from None
 
-    if not spec.inputs and not spec.fields:
-        raise StudyError("a study needs at least one uncertain input: add an [[inputs]] or "
-                         "a [[fields]] table", key="inputs")
     nominal = solver.nominal()
     for i, inp in enumerate(spec.inputs):
         if inp.name not in nominal:
@@ -386,6 +383,10 @@ def _resolve(spec: StudySpec, path: Path, text: str, label: str) -> Study:
                                extra_known=("kind",)) from None
     except StudyError as exc:
         raise StudyError(exc.reason, key=exc.key or "method") from None
+    if not spec.inputs and not spec.fields and method.needs_inputs:
+        raise StudyError("a study needs at least one uncertain input: add an [[inputs]] or "
+                         "a [[fields]] table (or use kind = \"nominal\" for one deterministic "
+                         "run)", key="inputs")
     method.check(space, fields)
 
     out = spec.output.path or f"results/{spec.name}.nc"

@@ -60,6 +60,8 @@ class PropagationMethod(abc.ABC):
 
     #: whether ``plan`` draws random-field germs (``[[fields]]`` in a study)
     accepts_fields: ClassVar[bool] = False
+    #: whether a study must declare at least one random input or field
+    needs_inputs: ClassVar[bool] = True
 
     def check(self, space: InputSpace, fields: list | None) -> None:
         """Raise ``StudyError`` if this method cannot treat ``space``; cheap, run at load time

@@ -1,0 +1,40 @@
+"""The deterministic run: every input at its mean, every random field at its mean."""
+
+from __future__ import annotations
+
+import numpy as np
+import xarray as xr
+
+from uqflow.methods.base import (PropagationMethod, failure_warning, finish_statistics,
+                                 make_design, ok_mask, output_names, register_method)
+from uqflow.realization import germ_variable
+
+
+@register_method("nominal")
+class Nominal(PropagationMethod):
+    """One run at the inputs' means and the fields' means: the deterministic reference."""
+
+    accepts_fields = True
+    needs_inputs = False
+
+    def plan(self, space, fields, seed):
+        self.check(space, fields)
+        design = make_design(space, space.means[None, :])
+        for field in fields or []:
+            # Zero germs: the KL sum vanishes and every field equals its mean exactly.
+            design[germ_variable(field.name)] = (
+                ("realization", f"mode_{germ_variable(field.name)[5:]}"),
+                np.zeros((1, field.n_modes)))
+        return design
+
+    def analyze(self, design, runs):
+        ok = ok_mask(runs)
+        data = {}
+        for out in output_names(runs):
+            value = runs[out].values[0] if ok[0] else np.full(runs[out].shape[1:], np.nan)
+            zero = np.zeros_like(value)
+            data[out] = (("statistic", *runs[out].dims[1:]), np.stack([value, zero, zero]))
+        stats = xr.Dataset(data, coords={"statistic": ["mean", "variance", "std"]})
+        stats = stats.assign_coords({d: runs[d] for d in runs.coords
+                                     if d != "realization" and d in stats.dims})
+        return finish_statistics(stats, design, runs, self.name, failure_warning(runs))
