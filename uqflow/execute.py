@@ -24,7 +24,7 @@ from uqflow.realization import (STATUS_FAILED, STATUS_PENDING, batch_arguments,
 from uqflow.store import now, read_runs, versions, write_result
 from uqflow.study import Study
 
-_RUN_COLUMNS = {"status", "message", "wall_time"}
+_RUN_COLUMNS = {"status", "message", "wall_time", "clipped_points"}
 
 
 class StudyFailed(UqflowError):
@@ -243,9 +243,15 @@ def _run_on_dask(study, workers, scheduler, names, runs, batches, record):
                          key="execution.scheduler") from None
     stop_reason = None
     try:
-        futures = {client.submit(_work, study.solver_class, study.scene, names, study.outputs,
-                                 batch_arguments(runs, idx, study.fields), pure=False): k
-                   for k, idx in enumerate(batches)}
+        # Fields (their KL bases) travel to each worker once, not with every batch.
+        fields = client.scatter(study.fields, broadcast=True) if study.fields else None
+        futures = {}
+        for k, idx in enumerate(batches):
+            arguments = batch_arguments(runs, idx, study.fields)
+            if fields is not None:
+                arguments["fields"] = fields
+            futures[client.submit(_work, study.solver_class, study.scene, names, study.outputs,
+                                  arguments, pure=False)] = k
         for future in as_completed(futures):
             stop_reason = record(futures[future], future.result())
             if stop_reason:

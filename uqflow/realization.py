@@ -30,6 +30,9 @@ def empty_runs(design: xr.Dataset, template: xr.Dataset) -> xr.Dataset:
     runs["status"] = ("realization", np.full(n, STATUS_PENDING, dtype=object))
     runs["message"] = ("realization", np.full(n, "", dtype=object))
     runs["wall_time"] = ("realization", np.full(n, np.nan), {"units": "s"})
+    if any(str(v).startswith("germ_") for v in design.data_vars):
+        runs["clipped_points"] = ("realization", np.zeros(n, dtype=np.int64), {
+            "long_name": "field values clipped into the parameter's physical range"})
     return runs
 
 
@@ -83,7 +86,7 @@ def run_batch(solver, names: list[str], values: np.ndarray, outputs: list[str],
     if fields:
         from uqflow.fields import FieldSample
 
-    statuses, messages, times = [], [], []
+    statuses, messages, times, clipped = [], [], [], []
     results = {name: [] for name in outputs}
     for i, row in enumerate(values):
         params = dict(zip(names, (float(v) for v in row)))
@@ -93,12 +96,14 @@ def run_batch(solver, names: list[str], values: np.ndarray, outputs: list[str],
                                           for f in fields})
         seed = int(seeds[i]) if seeds is not None else None
         status, message, got, wall = run_one(solver, params, sample, outputs, seed)
+        clipped.append(sum(sample.clipped.values()) if sample is not None else 0)
         statuses.append(status)
         messages.append(message)
         times.append(wall)
         for name in outputs:
             results[name].append(got.get(name))
-    return {"status": statuses, "message": messages, "wall_time": times, "outputs": results}
+    return {"status": statuses, "message": messages, "wall_time": times, "outputs": results,
+            "clipped_points": clipped}
 
 
 def batch_arguments(runs: xr.Dataset, indices: np.ndarray, fields: list | None) -> dict:
@@ -119,6 +124,8 @@ def store_batch(runs: xr.Dataset, indices: np.ndarray, batch: dict) -> None:
         runs["status"].values[idx] = batch["status"][k]
         runs["message"].values[idx] = batch["message"][k]
         runs["wall_time"].values[idx] = batch["wall_time"][k]
+        if "clipped_points" in runs:
+            runs["clipped_points"].values[idx] = batch["clipped_points"][k]
         for name, vals in batch["outputs"].items():
             if vals[k] is not None and batch["status"][k] == STATUS_OK:
                 runs[name].values[idx] = vals[k]

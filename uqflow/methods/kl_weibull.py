@@ -1,0 +1,138 @@
+"""KL–Weibull: Monte Carlo over random fields (seed 002, eqs. 26–27) and scalar inputs.
+
+Every realization gets the scalar inputs as Monte Carlo (rule "random") would sample them,
+and for every random field its KL germs: ``germ_<field>`` (realization, ``mode_<field>``),
+drawn from ``germ_seed(seed, realization, field_index)`` so that realization i's germs do not
+depend on how many realizations the design has. The solver turns germs into field values
+through ``uqflow.fields.FieldSample``; the design stores germs, never field values.
+Statistics are Monte Carlo's (germs are not outputs). See docs/fields.md.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+from pydantic import Field, field_validator
+
+from uqflow.errors import StudyError
+from uqflow.fields import germ_seed
+from uqflow.methods.base import MethodOptions, make_design, register_method
+from uqflow.methods.monte_carlo import MonteCarlo
+from uqflow.realization import germ_variable
+from uqflow.sampling import unit_hypercube
+
+
+class KLWeibullOptions(MethodOptions):
+    realizations: int = Field(30, ge=1, description="number of realizations (seed 002: 30)")
+    quantiles: list[float] = Field(default_factory=lambda: [0.05, 0.5, 0.95])
+    confidence: float = Field(0.95, gt=0, lt=1, description="level of the mean's interval")
+    target_rel_stderr: float | None = Field(
+        None, gt=0, description="stop once stderr/|mean| of every output is below this")
+    min_samples: int = Field(10, ge=2, description="never stop on target before this many")
+    trace_points: int = Field(25, ge=2, description="sample counts in the convergence trace")
+
+    @field_validator("quantiles")
+    @classmethod
+    def _quantiles_in_unit_interval(cls, q):
+        if any(not 0 <= x <= 1 for x in q):
+            raise ValueError("every quantile must lie in [0, 1]")
+        return sorted(set(q))
+
+    # What MonteCarlo's analyze/enough read under their own names.
+    @property
+    def samples(self) -> int:
+        return self.realizations
+
+    @property
+    def rule(self) -> str:
+        return "random"
+
+
+def _field_name(field) -> str | None:
+    if isinstance(field, dict):
+        return field.get("name")
+    return getattr(field, "name", None)
+
+
+def _safe(name: str) -> str:
+    """``germ_variable(name)`` without its ``germ_`` prefix (netCDF-safe)."""
+    return germ_variable(name)[len("germ_"):]
+
+
+@register_method("kl-weibull")
+class KLWeibull(MonteCarlo):
+    """Random fields by KL expansion with symmetric-Weibull germs (seed 002), plus scalar MC."""
+
+    Options = KLWeibullOptions
+    accepts_fields = True
+
+    def check(self, space, fields):
+        if not fields:
+            raise StudyError("kl-weibull needs at least one random field ([[fields]] table); "
+                             "use monte-carlo for scalar inputs only", key="fields")
+        seen: dict[str, str] = {}
+        for i, f in enumerate(fields):
+            name = _field_name(f)
+            if not isinstance(name, str) or not name:
+                raise StudyError("every field needs a name", key=f"fields[{i}].name")
+            var = germ_variable(name)
+            if var in seen:
+                raise StudyError(f"fields '{seen[var]}' and '{name}' share the design "
+                                 f"variable '{var}' (names differ only in punctuation)",
+                                 key=f"fields[{i}].name")
+            seen[var] = name
+
+    def plan(self, space, fields, seed):
+        self.check(space, fields)
+        n = self.options.realizations
+        u = unit_hypercube("random", n, len(space), seed)
+        variables, attrs, mapping = {}, {}, {}
+        for k, field in enumerate(fields):
+            safe = _safe(field.name)
+            germs = np.empty((n, field.n_modes))
+            for i in range(n):
+                germs[i] = field.spec.germ.draw(
+                    field.n_modes, np.random.default_rng(germ_seed(seed, i, k)))
+            var = germ_variable(field.name)
+            mapping[field.name] = var
+            variables[var] = ((("realization", f"mode_{safe}"), germs,
+                               {"field": field.name, "germ": field.spec.germ.kind,
+                                "long_name": f"KL germs of random field '{field.name}'"}))
+            attrs.update(_field_attrs(field, safe))
+        design = make_design(space, space.from_unit_hypercube(u), **variables)
+        design.attrs["rule"] = "random"
+        design.attrs["realizations"] = n
+        design.attrs["fields"] = json.dumps(mapping)
+        design.attrs.update(attrs)
+        return design
+
+    def analyze(self, design, runs):
+        stats = super().analyze(design, runs)
+        field_attrs = {k: v for k, v in design.attrs.items()
+                       if k == "fields" or k.startswith("field_")}
+        stats.attrs.update(field_attrs)
+        warnings = [v for k, v in field_attrs.items() if k.endswith("_warning") and v]
+        if warnings:
+            old = stats.attrs.get("warnings", "")
+            stats.attrs["warnings"] = "\n".join([w for w in [old, *warnings] if w])
+        return stats
+
+
+def _field_attrs(field, safe: str) -> dict:
+    spec = field.spec
+    out = {
+        f"field_{safe}_captured_fraction": float(field.captured_fraction),
+        f"field_{safe}_modes": int(field.n_modes),
+        f"field_{safe}_kernel": spec.kernel,
+        f"field_{safe}_correlation_length": float(spec.correlation_length),
+        f"field_{safe}_amplitude": float(field.amplitude),
+        f"field_{safe}_germ": (spec.germ.kind if spec.germ.kind == "gaussian" else
+                               f"symmetric-weibull(scale={spec.germ.scale:g}, "
+                               f"shape={spec.germ.shape:g})"),
+        f"field_{safe}_parameters": ", ".join(spec.targets),
+        f"field_{safe}_kl": field.basis.method,
+    }
+    if field.warning:
+        out[f"field_{safe}_warning"] = field.warning
+    return out
