@@ -19,8 +19,8 @@ import xarray as xr
 
 from uqflow import progress as progress_mod
 from uqflow.errors import StudyError, UqflowError
-from uqflow.realization import (STATUS_FAILED, STATUS_PENDING, batch_arguments,
-                                empty_runs, run_batch, store_batch)
+from uqflow.realization import (STATUS_FAILED, STATUS_PENDING, add_field_value_variables,
+                                batch_arguments, empty_runs, run_batch, store_batch)
 from uqflow.store import now, read_runs, versions, write_result
 from uqflow.study import Study
 
@@ -115,7 +115,8 @@ def _prepare(study: Study, resume: bool, force: bool):
         return runs, attrs
     seed = np.random.SeedSequence(study.spec.execution.seed)
     design = study.method.plan(study.space, study.fields or None, seed)
-    runs = empty_runs(design, study.solver.outputs()[study.outputs])
+    runs = add_field_value_variables(empty_runs(design, study.solver.outputs()[study.outputs]),
+                                     study.fields, study.solver)
     # A seed per realization, spawned by index: reproducible without the rest of the design.
     runs["realization_seed"] = ("realization", np.array(
         [np.random.SeedSequence(study.spec.execution.seed, spawn_key=(int(i),))

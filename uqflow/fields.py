@@ -655,6 +655,8 @@ class FieldSample(Mapping):
                                      f"'{self._fields[p].name}' and '{f.name}'")
                 self._fields[p] = f
         self.clipped: dict[str, int] = {p: 0 for p in self._fields}
+        #: the last values handed out per parameter, for fields with ``store_values``
+        self.evaluated: dict[str, np.ndarray] = {}
 
     @classmethod
     def from_design(cls, fields: list[RandomField], design, realization: int) -> "FieldSample":
@@ -682,6 +684,8 @@ class FieldSample(Mapping):
                            f"(driven: {', '.join(self._fields) or 'none'})") from None
         values, n_clipped = field.realize(mean, self.germs[field.name], points, lower, upper)
         self.clipped[parameter] += n_clipped
+        if field.spec.store_values:
+            self.evaluated[parameter] = np.asarray(values, dtype=float).reshape(-1)
         return values
 
     def __repr__(self) -> str:

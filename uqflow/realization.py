@@ -41,6 +41,26 @@ def germ_variable(field_name: str) -> str:
     return "germ_" + re.sub(r"[^0-9A-Za-z_]", "_", field_name)
 
 
+def field_value_variable(parameter: str) -> str:
+    """Name of the runs variable holding a stored field's values for ``parameter``."""
+    return "field_" + re.sub(r"[^0-9A-Za-z_]", "_", parameter)
+
+
+def add_field_value_variables(runs: xr.Dataset, fields: list | None, solver) -> xr.Dataset:
+    """NaN-filled variables for the fields whose ``store_values`` is set, sized from the
+    solver's nominal points (a realization with more points keeps the first ones)."""
+    for field in fields or []:
+        if not field.spec.store_values:
+            continue
+        for parameter in field.targets:
+            name = field_value_variable(parameter)
+            n = len(np.asarray(solver.field_points(parameter)))
+            runs[name] = (("realization", f"{name}_point"),
+                          np.full((runs.sizes["realization"], n), np.nan),
+                          {"long_name": f"random-field values of {parameter}"})
+    return runs
+
+
 def _takes_seed(solver) -> bool:
     try:
         return "seed" in inspect.signature(solver.run).parameters
@@ -86,7 +106,7 @@ def run_batch(solver, names: list[str], values: np.ndarray, outputs: list[str],
     if fields:
         from uqflow.fields import FieldSample
 
-    statuses, messages, times, clipped = [], [], [], []
+    statuses, messages, times, clipped, evaluated = [], [], [], [], []
     results = {name: [] for name in outputs}
     for i, row in enumerate(values):
         params = dict(zip(names, (float(v) for v in row)))
@@ -97,13 +117,14 @@ def run_batch(solver, names: list[str], values: np.ndarray, outputs: list[str],
         seed = int(seeds[i]) if seeds is not None else None
         status, message, got, wall = run_one(solver, params, sample, outputs, seed)
         clipped.append(sum(sample.clipped.values()) if sample is not None else 0)
+        evaluated.append(sample.evaluated if sample is not None else {})
         statuses.append(status)
         messages.append(message)
         times.append(wall)
         for name in outputs:
             results[name].append(got.get(name))
     return {"status": statuses, "message": messages, "wall_time": times, "outputs": results,
-            "clipped_points": clipped}
+            "clipped_points": clipped, "field_values": evaluated}
 
 
 def batch_arguments(runs: xr.Dataset, indices: np.ndarray, fields: list | None) -> dict:
@@ -126,6 +147,11 @@ def store_batch(runs: xr.Dataset, indices: np.ndarray, batch: dict) -> None:
         runs["wall_time"].values[idx] = batch["wall_time"][k]
         if "clipped_points" in runs:
             runs["clipped_points"].values[idx] = batch["clipped_points"][k]
+        for parameter, values in batch.get("field_values", [{}] * len(indices))[k].items():
+            stored = runs[field_value_variable(parameter)].values[idx]
+            n = min(stored.size, values.size)  # random grids may move the point count
+            stored[:] = np.nan
+            stored[:n] = values[:n]
         for name, vals in batch["outputs"].items():
             if vals[k] is not None and batch["status"][k] == STATUS_OK:
                 runs[name].values[idx] = vals[k]
@@ -136,7 +162,7 @@ def evaluate_design(solver, design: xr.Dataset, outputs: list[str] | None = None
     """Run every realization of ``design`` in this process and return the runs dataset."""
     template = solver.outputs()
     outputs = list(template.data_vars) if outputs is None else list(outputs)
-    runs = empty_runs(design, template[outputs])
+    runs = add_field_value_variables(empty_runs(design, template[outputs]), fields, solver)
     names = [str(p) for p in design["parameter"].values]
     every = np.arange(design.sizes["realization"])
     batch = run_batch(solver, names, outputs=outputs, **batch_arguments(runs, every, fields))

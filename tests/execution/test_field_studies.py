@@ -125,3 +125,14 @@ def test_field_table_errors_name_the_key(tmp_path):
     with pytest.raises(uqflow.StudyError) as err:
         load_study(path)
     assert err.value.key == "fields[0].divisor"
+
+
+def test_store_values_keeps_the_field_the_solver_saw(tmp_path):
+    out = run_study(load_study(bar_study(tmp_path, amplitude="divisor = 10\nstore_values = true",
+                                         options="realizations = 6")), show_progress=False)
+    e = out.runs["field_bar_E"].values
+    assert e.shape == (6, 50)
+    dx = 0.1 / 50
+    np.testing.assert_allclose(out.runs["end_displacement"].values,
+                               2.0e4 / 1.0e-4 * (dx / e).sum(axis=1), rtol=1e-12)
+    assert "field_bar_E" not in out.statistics

@@ -115,7 +115,7 @@ def output_names(runs: xr.Dataset) -> list[str]:
     """The solver outputs stored in ``runs`` (everything with a ``realization`` dim but ours)."""
     skip = {"inputs", "status", "message", "wall_time", "realization_seed", "clipped_points"}
     return [v for v in runs.data_vars if v not in skip and "realization" in runs[v].dims
-            and not v.startswith("germ")]
+            and not v.startswith(("germ_", "field_"))]
 
 
 def ok_mask(runs: xr.Dataset) -> np.ndarray:
