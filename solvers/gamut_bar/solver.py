@@ -1,0 +1,545 @@
+"""The deformation-gamut bar as a uqflow Solver (seed 002; docs/gamut_bar.md)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+import numpy as np
+import xarray as xr
+
+from solvers.gamut_bar import kernels as K
+from solvers.gamut_bar.loading import (CyclicPlan, fit_cyclic, loop_amplitudes,
+                                       monotonic_forces, resample_path)
+from solvers.gamut_bar.materials import (MATERIALS, calibrate, family_weights,
+                                         modulus_of_softness, ro_stress)
+from solvers.gamut_bar.network import (bond_weights, build_network, effective_sigma,
+                                       grid_correction, nonlocal_bonds, stochastic_grid,
+                                       uniform_grid)
+from uqflow.errors import SceneError, SolverError
+from uqflow.solver import Solver, register_solver
+
+PROPERTIES = ("E", "sigma_y", "sigma_f", "eps_f", "n_ro", "K_ro", "rho", "nu", "R", "area",
+              "length")
+DEFAULTS = {
+    "material": "M1", "area": 1.0e-4, "length": 0.1, "local_bonds": 500, "grid": "uniform",
+    "grid_factor": 0.65, "min_spacing_fraction": 0.05, "grid_seed": 0, "sigma_stdev": 8.0,
+    "cutoff": 3.0, "loading": "monotonic", "curve_points": 400, "cycles": 10,
+    "cycle_repeats": 2, "amplitude_range": [1.0, 0.98], "initial_force": 0.01,
+    "force_growth": 1.01, "cyclic_increment": 0.01, "bisections": 30,
+}
+SCENE_KEYS = frozenset(DEFAULTS) | frozenset(PROPERTIES)
+GRIDS = ("uniform", "stochastic")
+LOADINGS = ("monotonic", "cyclic")
+PARAMETERS = ("bar.E", "bar.R", "bar.w", "bar.rho", "bar.sigma_y", "bar.sigma_f", "bar.eps_f",
+              "bar.n_ro", "bar.K_ro", "bar.area", "bar.length")
+UNITS = {"bar.E": "Pa", "bar.R": "", "bar.w": "", "bar.rho": "kg m-3", "bar.sigma_y": "Pa",
+         "bar.sigma_f": "Pa", "bar.eps_f": "", "bar.n_ro": "", "bar.K_ro": "",
+         "bar.area": "m2", "bar.length": "m"}      # "" where dimensionless (Solver contract)
+FIELDS = ("bar.E", "bar.R", "bar.w", "bar.rho")   # bar.w at nonlocal-bond midpoints
+RTOL = 1e-9           # Newton: |residual| ≤ RTOL · max(|F|, previous |F|, floor)
+MAXIT = 100
+
+
+# ------------------------------------------------------------------------------------------
+# Scene validation
+# ------------------------------------------------------------------------------------------
+
+def _is_number(v):
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+
+
+def _num(scene, key, *, positive=False, lo=None, hi=None):
+    v = scene[key]
+    if not _is_number(v) or not math.isfinite(v):
+        raise SceneError(f"must be a finite number, got {v!r}", key=f"scene.{key}")
+    v = float(v)
+    if positive and v <= 0:
+        raise SceneError(f"must be > 0, got {v!r}", key=f"scene.{key}")
+    if lo is not None and v < lo:
+        raise SceneError(f"must be >= {lo:g}, got {v!r}", key=f"scene.{key}")
+    if hi is not None and v > hi:
+        raise SceneError(f"must be <= {hi:g}, got {v!r}", key=f"scene.{key}")
+    return v
+
+
+def _int(scene, key, lo):
+    v = scene[key]
+    if not isinstance(v, (int, np.integer)) or isinstance(v, bool):
+        raise SceneError(f"must be an integer, got {v!r}", key=f"scene.{key}")
+    if v < lo:
+        raise SceneError(f"must be >= {lo}, got {v!r}", key=f"scene.{key}")
+    return int(v)
+
+
+def _choice(scene, key, options):
+    v = scene[key]
+    if not isinstance(v, str) or v not in options:
+        raise SceneError(f"must be one of {', '.join(options)}, got {v!r}", key=f"scene.{key}")
+    return v
+
+
+def _material_problem(p):
+    """First inconsistency of a property set as (key, reason), or None; and R of eq. 17."""
+    for key in ("E", "sigma_y", "sigma_f", "eps_f", "K_ro", "rho", "area", "length"):
+        if not p[key] > 0:
+            return (key, f"must be > 0, got {p[key]!r}"), None
+    if not p["n_ro"] > 1:
+        return ("n_ro", f"must be > 1, got {p['n_ro']!r}"), None
+    if p["sigma_f"] < p["sigma_y"]:
+        return ("sigma_f", f"failure stress {p['sigma_f']:g} Pa is below the yield stress "
+                           f"{p['sigma_y']:g} Pa"), None
+    eps_y = p["sigma_y"] / p["E"] + p["K_ro"]
+    if p["eps_f"] < eps_y:
+        return ("eps_f", f"failure strain {p['eps_f']:g} is below the yield strain "
+                         f"sigma_y/E + K_ro = {eps_y:g}"), None
+    R = modulus_of_softness(p["E"], p["sigma_f"], p["eps_f"], p["sigma_y"], p["n_ro"],
+                            p["K_ro"])
+    if not 0.0 < R < 1.0:
+        return ("eps_f", f"modulus of softness R (eq. 17) = {R:.4g} is not in (0, 1): the "
+                         f"properties do not describe a hardening, ductile material"), None
+    return None, R
+
+
+# ------------------------------------------------------------------------------------------
+# The solver
+# ------------------------------------------------------------------------------------------
+
+@register_solver("gamut_bar")
+class GamutBarSolver(Solver):
+    """1-D nonlocal deformation-gamut bar (seed 002): monotonic and cyclic tension–compression."""
+
+    def __init__(self, cfg: dict, props: dict):
+        self.cfg = cfg
+        self.props = props                      # nominal material (scene), SI
+        self.n = cfg["local_bonds"]
+        self.weights = family_weights(cfg["sigma_stdev"], cfg["cutoff"])
+        self.n_families = self.weights.size
+        self._R_given = cfg.pop("R_given")
+        if cfg["loading"] == "cyclic":
+            amps = self._amplitudes(props)
+            self.plan = CyclicPlan.for_amplitudes(amps, cfg["cycle_repeats"],
+                                                  cfg["cyclic_increment"])
+        else:
+            self.plan = None
+        self._nominal_x = uniform_grid(self.n, props["length"])
+        self._template = self._make_template()
+
+    # -- construction ----------------------------------------------------------------------
+
+    @classmethod
+    def from_scene(cls, scene: Mapping) -> "GamutBarSolver":
+        if not isinstance(scene, Mapping):
+            raise SceneError("must be a table", key="scene")
+        for key in scene:
+            if key == "eps_y":
+                raise SceneError("is derived (sigma_y/E + K_ro); set E, sigma_y or K_ro",
+                                 key="scene.eps_y")
+            if key not in SCENE_KEYS:
+                raise SceneError(f"unknown key (takes {', '.join(sorted(SCENE_KEYS))})",
+                                 key=f"scene.{key}")
+        s = dict(DEFAULTS)
+        s.update(scene)
+        cfg = {"material": _choice(s, "material", tuple(MATERIALS)),
+               "grid": _choice(s, "grid", GRIDS), "loading": _choice(s, "loading", LOADINGS)}
+        props = dict(MATERIALS[cfg["material"]])
+        props["area"], props["length"] = DEFAULTS["area"], DEFAULTS["length"]
+        for key in PROPERTIES:
+            if key in scene:
+                props[key] = _num(scene, key)
+        problem, R_eq18 = _material_problem(props)
+        if problem:
+            raise SceneError(problem[1], key=f"scene.{problem[0]}")
+        if "R" in scene:
+            if not 0.0 < props["R"] < 1.0:
+                raise SceneError(f"must be in (0, 1), got {props['R']!r}", key="scene.R")
+        else:
+            props["R"] = R_eq18
+        cfg["R_given"] = "R" in scene
+        cfg["local_bonds"] = _int(s, "local_bonds", 2)
+        cfg["grid_factor"] = _num(s, "grid_factor", lo=0.0)
+        cfg["min_spacing_fraction"] = _num(s, "min_spacing_fraction", positive=True, hi=0.99)
+        if 1.0 + cfg["grid_factor"] <= cfg["min_spacing_fraction"]:
+            raise SceneError("no spacing can be drawn above it (1 + grid_factor)",
+                             key="scene.min_spacing_fraction")
+        cfg["grid_seed"] = _int(s, "grid_seed", 0)
+        cfg["sigma_stdev"] = _num(s, "sigma_stdev", positive=True)
+        cfg["cutoff"] = _num(s, "cutoff", positive=True)
+        if cfg["cutoff"] * cfg["sigma_stdev"] < 2.0:
+            raise SceneError(f"cutoff × sigma_stdev = {cfg['cutoff'] * cfg['sigma_stdev']:g} "
+                             f"spacings: no nonlocal bond (degree ≥ 2) within it",
+                             key="scene.cutoff")
+        cfg["curve_points"] = _int(s, "curve_points", 2)
+        cfg["cycles"] = _int(s, "cycles", 2)
+        cfg["cycle_repeats"] = _int(s, "cycle_repeats", 1)
+        rng = s["amplitude_range"]
+        if (not isinstance(rng, (list, tuple)) or len(rng) != 2
+                or not all(_is_number(v) and math.isfinite(v) and v > 0 for v in rng)):
+            raise SceneError(f"must be [low, high], positive fractions of (sigma_y, sigma_f), "
+                             f"got {rng!r}", key="scene.amplitude_range")
+        cfg["amplitude_range"] = (float(rng[0]), float(rng[1]))
+        if rng[0] * props["sigma_y"] >= rng[1] * props["sigma_f"]:
+            raise SceneError("low·sigma_y must be below high·sigma_f",
+                             key="scene.amplitude_range")
+        top = ro_stress(props["eps_f"], props["E"], props["sigma_y"], props["n_ro"],
+                        props["K_ro"])
+        if rng[1] * props["sigma_f"] >= top:
+            raise SceneError(f"the highest amplitude {rng[1] * props['sigma_f']:.4g} Pa is not "
+                             f"below the stress at the failure strain ({top:.4g} Pa)",
+                             key="scene.amplitude_range")
+        cfg["initial_force"] = _num(s, "initial_force", positive=True)
+        cfg["force_growth"] = _num(s, "force_growth", positive=True)
+        if cfg["force_growth"] <= 1.0:
+            raise SceneError(f"must be > 1, got {cfg['force_growth']!r}",
+                             key="scene.force_growth")
+        cfg["cyclic_increment"] = _num(s, "cyclic_increment", positive=True, hi=0.5)
+        if abs(1.0 / cfg["cyclic_increment"] - round(1.0 / cfg["cyclic_increment"])) > 1e-9:
+            raise SceneError("must be 1/integer (e.g. 0.01)", key="scene.cyclic_increment")
+        cfg["bisections"] = _int(s, "bisections", 1)
+        return cls(cfg, props)
+
+    def _amplitudes(self, p):
+        lo, hi = self.cfg["amplitude_range"]
+        return np.geomspace(lo * p["sigma_y"], hi * p["sigma_f"], self.cfg["cycles"])
+
+    def describe(self) -> str:
+        c = self.cfg
+        return (f"gamut_bar/{c['material']} {c['loading']}, {self.n} local bonds, "
+                f"{c['grid']} grid")
+
+    # -- contract --------------------------------------------------------------------------
+
+    def nominal(self) -> dict[str, float]:
+        p = self.props
+        return {"bar.E": p["E"], "bar.R": p["R"], "bar.w": 1.0, "bar.rho": p["rho"],
+                "bar.sigma_y": p["sigma_y"], "bar.sigma_f": p["sigma_f"],
+                "bar.eps_f": p["eps_f"], "bar.n_ro": p["n_ro"], "bar.K_ro": p["K_ro"],
+                "bar.area": p["area"], "bar.length": p["length"]}
+
+    def parameter_units(self) -> dict[str, str]:
+        return dict(UNITS)
+
+    def field_points(self, name: str) -> np.ndarray:
+        """Points (m) of the nominal (uniform) grid where a field is evaluated: local-bond
+        midpoints for E, R, rho; the distinct nonlocal-bond midpoints for w."""
+        key = _field_key(name)
+        if key is None:
+            return super().field_points(name)
+        x = self._nominal_x
+        if key == "bar.w":
+            bonds = nonlocal_bonds(x, self._cut_length(self.props["length"]))
+            idx = np.unique(bonds.midpoint_index)
+            return (0.5 * (x[idx // 2] + x[(idx + 1) // 2]))[:, None]
+        return (0.5 * (x[:-1] + x[1:]))[:, None]
+
+    def outputs(self) -> xr.Dataset:
+        return self._template.copy(deep=True)
+
+    def _make_template(self) -> xr.Dataset:
+        n = self.n
+        nan = np.nan
+        steps = self.cfg["curve_points"] if self.plan is None else self.plan.steps
+        data = {
+            "strain": (("step",), np.full(steps, nan), "1"),
+            "stress": (("step",), np.full(steps, nan), "Pa"),
+            "failure_strain": ((), nan, "1"),
+            "failure_stress": ((), nan, "Pa"),
+            "sigma_stdev": (("point",), np.full(n + 1, nan), "m"),
+            "x": (("point",), np.full(n + 1, nan), "m"),
+            "R": (("bond",), np.full(n, nan), "1"),
+            "bond_strain": (("bond",), np.full(n, nan), "1"),
+            "mass": ((), nan, "kg"),
+        }
+        coords = {"step": np.arange(steps), "point": np.arange(n + 1), "bond": np.arange(n)}
+        if self.plan is not None:
+            lv = self.plan.levels
+            data.update({
+                "stress_amplitude": (("loop",), np.full(lv, nan), "Pa"),
+                "strain_amplitude": (("loop",), np.full(lv, nan), "1"),
+                "plastic_strain_amplitude": (("loop",), np.full(lv, nan), "1"),
+                "n_prime": ((), nan, "1"),
+                "K_prime": ((), nan, "Pa"),
+            })
+            coords["loop"] = np.arange(lv)
+        ds = xr.Dataset({k: xr.Variable(d, v, {"units": u}) for k, (d, v, u) in data.items()},
+                        coords=coords)
+        return ds
+
+    # -- one realization -------------------------------------------------------------------
+
+    def _cut_length(self, length):
+        return self.cfg["cutoff"] * self.cfg["sigma_stdev"] * length / self.n
+
+    def _properties(self, params):
+        p = self.nominal()
+        for name, value in params.items():
+            if name not in p:
+                raise SolverError(f"unknown parameter '{name}' (known: {', '.join(PARAMETERS)})")
+            try:
+                p[name] = float(value)
+            except (TypeError, ValueError):
+                raise SolverError(f"parameter '{name}' is not a number: {value!r}") from None
+            if not math.isfinite(p[name]):
+                raise SolverError(f"parameter '{name}' is not finite: {value!r}")
+        q = {k.split(".", 1)[1]: v for k, v in p.items()}
+        problem, R_cal = _material_problem(q)
+        if problem:
+            raise SolverError(f"bar.{problem[0]}: {problem[1]}")
+        if "bar.R" not in params and not self._R_given:
+            q["R"] = R_cal          # eq. 18 of this run's properties
+        if not 0.0 < q["R"] < 1.0:
+            raise SolverError(f"bar.R = {q['R']!r} is not in (0, 1)")
+        if not q["w"] > 0:
+            raise SolverError(f"bar.w = {q['w']!r} is not > 0")
+        return q, R_cal
+
+    def _grid(self, length, seed):
+        if self.cfg["grid"] == "uniform":
+            return uniform_grid(self.n, length)
+        rng = np.random.default_rng(self.cfg["grid_seed"] if seed is None else seed)
+        return stochastic_grid(self.n, length, self.cfg["grid_factor"],
+                               self.cfg["min_spacing_fraction"], rng)
+
+    def run(self, params: Mapping[str, float] | None = None, fields=None,
+            seed: int | None = None) -> xr.Dataset:
+        q, R_cal = self._properties(dict(params or {}))
+        _check_fields(fields)
+        n, L, A = self.n, q["length"], q["area"]
+        x = self._grid(L, seed)
+        sbar = L / n
+        sigma = self.cfg["sigma_stdev"] * sbar
+        cut = self._cut_length(L)
+        mid = 0.5 * (x[:-1] + x[1:])
+        E_seg = _field_values(fields, "bar.E", mid, q["E"], 0.0, math.inf, "Pa")
+        R_seg = _field_values(fields, "bar.R", mid, q["R"], 0.0, 1.0, "")
+        rho = _field_values(fields, "bar.rho", mid, q["rho"], 0.0, math.inf, "kg/m3")
+        bonds = nonlocal_bonds(x, cut)
+        w_nominal = bond_weights(x, bonds, sigma, sbar, self.n_families)
+        w = w_nominal
+        if fields is not None and _field_key_in(fields, "bar.w") is not None:
+            bmid = 0.5 * (x[bonds.p] + x[bonds.q])
+            mu = _field_values(fields, "bar.w", bmid, q["w"], 0.0, math.inf, "",
+                               what="nonlocal bond")
+            w = bond_weights(x, bonds, sigma, sbar, self.n_families, mu)
+        cal = calibrate(q["E"], q["sigma_y"], q["n_ro"], q["K_ro"], q["eps_f"], R_cal,
+                        self.weights)
+        strains = np.geomspace(0.5 * q["sigma_y"] / q["E"], q["eps_f"], 60)
+        corr = grid_correction(x, bonds, w_nominal, sbar, cal, q["R"], strains)
+        net = build_network(x, E_seg, R_seg, A, bonds, w, cal, corr)
+        sim = _Simulation(net, q["eps_f"], L, 1e-6 * q["sigma_y"] * A, float(E_seg.max()))
+
+        ds = self._template.copy(deep=False)
+        out = {"sigma_stdev": effective_sigma(n + 1, bonds, w, sigma), "x": x, "R": R_seg,
+               "mass": float(np.sum(rho * A * net.seg))}
+        if self.plan is None:
+            out.update(self._monotonic(sim, q, A))
+        else:
+            out.update(self._cyclic(sim, q, A))
+        out["bond_strain"] = np.diff(sim.u) / net.seg
+        for name, value in out.items():
+            var = ds.variables[name]
+            var.values = np.asarray(value, dtype=float).reshape(var.shape).copy()
+        ds.attrs.update(sim.summary())
+        return ds
+
+    def _monotonic(self, sim, q, A):
+        c = self.cfg
+        f_cap = 10.0 * sim.E_max * q["eps_f"] * A   # the network's stress is below E·ε
+        forces = monotonic_forces(c["initial_force"], c["force_growth"], f_cap)
+        done = sim.follow(forces)
+        if done == forces.size:
+            raise SolverError(f"no failure up to {forces[-1]:.4g} N "
+                              f"(stress {forces[-1] / A:.4g} Pa)")
+        if done == 0:
+            raise SolverError(f"step 0 (force {forces[0]:.4g} N) failed: {sim.failure_text()}")
+        f_lo = sim.bisect(forces[done - 1], forces[done], c["bisections"])
+        strain = np.concatenate([[0.0], sim.out_u[:done] / sim.L, [sim.u[-1] / sim.L]])
+        stress = np.concatenate([[0.0], forces[:done] / A, [f_lo / A]])
+        es, ss = resample_path(strain, stress, q["eps_f"], q["sigma_f"], c["curve_points"])
+        return {"strain": es, "stress": ss, "failure_strain": sim.u[-1] / sim.L,
+                "failure_stress": f_lo / A}
+
+    def _cyclic(self, sim, q, A):
+        c = self.cfg
+        plan = self.plan
+        peaks = self._amplitudes(q) * A
+        forces, starts = plan.forces(peaks)
+        done = sim.follow(forces[1:])
+        if done < forces.size - 1:
+            s = done + 1
+            raise SolverError(f"cyclic step {s} (force {forces[s]:.6g} N, stress "
+                              f"{forces[s] / A:.6g} Pa) failed: {sim.failure_text()}")
+        strain = np.concatenate([[0.0], sim.out_u[:done] / sim.L])
+        stress = forces / A
+        sig_a, eps_a, eps_pa = loop_amplitudes(strain, stress, starts, 2 * plan.per_half,
+                                               q["E"])
+        n_prime, K_prime, used = fit_cyclic(sig_a, eps_pa, eps_a)
+        if used < 2:
+            raise SolverError(f"only {used} loop(s) with a plastic strain amplitude: n' and K' "
+                              f"cannot be fitted")
+        # pull to failure from the last peak (Masing memory: back on the virgin curve)
+        f_cap = 10.0 * sim.E_max * q["eps_f"] * A
+        pull = peaks[-1] * monotonic_forces(c["force_growth"], c["force_growth"],
+                                            f_cap / peaks[-1])
+        done2 = sim.follow(pull)
+        f_prev = peaks[-1] if done2 == 0 else pull[done2 - 1]
+        if done2 == pull.size:
+            raise SolverError(f"no failure up to {pull[-1]:.4g} N after the cycles")
+        f_lo = sim.bisect(f_prev, pull[done2], c["bisections"])
+        return {"strain": strain, "stress": stress, "stress_amplitude": sig_a,
+                "strain_amplitude": eps_a, "plastic_strain_amplitude": eps_pa,
+                "n_prime": n_prime, "K_prime": K_prime, "failure_strain": sim.u[-1] / sim.L,
+                "failure_stress": f_lo / A}
+
+
+# ------------------------------------------------------------------------------------------
+# Fields
+# ------------------------------------------------------------------------------------------
+
+def _field_key(name):
+    if name in FIELDS:
+        return name
+    if isinstance(name, str) and f"bar.{name}" in FIELDS:
+        return f"bar.{name}"
+    return None
+
+
+def _field_key_in(fields, name):
+    """The key under which ``fields`` holds parameter ``name`` ("bar.E" or "E"), or None."""
+    for key in (name, name.split(".", 1)[1]):
+        try:
+            if key in fields:
+                return key
+        except TypeError:
+            return None
+    return None
+
+
+def _check_fields(fields):
+    if fields is None:
+        return
+    try:
+        keys = list(fields.keys()) if hasattr(fields, "keys") else list(fields)
+    except TypeError:
+        return
+    for key in keys:
+        if _field_key(key) is None:
+            raise SolverError(f"no random field '{key}' in gamut_bar (fields: "
+                              f"{', '.join(FIELDS)})")
+
+
+def _field_values(fields, name, points, mean, lower, upper, unit, what="local bond"):
+    """The realization's field ``name`` at ``points`` (or the scalar ``mean`` everywhere);
+    SolverError if a value is outside (lower, upper) or not finite."""
+    key = _field_key_in(fields, name) if fields is not None else None
+    if key is None:
+        vals = np.full(points.size, float(mean))
+    else:
+        vals = np.asarray(fields.values(key, points, mean, lower, upper), dtype=float)
+        vals = vals.reshape(-1)
+        if vals.size != points.size:
+            raise SolverError(f"field {name} returned {vals.size} values for {points.size} "
+                              f"points")
+    ok = np.isfinite(vals) & (vals > lower) & (vals < upper)
+    if not ok.all():
+        i = int(np.flatnonzero(~ok)[0])
+        bound = f"in ({lower:g}, {upper:g})" if math.isfinite(upper) else f"> {lower:g}"
+        raise SolverError(f"{name} is not {bound} at {what} {i} (x = {points[i]:.6g} m): "
+                          f"{vals[i]!r} {unit}".rstrip())
+    return vals
+
+
+# ------------------------------------------------------------------------------------------
+# State and driver calls
+# ------------------------------------------------------------------------------------------
+
+class _Simulation:
+    """The state of one bar (displacements, slips, factor) and the kernel calls on it."""
+
+    def __init__(self, net, eps_f, L, f_floor, E_max):
+        self.net = net
+        self.eps_f = float(eps_f)
+        self.L = float(L)
+        self.f_floor = float(f_floor)
+        self.E_max = E_max
+        self.last_force = 0.0
+        nn = net.x.size - 1
+        ne = net.k.size
+        b = max(net.bandwidth, 1)
+        self.u = np.zeros(nn + 1)
+        self.ep_n = np.zeros(ne)
+        self.ep = np.zeros(ne)
+        self.st = np.zeros(ne, dtype=np.int8)
+        self.ab = np.zeros((nn, b + 1))
+        self.diag = np.zeros(nn)
+        self.fst = np.zeros(ne, dtype=np.int8)
+        self.fmeta = np.zeros(3, dtype=np.int64)
+        self.fmeta_f = np.zeros(1)
+        self.work = (np.zeros(nn), np.zeros(nn), np.zeros(ne), np.zeros(ne, dtype=np.int8),
+                     np.zeros(nn), np.zeros(nn + 1), np.zeros(nn + 1))
+        self.umax = 100.0 * max(self.eps_f, 1.0) * self.L
+        self.info = np.zeros(5)
+        self.out_u = np.zeros(0)
+        self.iterations = 0
+        self.factorisations = 0
+        self.steps = 0
+        self.failure = None
+
+    def _tols(self, forces, previous):
+        prev = np.concatenate([[previous], forces[:-1]])
+        return RTOL * np.maximum(np.maximum(np.abs(forces), np.abs(prev)), self.f_floor)
+
+    def follow(self, forces):
+        """Follow the forces from the current state up to the first failing step; returns the
+        number of steps done (the state is that of the last one)."""
+        n = self.net
+        forces = np.ascontiguousarray(forces, dtype=float)
+        prev = self.last_force
+        out = np.zeros(forces.size)
+        wr, wdu, wep, wst, wr2, uold, uprev = self.work
+        done = K.run_path(forces, self._tols(forces, prev), self.u, self.ep_n, self.ep,
+                          self.st, n.ei, n.ej, n.k, n.fc, self.ab, self.diag, self.fst,
+                          self.fmeta, self.fmeta_f, wr, wdu, wep, wst, wr2, uold, uprev, n.seg,
+                          self.eps_f, out, MAXIT, self.umax, self.info)
+        self.out_u = out
+        self.steps += done
+        self.iterations += int(self.info[3])
+        self.factorisations += int(self.info[4])
+        status = int(self.info[0])
+        if done:
+            self.last_force = float(forces[done - 1])
+        if status != K.OK:
+            self.failure = (status, int(self.info[1]), float(self.info[2]))
+        return done
+
+    def bisect(self, f_lo, f_hi, nbis):
+        n = self.net
+        wr, wdu, wep, wst, wr2, uold, uprev = self.work
+        f = K.bisect_failure(float(f_lo), float(f_hi), nbis, RTOL, self.f_floor, self.u,
+                             self.ep_n, self.ep, self.st, n.ei, n.ej, n.k, n.fc, self.ab,
+                             self.diag, self.fst, self.fmeta, self.fmeta_f, wr, wdu, wep, wst,
+                             wr2, uold, uprev, n.seg, self.eps_f, MAXIT, self.umax)
+        self.last_force = float(f)
+        return float(f)
+
+    def failure_text(self):
+        if self.failure is None:
+            return "no failure"
+        status, where, value = self.failure
+        text = K.STATUS_TEXT.get(status, f"status {status}")
+        x = self.net.x
+        if status == K.STRAIN:
+            text += (f" (bond {where}, x = {0.5 * (x[where] + x[where + 1]):.6g} m, strain "
+                     f"{value:.6g} > {self.eps_f:g})")
+        elif 0 <= where < x.size:
+            text += f" (point {where}, x = {x[where]:.6g} m"
+            text += ")" if not math.isfinite(value) else f", residual force {value:.6g} N)"
+        return text
+
+    def summary(self):
+        mode = "none"
+        if self.failure is not None:
+            mode = "local strain" if self.failure[0] == K.STRAIN else "limit load"
+        return {"failure_mode": mode, "steps": self.steps, "newton_iterations": self.iterations,
+                "factorisations": self.factorisations, "elements": int(self.net.k.size),
+                "bandwidth": int(self.net.bandwidth)}
