@@ -1,7 +1,7 @@
 """Load protocols of seed sec. 4.1 and what is read off them.
 
 Monotonic: F_0 = 0.01 N, ×1.01 per static step until failure. Cyclic: an incremental-step
-test, amplitude levels σ_a geometrically spaced from low·σ_y to high·σ_f; each level is run
+test, amplitude levels σ_a geometrically spaced from low·σ_y to high·σ_y; each level is run
 ``repeats`` times; each half-cycle goes in force increments of 1 % of the level's peak force
 and reverses when |σ| reaches the level's amplitude.
 """

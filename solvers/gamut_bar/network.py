@@ -296,7 +296,8 @@ class Network:
     bandwidth: int
 
 
-def build_network(x, E_seg, R_seg, area, bonds: Bonds, w, cal, corr: Correction) -> Network:
+def build_network(x, E_seg, R_seg, area, bonds: Bonds, w, cal, corr: Correction,
+                  E_ref: float | None = None) -> Network:
     """Elements of one realization (docs/gamut_bar.md §5).
 
     Nonlocal bond b of degree m: k_b l_b = s_b R_b w_b E_b A / m (m bonds of degree m cross each
@@ -305,6 +306,11 @@ def build_network(x, E_seg, R_seg, area, bonds: Bonds, w, cal, corr: Correction)
     Local bond i is a parallel set: the own share (1 − R_i − h) E_i A (times the correction),
     slipping first; a hardening share h·E_i A that never slips; the correction's top-ups
     (fractions of R_i E_i A) with their families' critical strains.
+
+    Critical strains are calibrated for the reference modulus ``E_ref`` (the material's E);
+    an element of another modulus keeps the critical *stress* E_ref·ε_c, so a random E field
+    changes the bar's stiffness but not its strength: the localized equivalent-isotropic
+    material of seed sec. 3.1.3 has a random E and the material's σ_y, σ_f.
     """
     n = x.size - 1
     seg = np.diff(x)
@@ -322,11 +328,14 @@ def build_network(x, E_seg, R_seg, area, bonds: Bonds, w, cal, corr: Correction)
     D = corr.topup * (R_seg * EA)[None, :]
     cuts = np.arange(n)
     fi, ci = np.nonzero(D)
+    E_ref = float(np.mean(E_seg)) if E_ref is None else float(E_ref)
+    stiffer = E_ref / E_seg                       # ε_c scale per segment: fixed critical stress
+    E_bond = E_b if bonds.p.size else np.zeros(0)
     parts = [  # (ei, ej, k·l, ε_c, length)
-        (cuts, cuts + 1, own, np.full(n, cal.eps_local), seg),
+        (cuts, cuts + 1, own, cal.eps_local * stiffer, seg),
         (cuts, cuts + 1, hard, np.full(n, np.inf), seg),
-        (ci, ci + 1, D[fi, ci], cal.eps_family[fi], seg[ci]),
-        (bonds.p, bonds.q, kl, corr.eps_c, bonds.length),
+        (ci, ci + 1, D[fi, ci], cal.eps_family[fi] * stiffer[ci], seg[ci]),
+        (bonds.p, bonds.q, kl, corr.eps_c * (E_ref / E_bond), bonds.length),
     ]
     ei = np.concatenate([p[0] for p in parts]).astype(np.int64)
     ej = np.concatenate([p[1] for p in parts]).astype(np.int64)

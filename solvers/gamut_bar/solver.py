@@ -25,7 +25,7 @@ DEFAULTS = {
     "material": "M1", "area": 1.0e-4, "length": 0.1, "local_bonds": 500, "grid": "uniform",
     "grid_factor": 0.65, "min_spacing_fraction": 0.05, "grid_seed": 0, "sigma_stdev": 8.0,
     "cutoff": 3.0, "loading": "monotonic", "curve_points": 400, "cycles": 10,
-    "cycle_repeats": 2, "amplitude_range": [1.0, 0.98], "initial_force": 0.01,
+    "cycle_repeats": 2, "amplitude_range": [1.0, 1.1], "initial_force": 0.01,
     "force_growth": 1.01, "cyclic_increment": 0.01, "bisections": 30,
 }
 SCENE_KEYS = frozenset(DEFAULTS) | frozenset(PROPERTIES)
@@ -175,16 +175,15 @@ class GamutBarSolver(Solver):
         rng = s["amplitude_range"]
         if (not isinstance(rng, (list, tuple)) or len(rng) != 2
                 or not all(_is_number(v) and math.isfinite(v) and v > 0 for v in rng)):
-            raise SceneError(f"must be [low, high], positive fractions of (sigma_y, sigma_f), "
+            raise SceneError(f"must be [low, high], positive multiples of sigma_y, "
                              f"got {rng!r}", key="scene.amplitude_range")
         cfg["amplitude_range"] = (float(rng[0]), float(rng[1]))
-        if rng[0] * props["sigma_y"] >= rng[1] * props["sigma_f"]:
-            raise SceneError("low·sigma_y must be below high·sigma_f",
-                             key="scene.amplitude_range")
+        if rng[0] >= rng[1]:
+            raise SceneError("low must be below high", key="scene.amplitude_range")
         top = ro_stress(props["eps_f"], props["E"], props["sigma_y"], props["n_ro"],
                         props["K_ro"])
-        if rng[1] * props["sigma_f"] >= top:
-            raise SceneError(f"the highest amplitude {rng[1] * props['sigma_f']:.4g} Pa is not "
+        if rng[1] * props["sigma_y"] >= top:
+            raise SceneError(f"the highest amplitude {rng[1] * props['sigma_y']:.4g} Pa is not "
                              f"below the stress at the failure strain ({top:.4g} Pa)",
                              key="scene.amplitude_range")
         cfg["initial_force"] = _num(s, "initial_force", positive=True)
@@ -200,7 +199,7 @@ class GamutBarSolver(Solver):
 
     def _amplitudes(self, p):
         lo, hi = self.cfg["amplitude_range"]
-        return np.geomspace(lo * p["sigma_y"], hi * p["sigma_f"], self.cfg["cycles"])
+        return np.geomspace(lo * p["sigma_y"], hi * p["sigma_y"], self.cfg["cycles"])
 
     def describe(self) -> str:
         c = self.cfg
@@ -325,7 +324,7 @@ class GamutBarSolver(Solver):
                         self.weights)
         strains = np.geomspace(0.5 * q["sigma_y"] / q["E"], q["eps_f"], 60)
         corr = grid_correction(x, bonds, w_nominal, sbar, cal, q["R"], strains)
-        net = build_network(x, E_seg, R_seg, A, bonds, w, cal, corr)
+        net = build_network(x, E_seg, R_seg, A, bonds, w, cal, corr, E_ref=q["E"])
         sim = _Simulation(net, q["eps_f"], L, 1e-6 * q["sigma_y"] * A, float(E_seg.max()))
 
         ds = self._template.copy(deep=False)

@@ -135,7 +135,7 @@ BAD_SCENES = [
     ({"cycles": 1}, "scene.cycles"),
     ({"amplitude_range": [1.0]}, "scene.amplitude_range"),
     ({"amplitude_range": [1.3, 0.5]}, "scene.amplitude_range"),
-    ({"amplitude_range": [1.0, 1.02]}, "scene.amplitude_range"),     # beyond σ(ε_f)
+    ({"amplitude_range": [1.0, 1.3]}, "scene.amplitude_range"),      # beyond σ(ε_f)
     ({"force_growth": 1.0}, "scene.force_growth"),
     ({"cyclic_increment": 0.03}, "scene.cyclic_increment"),
     ({"R": 1.2}, "scene.R"),

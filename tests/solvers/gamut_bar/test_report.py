@@ -1,0 +1,281 @@
+"""The gamut-bar report (solvers/gamut_bar/report.py): seed 002's Table 1 beside ours, the
+mean monotonic curve, the figures. Tiny studies (40 local bonds, 3 cycles, 3 realizations)
+run in-process into a temporary folder."""
+
+from __future__ import annotations
+
+import filecmp
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+
+import uqflow
+from solvers.gamut_bar import report as gb
+from uqflow.execute import run_study
+from uqflow.study import load_study
+
+ROOT = Path(__file__).resolve().parents[3]
+
+FIELDS = "".join(f"""
+[[fields]]
+name = "{name}"
+parameters = {params}
+kernel = "exponential"
+correlation_length = 0.01
+captured_variance = 0.95
+germ = {{ kind = "symmetric-weibull", scale = 1.0, shape = 2.0 }}
+divisor = 10
+""" for name, params in (("E", '["bar.E", "bar.rho"]'), ("R", '["bar.R"]'), ("w", '["bar.w"]')))
+
+# (material, extra scene text, loading, grid, stochastic)
+CASES = [
+    ("M1", "", "monotonic", "uniform", True),
+    ("M1", "", "monotonic", "uniform", False),
+    ("M1", "", "cyclic", "uniform", True),
+    ("M1", "", "cyclic", "uniform", False),
+    ("M1", "", "cyclic", "stochastic", True),
+    ("M2", ", n_ro = 21.0", "cyclic", "uniform", True),
+]
+
+
+def _write_study(folder: Path, material, extra, loading, grid, stochastic) -> Path:
+    kind = "stochastic" if stochastic else "deterministic"
+    name = f"t-{material.lower()}{'-nro21' if extra else ''}-{loading}-{kind}-{grid}"
+    cycles = ", cycles = 3" if loading == "cyclic" else ""
+    method = (FIELDS + '\n[method]\nkind = "kl-weibull"\nrealizations = 3\n' if stochastic
+              else '\n[method]\nkind = "nominal"\n')
+    text = (f'name = "{name}"\nsolver = "gamut_bar"\n'
+            f'scene = {{ material = "{material}"{extra}, local_bonds = 40, grid = "{grid}", '
+            f'loading = "{loading}"{cycles} }}\n{method}\n'
+            f'[execution]\nseed = 5\nworkers = 0\n\n'
+            f'[output]\npath = "out/{name}.nc"\nfigures = false\n')   # relative to the study
+    path = folder / f"{name}.toml"
+    path.write_text(text)
+    return path
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("gamut_report")
+    paths = []
+    for case in CASES:
+        outcome = run_study(load_study(_write_study(folder, *case)), workers=0,
+                            show_progress=False)
+        assert outcome.path == folder / "out" / outcome.path.name
+        paths.append(outcome.path)
+    return paths
+
+
+@pytest.fixture(scope="module")
+def trees(results):
+    return [uqflow.open_result(p) for p in results]
+
+
+def _by_name(trees, part):
+    return next(t for t in trees if t.attrs["study_name"] == f"t-{part}")
+
+
+def _ok_mean(tree, name):
+    runs = tree["runs"].to_dataset()
+    ok = runs["status"].values.astype(str) == "ok"
+    return float(np.asarray(runs[name].values)[ok].mean())
+
+
+# ----------------------------------------------------------------------------- seed numbers
+
+def test_seed_numbers_are_an_exact_copy_of_the_shipped_file():
+    copy = ROOT / "solvers" / "gamut_bar" / "data" / "seed_tables.toml"
+    assert filecmp.cmp(copy, ROOT / "tests" / "data" / "seed_tables.toml", shallow=False)
+    seed = gb.seed_tables()
+    assert seed["table1_material1"]["stochastic_grid"][0] == 0.0777
+    assert seed["table1_material2"]["experimental_K_range"] == [1340.5e6, 1537.6e6]
+
+
+# ----------------------------------------------------------------------------- identify
+
+def test_results_are_identified_from_their_study_text(trees):
+    found = {(r.case, r.loading, r.grid, r.stochastic, r.n_ok, r.total)
+             for r in map(gb.identify, trees)}
+    assert found == {
+        ("M1", "monotonic", "uniform", True, 3, 3), ("M1", "monotonic", "uniform", False, 1, 1),
+        ("M1", "cyclic", "uniform", True, 3, 3), ("M1", "cyclic", "uniform", False, 1, 1),
+        ("M1", "cyclic", "stochastic", True, 3, 3),
+        ("M2 (n_ro = 21)", "cyclic", "uniform", True, 3, 3)}
+    nro21 = gb.identify(_by_name(trees, "m2-nro21-cyclic-stochastic-uniform"))
+    assert nro21.overrides == {"n_ro": 21.0} and nro21.slug == "m2_nro21"
+
+
+def test_other_solvers_give_nothing(trees):
+    tree = trees[0].copy()
+    tree.attrs = dict(tree.attrs, solver="analytic")
+    assert gb.identify(tree) is None
+    assert gb.report([tree], Path("unused")) == ("", [])
+
+
+# ----------------------------------------------------------------------------- the table
+
+def test_table1_has_the_seeds_numbers_and_ours(trees, tmp_path):
+    text, _ = gb.report(trees, tmp_path, figures=False)
+    seed = gb.seed_tables()
+    m1, m2 = seed["table1_material1"], seed["table1_material2"]
+    # the seed's numbers, as it prints them (K' in MPa)
+    for value in (m1["stochastic_grid"][0], m1["uniform_grid"][0], m1["deterministic"][0],
+                  m1["experimental"][0], m2["stochastic_grid"][0], m2["deterministic"][0],
+                  m2["experimental_n"]):
+        assert f"{value:.10g}" in text
+    for value in (m1["stochastic_grid"][1], m1["uniform_grid"][1], m2["uniform_grid"][1]):
+        assert f"{value / 1e6:.10g}" in text
+    assert "1340.5–1537.6" in text
+    # ours beside them, with the relative difference
+    table1 = text.split("Table 1")[1].split("n' and K' over")[0]
+    for name, column, q in (("m1-cyclic-stochastic-uniform", "uniform_grid", "n"),
+                            ("m1-cyclic-stochastic-stochastic", "stochastic_grid", "n"),
+                            ("m1-cyclic-deterministic-uniform", "deterministic", "n"),
+                            ("m1-cyclic-stochastic-uniform", "uniform_grid", "K")):
+        tree = _by_name(trees, name)
+        ours = _ok_mean(tree, "n_prime" if q == "n" else "K_prime")
+        ref = m1[column][0 if q == "n" else 1]
+        shown = f"{ours:.4g}" if q == "n" else f"{ours / 1e6:.1f}"
+        rel = f"{100 * (ours / ref - 1):+.1f} %"
+        ref_text = f"{ref:.10g}" if q == "n" else f"{ref / 1e6:.10g}"
+        assert f"{shown} / {ref_text} ({rel})" in table1
+    rows = [line for line in table1.splitlines() if line.startswith(("M1 ", "M2 "))]
+    assert [r.split("  ")[0] for r in rows] == [
+        "M1 n'", "M1 K' [MPa]", "M2 n'", "M2 K' [MPa]", "M2 (n_ro = 21) n'",
+        "M2 (n_ro = 21) K' [MPa]"]
+    # M2 as printed was not given: the seed's numbers only
+    assert "– / 0.0381" in rows[2]
+    ours_21 = _ok_mean(_by_name(trees, "m2-nro21-cyclic-stochastic-uniform"), "n_prime")
+    assert f"{ours_21:.4g} / 0.0481" in rows[4]
+    assert "stochastic grid" in table1.splitlines()[2] and "experimental" in table1
+
+
+def test_monotonic_tables(trees, tmp_path):
+    text, _ = gb.report(trees, tmp_path, figures=False)
+    sto = _by_name(trees, "m1-monotonic-stochastic-uniform")
+    runs = sto["runs"].to_dataset()
+    failure = float(runs["failure_strain"].mean())
+    assert "Failure" in text and f"{failure:.4g}" in text
+    mean, count = gb.mean_curve(runs, gb.STRAINS)
+    curves = text.split("Monotonic curves")[1]
+    for eps, m, c in zip(gb.STRAINS, mean, count):
+        line = next(x for x in curves.splitlines() if x.split()[:3] == ["M1", "uniform",
+                                                                           f"{eps:g}"])
+        assert f"{c} of 3" in line
+        if c:
+            assert f"{m / 1e6:.1f}" in line
+        else:
+            assert " – " in line
+    # the strains beyond every realization's failure count none
+    fs = runs["failure_strain"].values
+    assert list(count) == [int((fs >= e).sum()) for e in gb.STRAINS]
+
+
+def test_a_failed_realization_is_left_out(trees, tmp_path):
+    tree = _by_name(trees, "m1-cyclic-stochastic-uniform")
+    runs = tree["runs"].to_dataset()
+    status = runs["status"].values.astype(object)
+    status[0] = "failed"
+    runs["status"] = ("realization", status.astype(str))
+    runs["n_prime"] = runs["n_prime"].where(runs["status"] == "ok")
+    broken = xr.DataTree.from_dict({"/": xr.Dataset(attrs=dict(tree.attrs)), "runs": runs})
+    text, _ = gb.report([broken], tmp_path, figures=False)
+    expected = float(runs["n_prime"].values[1:].mean())
+    assert f"{expected:.4g} / 0.0612" in text
+    assert "means over the 2 of 3 realizations" in text
+
+
+# ----------------------------------------------------------------------------- mean_curve
+
+def _paths(*paths, status=None):
+    steps = max(len(p[0]) for p in paths)
+    e = np.full((len(paths), steps), np.nan)
+    s = np.full((len(paths), steps), np.nan)
+    for k, (pe, ps) in enumerate(paths):
+        e[k, :len(pe)], s[k, :len(ps)] = pe, ps
+    ds = xr.Dataset({"strain": (("realization", "step"), e),
+                     "stress": (("realization", "step"), s)})
+    if status is not None:
+        ds["status"] = ("realization", np.array(status))
+    return ds
+
+
+def test_mean_curve_interpolates_exactly_and_counts_the_survivors():
+    a = ([0.0, 0.01, 0.03], [0.0, 100.0, 300.0])          # fails at 0.03
+    b = ([0.0, 0.02, 0.06, 0.08], [0.0, 400.0, 800.0, 900.0])
+    c = ([0.0, 0.05], [0.0, 1000.0])                        # failed run: never counts
+    runs = _paths(a, b, c, status=["ok", "ok", "failed"])
+    mean, count = gb.mean_curve(runs, [0.0, 0.005, 0.02, 0.03, 0.05, 0.08, 0.1])
+    # a at 0.005: 50; b: 100 -> 75. At 0.02: a 200, b 400. At 0.03: a 300 (its last state),
+    # b 500. At 0.05: b only, 700. At 0.08: b's last state. 0.1: nobody.
+    np.testing.assert_array_equal(count, [2, 2, 2, 2, 1, 1, 0])
+    np.testing.assert_allclose(mean[:6], [0.0, 75.0, 300.0, 400.0, 700.0, 900.0], rtol=1e-14)
+    assert np.isnan(mean[6])
+
+
+def test_mean_curve_without_status_and_single_run():
+    runs = _paths(([0.0, 0.1], [0.0, 10.0]), ([0.0, 0.2], [0.0, 40.0]))
+    mean, count = gb.mean_curve(runs, [0.05, 0.15])
+    np.testing.assert_allclose(mean, [(5.0 + 10.0) / 2, 30.0])
+    np.testing.assert_array_equal(count, [2, 1])
+    single = xr.Dataset({"strain": ("step", [0.0, 0.1]), "stress": ("step", [0.0, 10.0])})
+    mean, count = gb.mean_curve(single, 0.025)
+    assert mean.tolist() == [2.5] and count.tolist() == [1]
+
+
+def test_mean_curve_on_a_result_matches_numpy_interp(trees):
+    runs = _by_name(trees, "m1-monotonic-stochastic-uniform")["runs"].to_dataset()
+    strains = [0.003, 0.01]
+    mean, count = gb.mean_curve(runs, strains)
+    by_hand = [np.interp(strains, runs["strain"].values[r], runs["stress"].values[r])
+               for r in range(3)]
+    np.testing.assert_allclose(mean, np.mean(by_hand, axis=0), rtol=1e-12)
+    assert count.tolist() == [3, 3]
+
+
+# ----------------------------------------------------------------------------- figures
+
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+def test_figures_are_pngs(trees, tmp_path):
+    folder = tmp_path / "figs"
+    _, pngs = gb.report(trees, folder)
+    names = {p.name for p in pngs}
+    assert names == {
+        "gamut_bar_m1_uniform_monotonic.png",
+        *(f"gamut_bar_m1_{g}_cyclic_{k}.png" for g in ("uniform", "stochastic")
+          for k in ("loops", "loglog", "constants")),
+        *(f"gamut_bar_m2_nro21_uniform_cyclic_{k}.png" for k in ("loops", "loglog",
+                                                                 "constants"))}
+    from matplotlib.image import imread
+    for p in pngs:
+        assert p.parent == folder and p.read_bytes()[:8] == PNG
+        image = imread(p)
+        assert image.shape[0] > 300 and image.shape[1] > 500
+
+
+def test_only_what_the_results_allow(trees, tmp_path):
+    det = [_by_name(trees, "m1-monotonic-deterministic-uniform"),
+           _by_name(trees, "m1-cyclic-deterministic-uniform")]
+    text, pngs = gb.report(det, tmp_path)
+    # no per-realization constants without stochastic results; loops of the deterministic run
+    assert sorted(p.name for p in pngs) == [
+        "gamut_bar_m1_uniform_cyclic_loglog.png", "gamut_bar_m1_uniform_cyclic_loops.png",
+        "gamut_bar_m1_uniform_monotonic.png"]
+    assert "n' and K' over the realizations" not in text
+    assert "0.06244 (" in text                         # the deterministic column
+    mono = [_by_name(trees, "m1-monotonic-deterministic-uniform")]
+    text, pngs = gb.report(mono, tmp_path / "none", figures=False)
+    assert pngs == [] and not (tmp_path / "none").exists()
+    assert "Table 1" not in text and "Monotonic curves" in text
+
+
+def test_cli_report_returns_0(results, tmp_path, capsys):
+    from uqflow.cli import main
+
+    assert main(["report", *map(str, results), "--no-figures"]) == 0
+    out = capsys.readouterr().out
+    assert all(f"== {p}" in out for p in results)
