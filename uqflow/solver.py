@@ -22,7 +22,8 @@ from uqflow.registry import Registry
 __all__ = ["Solver", "SolverError", "SceneError", "register_solver", "get_solver",
            "solver_registry"]
 
-solver_registry = Registry("uqflow.solvers", "solver", builtins=("solvers.analytic", "solvers.gamut_bar"))
+solver_registry = Registry("uqflow.solvers", "solver", builtins=("solvers.analytic", "solvers.gamut_bar",
+                                                               "solvers.mpm"))
 
 
 def register_solver(name: str):

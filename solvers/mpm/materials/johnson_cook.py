@@ -1,0 +1,245 @@
+"""Steel: Mie–Grüneisen EOS (seed eq. 10) + Johnson–Cook flow stress (eq. 11–12) + von Mises
+radial return with the Jaumann rate (eq. 13–20), plane strain (s_xx, s_yy, s_xy, s_zz).
+
+Defaults: AISI 4340 (seed Tables 2 and 5, AUTODYN "STEEL 4340"; docs/design/mpm.md).
+
+Flow stress  σy = (A + B εp^n)(1 + C ln ε̇*)(1 − T*^m),  ε̇* = max(ε̇p/ε̇0, 1),
+T* = clip((T − T_room)/(T_melt − T_room), 0, 1);  B εp^n = 0 at εp = 0, T*^m = 0 at T* = 0.
+
+Return mapping: the seed's eq. (20) linearises σy in Δεp (σy_{n+1} = σy_n + H Δεp). Here the
+consistency condition is solved exactly for the nonlinear, rate-dependent JC law,
+
+    σeq* − 3G Δεp = σy(εp_n + Δεp, Δεp/(Δt ε̇0), T_n),
+
+by a safeguarded Newton iteration on the bracket [0, (σeq* − σy(εp_n, 1, T_n))/(3G)], and the
+deviator is scaled by m = σy/σeq* (eq. 15–16), so the stress lies on the yield surface to
+round-off. The trial state is plastic when σeq* > σy(εp_n, ε̇* = 1, T_n).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .mie_gruneisen import mg_bulk_sound_speed_sq, mg_coefficients
+from .state import (BURN, C as COL_C, E, EPS_P, EPS_P_RATE, ERR_DENSITY, ERR_NONFINITE,
+                    ERR_OTHER, N_STATE, OK, P, PLASTIC_WORK, Q, RHO, SXX, SXY, SY, SYY, SZZ, T,
+                    check_call, density_update, deviator_of, energy_update_linear_eos,
+                    finite_args, jaumann_rotate, pack_parameters, require)
+
+NAME = "mie_gruneisen_johnson_cook"
+HAS_STRENGTH = True
+
+PARAMETERS = {
+    "eos.C": 4569.0,            # m/s, bulk sound speed (U_s = C + S1 u_p)
+    "eos.S1": 1.49,
+    "eos.S2": 0.0,
+    "eos.S3": 0.0,
+    "eos.gamma0": 2.17,
+    "eos.a": 0.46,
+    "rho0": 7830.0,             # kg/m³
+    "shear_modulus": 81.8e9,    # Pa
+    "jc.A": 792e6,              # Pa
+    "jc.B": 510e6,              # Pa
+    "jc.n": 0.26,
+    "jc.C": 0.014,
+    "jc.m": 1.03,
+    "jc.eps0_dot": 1.0,         # 1/s
+    "jc.T_room": 294.0,         # K
+    "jc.T_melt": 1793.0,        # K
+    "cp": 477.0,                # J/(kg K)
+    "taylor_quinney": 0.9,
+}
+NPRM = len(PARAMETERS)
+(I_C, I_S1, I_S2, I_S3, I_G0, I_A, I_RHO0, I_G, I_JA, I_JB, I_JN, I_JC, I_JM, I_EPS0, I_TROOM,
+ I_TMELT, I_CP, I_TQ) = range(NPRM)
+
+RETURN_MAXIT = 60
+RETURN_RTOL = 1e-13
+
+
+def pack(values: dict | None = None) -> np.ndarray:
+    """Parameter vector in PARAMETERS order (missing names take the 4340 defaults)."""
+    prm = pack_parameters(PARAMETERS, values, NAME)
+    check(prm)
+    return prm
+
+
+def check(prm: np.ndarray) -> None:
+    """Raise SolverError for a parameter outside its physical range."""
+    pos, nonneg = (lambda v: v > 0, "> 0"), (lambda v: v >= 0, ">= 0")
+    rules = [(k, *pos) for k in ("eos.C", "rho0", "jc.A", "jc.n", "jc.m", "jc.eps0_dot",
+                                 "cp")]
+    rules += [(k, *nonneg) for k in ("shear_modulus", "jc.B", "jc.C", "jc.T_room")]
+    rules += [("taylor_quinney", lambda v: 0 <= v <= 1, "in [0, 1]"),
+              ("jc.T_melt", lambda v: v > prm[I_TROOM], "> jc.T_room")]
+    require(NAME, prm, list(PARAMETERS), rules)
+
+
+@njit(cache=True, fastmath=False)
+def johnson_cook_flow_stress(A, B, n, C, m, eps_p, eps_rate_star, T_star):
+    """Seed eq. (11) with the limits: B εp^n = 0 for εp ≤ 0; rate factor 1 for ε̇* ≤ 1
+    (ε̇* clamped ≥ 1, so ln ε̇* ≥ 0); T* clipped to [0, 1] (T*^m = 0 at T* = 0, σy = 0 at melt)."""
+    h = A
+    if eps_p > 0.0:
+        h += B * eps_p ** n
+    r = 1.0
+    if eps_rate_star > 1.0:
+        r += C * math.log(eps_rate_star)
+    if T_star <= 0.0:
+        th = 1.0
+    elif T_star >= 1.0:
+        th = 0.0
+    else:
+        th = 1.0 - T_star ** m
+    return h * r * th
+
+
+@njit(cache=True, fastmath=False)
+def von_mises(sxx, syy, sxy, szz):
+    """σeq = sqrt(3/2 s:s) of a plane-strain deviator (seed eq. 14)."""
+    return math.sqrt(1.5 * (sxx * sxx + syy * syy + szz * szz + 2.0 * sxy * sxy))
+
+
+@njit(cache=True, fastmath=False)
+def radial_return(sxx, syy, sxy, szz, sigma_y):
+    """Scale a trial deviator onto σeq = σy when outside (seed eq. 15–16); returns the
+    deviator and m (m = 1 inside)."""
+    seq = von_mises(sxx, syy, sxy, szz)
+    if seq <= sigma_y:
+        return sxx, syy, sxy, szz, 1.0
+    m = sigma_y / seq
+    return sxx * m, syy * m, sxy * m, szz * m, m
+
+
+@njit(cache=True, fastmath=False)
+def jc_radial_return(sxx, syy, sxy, szz, G, dt, A, B, n, C, m, eps0_dot, eps_p, T_star):
+    """Radial return of a trial deviator for the rate-dependent Johnson–Cook law.
+
+    Returns (s_xx, s_yy, s_xy, s_zz, Δεp, σy, code): σy is the flow stress the deviator was
+    returned to (σy(εp_n, 1, T*) when elastic); Δεp = (σeq* − σy)/(3G) (seed eq. 18).
+    """
+    seq = von_mises(sxx, syy, sxy, szz)
+    sy0 = johnson_cook_flow_stress(A, B, n, C, m, eps_p, 1.0, T_star)
+    if seq <= sy0:
+        return sxx, syy, sxy, szz, 0.0, sy0, OK
+    if not G > 0.0:                       # no elasticity: only the scaling is defined
+        k = sy0 / seq
+        return sxx * k, syy * k, sxy * k, szz * k, 0.0, sy0, OK
+    g3 = 3.0 * G
+    rate_k = 1.0 / (dt * eps0_dot)
+    if T_star <= 0.0:                     # thermal factor: T* is frozen over the step
+        th = 1.0
+    elif T_star >= 1.0:
+        th = 0.0
+    else:
+        th = 1.0 - T_star ** m
+    lo, hi = 0.0, (seq - sy0) / g3        # f(lo) > 0 ≥ f(hi): σy grows with Δεp
+    x = hi
+    converged = False
+    for _ in range(RETURN_MAXIT):
+        ep = eps_p + x                    # > 0 inside the loop
+        epn = ep ** n
+        rs = x * rate_k
+        r, dr = 1.0, 0.0
+        if rs > 1.0:
+            r += C * math.log(rs)
+            dr = C / x
+        h = A + B * epn
+        fval = seq - g3 * x - h * r * th  # consistency residual
+        if abs(fval) <= RETURN_RTOL * seq:
+            converged = True
+            break
+        if fval > 0.0:
+            lo = x
+        else:
+            hi = x
+        deriv = g3 + (n * B * epn / ep * r + h * dr) * th      # d(3GΔεp + σy)/dΔεp
+        xn = x + fval / deriv
+        if not (xn > lo and xn < hi):
+            xn = 0.5 * (lo + hi)
+        if xn == x or hi - lo <= 1e-15 * hi:
+            converged = True
+            break
+        x = xn
+    if not converged:
+        return sxx, syy, sxy, szz, 0.0, sy0, ERR_OTHER
+    sy = johnson_cook_flow_stress(A, B, n, C, m, eps_p + x, x * rate_k, T_star)
+    k = sy / seq
+    return sxx * k, syy * k, sxy * k, szz * k, x, sy, OK
+
+
+@njit(cache=True, fastmath=False)
+def init(prm, S, i):
+    """Reference state of particle i: ρ0, E = 0, T = T_room, σ = 0, σy = A, C = c_L."""
+    code = check_call(prm, NPRM, S, i)
+    if code != OK:
+        return code
+    for k in range(N_STATE):
+        S[i, k] = 0.0
+    rho0 = prm[I_RHO0]
+    S[i, RHO] = rho0
+    S[i, T] = prm[I_TROOM]
+    S[i, SY] = johnson_cook_flow_stress(prm[I_JA], prm[I_JB], prm[I_JN], prm[I_JC], prm[I_JM],
+                                        0.0, 1.0, 0.0)
+    S[i, COL_C] = math.sqrt(prm[I_C] ** 2 + 4.0 * prm[I_G] / (3.0 * rho0))
+    return OK
+
+
+@njit(cache=True, fastmath=False)
+def update(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
+    """Advance particle i over dt (see module doc; docs/mpm_materials.md §3). Returns a code."""
+    code = check_call(prm, NPRM, S, i)
+    if code != OK:
+        return code
+    if not finite_args(Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
+        return ERR_NONFINITE
+    if not dt > 0.0:
+        return ERR_OTHER
+    rho0, G, q, rho_n = prm[I_RHO0], prm[I_G], S[i, Q], S[i, RHO]
+    if not rho_n > 0.0:
+        return ERR_DENSITY
+    trD, Dxy = Lxx + Lyy, 0.5 * (Lxy + Lyx)
+    rho1 = density_update(rho_n, trD, dt)
+    if not (rho1 > 0.0 and rho1 < math.inf):          # J = ρ_n/ρ_{n+1} > 0
+        return ERR_DENSITY
+    # deviator: Jaumann rotation, hypoelastic trial (eq. 13), JC radial return (eq. 14-20)
+    sxx, syy, sxy, szz = deviator_of(S, i)
+    sxx, syy, sxy = jaumann_rotate(sxx, syy, sxy, dt, 0.5 * (Lxy - Lyx))
+    t3, g2dt = trD / 3.0, 2.0 * G * dt
+    T_n = S[i, T]
+    Tstar = (T_n - prm[I_TROOM]) / (prm[I_TMELT] - prm[I_TROOM])
+    nxx, nyy, nxy, nzz, dep, sy, code = jc_radial_return(
+        sxx + g2dt * (Lxx - t3), syy + g2dt * (Lyy - t3), sxy + g2dt * Dxy, szz - g2dt * t3,
+        G, dt, prm[I_JA], prm[I_JB], prm[I_JN], prm[I_JC], prm[I_JM], prm[I_EPS0], S[i, EPS_P],
+        Tstar)
+    if code != OK:
+        return code
+    # energy (trapezoidal, implicit in E) and Mie-Gruneisen pressure at ρ_{n+1}
+    v_n, v1 = rho0 / rho_n, rho0 / rho1
+    w_dev = 0.25 * dt * (v_n + v1) * ((sxx + nxx) * Lxx + (syy + nyy) * Lyy
+                                      + 2.0 * (sxy + nxy) * Dxy)
+    f, g, dfdmu, code = mg_coefficients(rho0, prm[I_C], prm[I_S1], prm[I_S2], prm[I_S3],
+                                        prm[I_G0], prm[I_A], rho1)
+    if code != OK:
+        return code
+    E1, p1, ok = energy_update_linear_eos(S[i, E], S[i, P], q, v1 - v_n, w_dev, f, g)
+    if not ok:
+        return ERR_OTHER
+    wp = sy * dep                                             # plastic work per current volume
+    T1 = T_n + prm[I_TQ] * wp / (rho1 * prm[I_CP])
+    c2 = mg_bulk_sound_speed_sq(rho0, prm[I_C], prm[I_A], g, dfdmu, rho1, E1, p1)
+    c = math.sqrt(c2 + 4.0 * G / (3.0 * rho1))
+    pq = p1 + q
+    if not (nxx + nyy + nxy + nzz + E1 + p1 + T1 + c + rho1 + sy) * 0.0 == 0.0:
+        return ERR_NONFINITE
+    S[i, SXX], S[i, SYY], S[i, SXY], S[i, SZZ] = nxx - pq, nyy - pq, nxy, nzz - pq
+    S[i, P], S[i, RHO], S[i, E] = p1, rho1, E1
+    S[i, EPS_P] += dep
+    S[i, EPS_P_RATE] = dep / dt
+    S[i, T], S[i, SY], S[i, COL_C] = T1, sy, c
+    S[i, PLASTIC_WORK] += wp * v1
+    S[i, BURN] = 0.0
+    return OK
