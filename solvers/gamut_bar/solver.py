@@ -13,6 +13,7 @@ from solvers.gamut_bar.loading import (CyclicPlan, fit_cyclic, loop_amplitudes,
                                        monotonic_forces, resample_path)
 from solvers.gamut_bar.materials import (MATERIALS, calibrate, family_weights,
                                          modulus_of_softness, ro_stress)
+from solvers.gamut_bar.report import report as _report
 from solvers.gamut_bar.network import (bond_weights, build_network, effective_sigma,
                                        grid_correction, nonlocal_bonds, stochastic_grid,
                                        uniform_grid)
@@ -200,6 +201,9 @@ class GamutBarSolver(Solver):
     def _amplitudes(self, p):
         lo, hi = self.cfg["amplitude_range"]
         return np.geomspace(lo * p["sigma_y"], hi * p["sigma_y"], self.cfg["cycles"])
+
+    #: ``uqflow report`` on gamut-bar results: the seed's Table 1 beside ours, Figs. 21-32
+    report = staticmethod(_report)
 
     def describe(self) -> str:
         c = self.cfg
