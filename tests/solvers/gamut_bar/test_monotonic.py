@@ -3,7 +3,6 @@ cut-off growth, extreme discretisations, reproducibility and speed."""
 
 from __future__ import annotations
 
-import time
 
 import numpy as np
 import pytest
@@ -157,14 +156,11 @@ def test_three_points():
 
 
 def test_five_thousand_points():
-    s = solver(local_bonds=5000)
-    t = time.perf_counter()
-    ds = s.run({})
-    wall = time.perf_counter() - t               # measured ≈ 1.5 s
+    # run time against the number of points: benchmarks/gamut_bar_speed.py (BENCHMARKS.md)
+    ds = solver(local_bonds=5000).run({})
     m = material("M1")
     assert initial_slope(ds) == pytest.approx(m["E"], rel=1e-9)
     assert ds["failure_strain"].item() == pytest.approx(m["eps_f"], rel=1e-6)
-    assert wall < 10.0
 
 
 # --------------------------------------------------------------------------------------------
@@ -190,10 +186,3 @@ def test_nominal_fields_give_bitwise_the_deterministic_result():
     assert {c[0] for c in f.calls} == {"bar.E", "bar.R", "bar.w", "bar.rho"}
 
 
-def test_monotonic_500_bonds_well_under_a_second():
-    s = solver()
-    s.run({})                                     # compiled (cached) kernels loaded
-    t = time.perf_counter()
-    s.run({})
-    wall = time.perf_counter() - t                # measured ≈ 0.15–0.2 s
-    assert wall < 1.0
