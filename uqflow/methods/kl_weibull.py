@@ -13,31 +13,19 @@ from __future__ import annotations
 import json
 
 import numpy as np
-from pydantic import Field, field_validator
+from pydantic import Field
 
 from uqflow.errors import StudyError
 from uqflow.fields import germ_seed
-from uqflow.methods.base import MethodOptions, make_design, register_method
-from uqflow.methods.monte_carlo import MonteCarlo
+from uqflow.methods.base import make_design, register_method
+from uqflow.methods.monte_carlo import MonteCarlo, SampleStatisticsOptions
 from uqflow.realization import germ_variable
 from uqflow.sampling import unit_hypercube
 
 
-class KLWeibullOptions(MethodOptions):
+class KLWeibullOptions(SampleStatisticsOptions):
     realizations: int = Field(30, ge=1, description="number of realizations (seed 002: 30)")
-    quantiles: list[float] = Field(default_factory=lambda: [0.05, 0.5, 0.95])
-    confidence: float = Field(0.95, gt=0, lt=1, description="level of the mean's interval")
-    target_rel_stderr: float | None = Field(
-        None, gt=0, description="stop once stderr/|mean| of every output is below this")
     min_samples: int = Field(10, ge=2, description="never stop on target before this many")
-    trace_points: int = Field(25, ge=2, description="sample counts in the convergence trace")
-
-    @field_validator("quantiles")
-    @classmethod
-    def _quantiles_in_unit_interval(cls, q):
-        if any(not 0 <= x <= 1 for x in q):
-            raise ValueError("every quantile must lie in [0, 1]")
-        return sorted(set(q))
 
     # What MonteCarlo's analyze/enough read under their own names.
     @property

@@ -15,9 +15,9 @@ from uqflow.methods.base import (MethodOptions, PropagationMethod, failure_warni
 from uqflow.sampling import unit_hypercube
 
 
-class MonteCarloOptions(MethodOptions):
-    samples: int = Field(1000, ge=1, description="number of realizations (the most run)")
-    rule: Literal["random", "lhs", "sobol", "halton"] = "random"
+class SampleStatisticsOptions(MethodOptions):
+    """What every sampling method estimates and when it may stop (shared by kl-weibull)."""
+
     quantiles: list[float] = Field(default_factory=lambda: [0.05, 0.5, 0.95])
     confidence: float = Field(0.95, gt=0, lt=1, description="level of the mean's interval")
     target_rel_stderr: float | None = Field(
@@ -31,6 +31,11 @@ class MonteCarloOptions(MethodOptions):
         if any(not 0 <= x <= 1 for x in q):
             raise ValueError("every quantile must lie in [0, 1]")
         return sorted(set(q))
+
+
+class MonteCarloOptions(SampleStatisticsOptions):
+    samples: int = Field(1000, ge=1, description="number of realizations (the most run)")
+    rule: Literal["random", "lhs", "sobol", "halton"] = "random"
 
 
 @register_method("monte-carlo")
