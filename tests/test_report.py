@@ -14,7 +14,6 @@ from uqflow import report
 from uqflow.cli import main
 from uqflow.errors import AccuracyWarning, StudyError
 from uqflow.execute import StudyFailed, run_study
-from uqflow.methods import method_registry
 from uqflow.study import load_study
 
 # A figure that fails to draw is skipped with a FigureWarning: here that is a test failure.
@@ -74,11 +73,6 @@ matrix = [[1.0, 0.6], [0.6, 1.0]]
 MC = 'kind = "monte-carlo"\nsamples = 256'
 TAYLOR = 'kind = "taylor"'
 SOBOL = 'kind = "sobol"\nsamples = 64\nresamples = 100'
-
-
-def registered(kind):
-    return pytest.mark.skipif(kind not in method_registry.describe(),
-                              reason=f"method '{kind}' is not registered (yet)")
 
 
 def write_study(folder, name, model, method, execution="workers = 0"):
@@ -183,7 +177,6 @@ def test_field_output_gets_one_row_at_its_largest_std(studies):
     assert table_row(table, "beta")[4] == f"{float(cv):.3g}"
 
 
-@registered("taylor")
 def test_taylor_table_names_the_order(studies):
     tree = report.open_result(studies("taylor", ISHIGAMI, TAYLOR))
     stats = tree["statistics"].to_dataset()
@@ -194,7 +187,6 @@ def test_taylor_table_names_the_order(studies):
     assert "method taylor" in table
 
 
-@registered("sobol")
 def test_sobol_table_lists_indices_by_total_index(studies):
     tree = report.open_result(studies("sobol", ISHIGAMI, SOBOL))
     si = tree["statistics"]["y_sobol"]
@@ -273,7 +265,6 @@ def test_monte_carlo_time_series_figures(studies, tmp_path):
         assert_png(p)
 
 
-@registered("taylor")
 @pytest.mark.parametrize("name, model, expected", [
     ("taylor", ISHIGAMI, ["y_contributions.png"]),
     ("taylor_decay", DECAY, ["y_band.png", "y_contributions.png"]),
@@ -287,7 +278,6 @@ def test_taylor_figures(studies, tmp_path, name, model, expected):
         assert_png(p)
 
 
-@registered("sobol")
 @pytest.mark.parametrize("name, model, expected", [
     ("sobol", ISHIGAMI, ["y_sobol.png"]),
     ("sobol_decay", DECAY, ["y_band.png", "y_sobol.png"]),

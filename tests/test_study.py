@@ -18,7 +18,6 @@ import numpy as np
 import pytest
 
 from uqflow import cli
-from uqflow.methods import method_registry
 from uqflow.store import open_result
 
 REPO = Path(__file__).resolve().parents[1]
@@ -85,7 +84,6 @@ class Case:
     files: dict = field(default_factory=dict)   # more files beside the study (relative path)
     names: str | None = None        # file the message names, relative to tmp_path; default study
     subprocess: bool = False        # run the real interpreter
-    needs: str | None = None        # a propagation method that must be registered
 
 
 SCENE_KEY = 'scene = { model = "linear", coefficients = [1.0, 2.0] }'
@@ -197,12 +195,12 @@ CASES = [
          says="unknown key (did you mean 'samples'?)"),
     Case("sobol-with-correlated-inputs", "method.kind",
          (replace('kind = "monte-carlo"', 'kind = "sobol"'), append(CORRELATION)),
-         says="independent inputs", needs="sobol", subprocess=True),
+         says="independent inputs", subprocess=True),
     Case("taylor-order-out-of-range", "method.order",
-         (replace(METHOD, 'kind = "taylor"\norder = 3'),), says="1 or 2", needs="taylor"),
+         (replace(METHOD, 'kind = "taylor"\norder = 3'),), says="1 or 2"),
     Case("union-option-wrong-type", "method.mixed_derivatives",
          (replace(METHOD, 'kind = "taylor"\nmixed_derivatives = "sometimes"'),),
-         says="Input should be 'auto' or a valid boolean", needs="taylor"),
+         says="Input should be 'auto' or a valid boolean"),
     # --- execution
     Case("workers-negative", "execution.workers", (replace("workers = 0", "workers = -1"),),
          says="greater than or equal to 0"),
@@ -222,11 +220,7 @@ CASES = [
 
 
 def _param(case: Case):
-    marks = []
-    if case.needs:
-        marks.append(pytest.mark.skipif(case.needs not in method_registry.names(),
-                                        reason=f"method '{case.needs}' is not registered"))
-    return pytest.param(case, id=case.id, marks=marks)
+    return pytest.param(case, id=case.id)
 
 
 def write_case(case: Case, folder: Path) -> Path:
