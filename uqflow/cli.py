@@ -70,9 +70,16 @@ def _run(args) -> int:
     for message in outcome.warnings:
         print(f"warning: {message}", file=sys.stderr)
     print(f"result: {outcome.path}")
-    if study.spec.output.figures and not args.no_figures:
-        for fig in report.write_figures(tree, report.figure_folder(outcome.path)):
+    figures = study.spec.output.figures and not args.no_figures
+    folder = report.figure_folder(outcome.path)
+    if figures:
+        for fig in report.write_figures(tree, folder):
             print(f"figure: {fig}")
+    text, extra = report.solver_report([tree], folder, figures=figures)
+    if text:
+        print(text)
+    for fig in extra:
+        print(f"figure: {fig}")
     return 0
 
 
