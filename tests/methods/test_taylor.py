@@ -268,3 +268,21 @@ def test_options_are_validated():
         Taylor(order=1, mixed_derivatives=True)
     with pytest.raises(ValidationError):
         Taylor(variance="third-order")
+
+
+def test_step_warning_names_a_labelled_coordinate():
+    # Outputs on a string coordinate (e.g. named probes) must not break the warning text.
+    space = InputSpace([RandomInput.from_spec(dict(name="x", distribution="normal", mean=0.5,
+                                                   std=0.05))])
+    method = Taylor(order=2, step_check=True)
+    design = method.plan(space, None, np.random.SeedSequence(0))
+    x = design["inputs"].values[:, 0]
+    kink = np.abs(4 * x - 2)                                 # not smooth at the mean
+    runs = design.copy()
+    runs["y"] = (("realization", "probe"), np.stack([kink, x], axis=1))
+    runs = runs.assign_coords(probe=["H", "I"])
+    runs["status"] = ("realization", np.array(["ok"] * x.size, dtype=object))
+    runs["wall_time"] = ("realization", np.zeros(x.size))
+    with pytest.warns(AccuracyWarning, match="probe = H"):
+        stats = method.analyze(design, runs)
+    assert "probe = H" in stats.attrs["warnings"]

@@ -54,6 +54,11 @@ class TaylorOptions(MethodOptions):
         return self
 
 
+def _label(value) -> str:
+    """A coordinate value for a message: numbers compactly, labels (probe names) as they are."""
+    return f"{value:g}" if isinstance(value, (int, float, np.number)) else str(value)
+
+
 def _independence_error() -> StudyError:
     return StudyError("the second-order variance needs the joint third and fourth moments of "
                       "correlated inputs, which a Gaussian copula does not give in closed "
@@ -244,7 +249,7 @@ class Taylor(PropagationMethod):
             where = ""
             if dims:
                 where = " at " + ", ".join(
-                    f"{d} = {runs[d].values[i]:g}" if d in runs.coords else f"{d}[{i}]"
+                    f"{d} = {_label(runs[d].values[i])}" if d in runs.coords else f"{d}[{i}]"
                     for d, i in zip(dims, at))
             msgs.append(f"the {what} of '{out}' with respect to '{names[k]}' is not "
                         f"step-stable: it changes by {change[k][at]:.3g} (relative) when the "
