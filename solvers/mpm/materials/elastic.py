@@ -18,9 +18,9 @@ import math
 import numpy as np
 from numba import njit
 
-from .state import (C as COL_C, E as COL_E, ERR_DENSITY, ERR_NONFINITE, ERR_OTHER, N_STATE, OK,
-                    P, Q, RHO, SXX, SXY, SYY, SZZ, check_call, density_update, deviator_of,
-                    finite_args, jaumann_rotate, pack_parameters, require)
+from .state import (C as COL_C, E as COL_E, ERR_DENSITY, ERR_NONFINITE, OK, P, Q, RHO, SXX, SXY,
+                    SYY, SZZ, check_update, density_update, deviator_of, jaumann_rotate,
+                    pack_parameters, require, reset_row)
 
 NAME = "hypoelastic"
 HAS_STRENGTH = True          # it carries a deviator (but never yields)
@@ -56,11 +56,9 @@ def moduli(Y, nu):
 @njit(cache=True, fastmath=False)
 def init(prm, S, i):
     """Stress-free reference state; C = longitudinal (P-wave) speed."""
-    code = check_call(prm, NPRM, S, i)
+    code = reset_row(prm, NPRM, S, i)
     if code != OK:
         return code
-    for k in range(N_STATE):
-        S[i, k] = 0.0
     G, K = moduli(prm[I_E], prm[I_NU])
     S[i, RHO] = prm[I_RHO0]
     S[i, COL_C] = math.sqrt((K + 4.0 * G / 3.0) / prm[I_RHO0])
@@ -70,16 +68,10 @@ def init(prm, S, i):
 @njit(cache=True, fastmath=False)
 def update(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
     """Jaumann-rate hypoelastic update of particle i; returns a code."""
-    code = check_call(prm, NPRM, S, i)
+    code = check_update(prm, NPRM, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y)
     if code != OK:
         return code
-    if not finite_args(Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
-        return ERR_NONFINITE
-    if not dt > 0.0:
-        return ERR_OTHER
     rho0, q, rho_n = prm[I_RHO0], S[i, Q], S[i, RHO]
-    if not rho_n > 0.0:
-        return ERR_DENSITY
     G, K = moduli(prm[I_E], prm[I_NU])
     trD, Dxy = Lxx + Lyy, 0.5 * (Lxy + Lyx)
     rho1 = density_update(rho_n, trD, dt)

@@ -24,10 +24,10 @@ import numpy as np
 from numba import njit
 
 from .mie_gruneisen import mg_bulk_sound_speed_sq, mg_coefficients
-from .state import (BURN, C as COL_C, E, EPS_P, EPS_P_RATE, ERR_DENSITY, ERR_NONFINITE,
-                    ERR_OTHER, N_STATE, OK, P, PLASTIC_WORK, Q, RHO, SXX, SXY, SY, SYY, SZZ, T,
-                    check_call, density_update, deviator_of, energy_update_linear_eos,
-                    finite_args, jaumann_rotate, pack_parameters, require)
+from .state import (BURN, C as COL_C, E, EPS_P, EPS_P_RATE, ERR_DENSITY, ERR_NONFINITE, ERR_OTHER,
+                    OK, P, PLASTIC_WORK, Q, RHO, SXX, SXY, SY, SYY, SZZ, T, check_update,
+                    density_update, deviator_of, energy_update_linear_eos, jaumann_rotate,
+                    pack_parameters, require, reset_row)
 
 NAME = "mie_gruneisen_johnson_cook"
 HAS_STRENGTH = True
@@ -174,11 +174,9 @@ def jc_radial_return(sxx, syy, sxy, szz, G, dt, A, B, n, C, m, eps0_dot, eps_p, 
 @njit(cache=True, fastmath=False)
 def init(prm, S, i):
     """Reference state of particle i: ρ0, E = 0, T = T_room, σ = 0, σy = A, C = c_L."""
-    code = check_call(prm, NPRM, S, i)
+    code = reset_row(prm, NPRM, S, i)
     if code != OK:
         return code
-    for k in range(N_STATE):
-        S[i, k] = 0.0
     rho0 = prm[I_RHO0]
     S[i, RHO] = rho0
     S[i, T] = prm[I_TROOM]
@@ -191,16 +189,10 @@ def init(prm, S, i):
 @njit(cache=True, fastmath=False)
 def update(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
     """Advance particle i over dt (see module doc; docs/mpm_materials.md §3). Returns a code."""
-    code = check_call(prm, NPRM, S, i)
+    code = check_update(prm, NPRM, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y)
     if code != OK:
         return code
-    if not finite_args(Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
-        return ERR_NONFINITE
-    if not dt > 0.0:
-        return ERR_OTHER
     rho0, G, q, rho_n = prm[I_RHO0], prm[I_G], S[i, Q], S[i, RHO]
-    if not rho_n > 0.0:
-        return ERR_DENSITY
     trD, Dxy = Lxx + Lyy, 0.5 * (Lxy + Lyx)
     rho1 = density_update(rho_n, trD, dt)
     if not (rho1 > 0.0 and rho1 < math.inf):          # J = ρ_n/ρ_{n+1} > 0

@@ -24,9 +24,9 @@ import math
 import numpy as np
 from numba import njit
 
-from .state import (BURN, C as COL_C, E, ERR_DENSITY, ERR_NONFINITE, ERR_OTHER, N_STATE, OK, P,
-                    Q, RHO, SXX, SXY, SYY, SZZ, check_call, density_update,
-                    energy_update_linear_eos, finite_args, pack_parameters, require)
+from .state import (BURN, C as COL_C, E, ERR_DENSITY, ERR_NONFINITE, ERR_OTHER, OK, P, Q, RHO,
+                    SXX, SXY, SYY, SZZ, check_update, density_update, energy_update_linear_eos,
+                    pack_parameters, require, reset_row)
 
 NAME = "jwl_programmed_burn"
 HAS_STRENGTH = False
@@ -108,11 +108,9 @@ def burn_fraction(D, det_x, det_y, width, t, x, y):
 @njit(cache=True, fastmath=False)
 def init(prm, S, i):
     """Unburnt explosive: ρ0, E = E0, F = 0, p = 0, C = D."""
-    code = check_call(prm, NPRM, S, i)
+    code = reset_row(prm, NPRM, S, i)
     if code != OK:
         return code
-    for k in range(N_STATE):
-        S[i, k] = 0.0
     S[i, RHO] = prm[I_RHO0]
     S[i, E] = prm[I_E0]
     S[i, COL_C] = prm[I_D]
@@ -122,16 +120,10 @@ def init(prm, S, i):
 @njit(cache=True, fastmath=False)
 def update(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
     """Burn fraction at time + dt, continuity, p = F p_JWL with the trapezoidal energy update."""
-    code = check_call(prm, NPRM, S, i)
+    code = check_update(prm, NPRM, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y)
     if code != OK:
         return code
-    if not finite_args(Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
-        return ERR_NONFINITE
-    if not dt > 0.0:
-        return ERR_OTHER
     rho0, D, q, rho_n = prm[I_RHO0], prm[I_D], S[i, Q], S[i, RHO]
-    if not rho_n > 0.0:
-        return ERR_DENSITY
     F = burn_fraction(D, prm[I_DETX], prm[I_DETY], prm[I_W], time + dt, x, y)
     if S[i, BURN] > F:
         F = S[i, BURN]

@@ -153,6 +153,33 @@ def finite_args(Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
 
 
 @njit(cache=True, fastmath=False)
+def reset_row(prm, nprm, S, i):
+    """The start of every ``init``: the call guards, then a zeroed state row. Returns a code."""
+    code = check_call(prm, nprm, S, i)
+    if code != OK:
+        return code
+    for k in range(N_STATE):
+        S[i, k] = 0.0
+    return OK
+
+
+@njit(cache=True, fastmath=False)
+def check_update(prm, nprm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
+    """The guards every ``update`` starts with: shapes and finite row and parameters, finite
+    arguments, dt > 0, ρ > 0. Returns a code; OK means the update may proceed."""
+    code = check_call(prm, nprm, S, i)
+    if code != OK:
+        return code
+    if not finite_args(Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
+        return ERR_NONFINITE
+    if not dt > 0.0:
+        return ERR_OTHER
+    if not S[i, RHO] > 0.0:
+        return ERR_DENSITY
+    return OK
+
+
+@njit(cache=True, fastmath=False)
 def jaumann_rotate(sxx, syy, sxy, dt, w):
     """Rotate the in-plane deviator by the spin w = ½(Lxy − Lyx) over dt (Jaumann rate,
     ṡ = W s − s W with W = [[0, w], [−w, 0]]).

@@ -14,9 +14,9 @@ import numpy as np
 from numba import njit
 
 from .mie_gruneisen import mg_bulk_sound_speed_sq, mg_coefficients
-from .state import (C as COL_C, E, ERR_DENSITY, ERR_NONFINITE, ERR_OTHER, N_STATE, OK, P, Q,
-                    RHO, SXX, SXY, SYY, SZZ, check_call, density_update, energy_update_linear_eos,
-                    finite_args, pack_parameters, require)
+from .state import (C as COL_C, E, ERR_DENSITY, ERR_NONFINITE, ERR_OTHER, OK, P, Q, RHO, SXX, SXY,
+                    SYY, SZZ, check_update, density_update, energy_update_linear_eos,
+                    pack_parameters, require, reset_row)
 
 NAME = "mie_gruneisen_fluid"
 HAS_STRENGTH = False
@@ -51,11 +51,9 @@ def check(prm: np.ndarray) -> None:
 @njit(cache=True, fastmath=False)
 def init(prm, S, i):
     """Reference state: ρ0, E = 0, p = 0, C = eos.C."""
-    code = check_call(prm, NPRM, S, i)
+    code = reset_row(prm, NPRM, S, i)
     if code != OK:
         return code
-    for k in range(N_STATE):
-        S[i, k] = 0.0
     S[i, RHO] = prm[I_RHO0]
     S[i, COL_C] = prm[I_C]
     return OK
@@ -64,16 +62,10 @@ def init(prm, S, i):
 @njit(cache=True, fastmath=False)
 def update(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
     """Continuity, energy-consistent MG pressure with cut-off, σ = −(p + q) I."""
-    code = check_call(prm, NPRM, S, i)
+    code = check_update(prm, NPRM, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y)
     if code != OK:
         return code
-    if not finite_args(Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
-        return ERR_NONFINITE
-    if not dt > 0.0:
-        return ERR_OTHER
     rho0, q, rho_n = prm[I_RHO0], S[i, Q], S[i, RHO]
-    if not rho_n > 0.0:
-        return ERR_DENSITY
     rho1 = density_update(rho_n, Lxx + Lyy, dt)
     if not (rho1 > 0.0 and rho1 < math.inf):          # J = ρ_n/ρ_{n+1} > 0
         return ERR_DENSITY
