@@ -61,7 +61,7 @@ def add_field_value_variables(runs: xr.Dataset, fields: list | None, solver) -> 
     return runs
 
 
-def _takes_seed(solver) -> bool:
+def takes_seed(solver) -> bool:
     try:
         return "seed" in inspect.signature(solver.run).parameters
     except (TypeError, ValueError):
@@ -72,11 +72,12 @@ def run_one(solver, params: dict, fields, outputs: list[str], seed: int | None =
     """One realization: (status, message, {output: array}, wall time).
 
     A ``SolverError`` or any other exception, and any non-finite output, make the
-    realization failed with a one-line message; nothing propagates.
+    realization failed with a one-line message; nothing propagates. ``seed`` goes to
+    ``solver.run`` when given: callers give it only to solvers that take one (``takes_seed``).
     """
     start = time.perf_counter()
     try:
-        kwargs = {"seed": seed} if seed is not None and _takes_seed(solver) else {}
+        kwargs = {"seed": seed} if seed is not None else {}
         result = solver.run(params, fields, **kwargs) if fields else solver.run(params, **kwargs)
         values = {name: np.asarray(result[name].values, dtype=float) for name in outputs}
         bad = [name for name, v in values.items() if not np.all(np.isfinite(v))]
@@ -106,6 +107,7 @@ def run_batch(solver, names: list[str], values: np.ndarray, outputs: list[str],
     if fields:
         from uqflow.fields import FieldSample
 
+    seeded = takes_seed(solver)          # once per batch: inspect is slow next to a run
     statuses, messages, times, clipped, evaluated = [], [], [], [], []
     results = {name: [] for name in outputs}
     for i, row in enumerate(values):
@@ -114,7 +116,7 @@ def run_batch(solver, names: list[str], values: np.ndarray, outputs: list[str],
         if fields:
             sample = FieldSample(fields, {f.name: germs[germ_variable(f.name)][i]
                                           for f in fields})
-        seed = int(seeds[i]) if seeds is not None else None
+        seed = int(seeds[i]) if seeds is not None and seeded else None
         status, message, got, wall = run_one(solver, params, sample, outputs, seed)
         clipped.append(sum(sample.clipped.values()) if sample is not None else 0)
         evaluated.append(sample.evaluated if sample is not None else {})
