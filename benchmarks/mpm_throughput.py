@@ -124,7 +124,7 @@ def drive(run: _Run, steps: int, profile: dict | None = None) -> float:
         t0 = time.perf_counter()
         for _ in range(steps):
             ts = time.perf_counter()
-            vmax = K.max_speed(run.vx, run.vy, run.S)
+            vmax = run.max_speed()
             dt = run.cfg.cfl * run.g.dx / vmax
             if profile is None:
                 run._step(dt)
@@ -171,16 +171,13 @@ def profiled_step(r: _Run, dt: float, acc: dict) -> None:
     K.g2p_gradient(r.x, r.y, r.kind, r.lp, ox, oy, r.inv_dx, r.gvx, r.gvy, r.xn, r.yn, r.Lg,
                    r.err)
     tick("g2p_gradient", t0)
-    t0 = time.perf_counter()
-    K.bulk_viscosity(r.S, r.Lg, c.q1, c.q2, g.dx)
-    tick("bulk_viscosity", t0)
+    vmax = 0.0
     for k, (upd, _ini) in enumerate(r.solver.loops):
         t0 = time.perf_counter()
-        upd(r.prms[k], r.S, r.solver.mat_index[k], r.Lg, dt, r.t, r.x, r.y, r.err)
-        tick(f"material: {r.solver.labels[k]}", t0)
-    t0 = time.perf_counter()
-    K.check_state(r.S, r.err)
-    tick("check_state", t0)
+        vmax = max(vmax, upd(r.prms[k], r.S, r.solver.mat_index[k], r.Lg, c.q1, c.q2, g.dx,
+                             dt, r.t, r.x, r.y, r.vx, r.vy, r.err)[1])
+        tick(f"material: {r.solver.labels[k]} (+ q, state check, CFL speed)", t0)
+    r.vmax = vmax
 
 
 def throughput(n: int, steps: int, repeats: int, threads: int, profile: bool) -> dict:

@@ -4,12 +4,14 @@ seeding and probe placement. Numerics live in ``step.py``; the run in ``solver.p
 Scene keys (docs/mpm.md, "Scene"): ``domain``, ``cell_size``, ``resolution``,
 ``particles_per_cell``, ``shape``, ``flip``, ``cfl``, ``bulk_viscosity``, ``gravity``,
 ``end_time``, ``output_interval``, ``outputs``, ``dt_min``, ``padding``, ``extent``,
-``materials``, ``bodies``, ``detonation``, ``boundaries``, ``clamps``, ``probes``.
+``materials``, ``bodies``, ``detonation``, ``boundaries``, ``clamps``, ``probes``,
+``snapshots`` (particle VTK files, ``snapshots.py``; docs/mpm_scenes.md).
 """
 
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -22,7 +24,7 @@ from uqflow.errors import SceneError
 TOP_KEYS = ("domain", "cell_size", "resolution", "particles_per_cell", "shape", "flip", "cfl",
             "bulk_viscosity", "gravity", "end_time", "output_interval", "outputs", "dt_min",
             "padding", "extent", "materials", "bodies", "detonation", "boundaries", "clamps",
-            "probes", "max_steps", "threads", "extent_margin")
+            "probes", "max_steps", "threads", "extent_margin", "snapshots")
 REQUIRED = ("domain", "cell_size", "bodies", "end_time")
 BODY_KEYS = {"rectangle": ("min", "max"), "polygon": ("vertices",),
              "circle": ("center", "radius")}
@@ -49,6 +51,15 @@ DEFAULT_OUTPUTS = ("pressure", "flow_stress", "equivalent_stress", "S11", "S22",
 ENERGY_OUTPUTS = {"kinetic_energy": "J m-1", "internal_energy": "J m-1",
                   "plastic_work": "J m-1", "total_energy": "J m-1",
                   "momentum_x": "kg s-1", "momentum_y": "kg s-1"}   # per metre of thickness
+SNAPSHOT_KEYS = ("interval", "directory", "fields")
+# particle fields a snapshot can hold: the probe quantities (positions are the points
+# themselves), the velocity as a 3-vector, and the material / body index of each particle
+SNAPSHOT_FIELDS = tuple(n for n in PROBE_QUANTITIES
+                        if n not in ("position_x", "position_y")) + ("velocity", "material",
+                                                                      "body")
+DEFAULT_SNAPSHOT_FIELDS = ("pressure", "plastic_strain", "equivalent_stress", "density",
+                           "velocity", "material", "body")
+SNAPSHOT_MULTIPLE_RTOL = 1e-6   # interval / output_interval must be an integer within this
 EXTENT_SPEED_FACTOR = 1.25   # signal speed = factor × initial wave speed (shocks run faster)
 EXTENT_MARGIN_CELLS = 4      # cells added around the domain of dependence (stencil spread)
 DEFAULTS = {"resolution": 1.0, "particles_per_cell": 2, "shape": "quadratic", "flip": 1.0,
@@ -146,6 +157,14 @@ class Material:
 
 
 @dataclass
+class Snapshots:
+    interval: float           # s, a multiple of output_interval
+    every: int                # interval / output_interval: a snapshot at every every-th sample
+    directory: str            # absolute (a relative scene path is taken from the cwd at parse)
+    fields: tuple
+
+
+@dataclass
 class Config:
     grid: Grid
     ppc: int
@@ -169,6 +188,7 @@ class Config:
     resolution: float = 1.0
     extent: str = "full"
     extent_margin: int = EXTENT_MARGIN_CELLS
+    snapshots: Snapshots | None = None     # particle VTK snapshots (snapshots.py); None: off
 
     @property
     def times(self):
@@ -406,11 +426,45 @@ def parse(scene) -> Config:
             raise _err(f"{key}.body", f"no body named {body!r} (bodies: {', '.join(names)})")
         probes.append(Probe(p["name"], pt, body))
 
+    snaps = _snapshots(s["snapshots"], dt_out) if "snapshots" in s else None
+
     return Config(grid=grid, ppc=ppc, shape=shape, flip=flip, cfl=cfl, q1=q1, q2=q2,
                   gravity=gravity, end_time=end, output_interval=dt_out, outputs=tuple(outs),
                   dt_min=dt_min, max_steps=max_steps, threads=threads, materials=materials, bodies=bodies,
                   probes=probes, detonation=det, cell_size=cell, resolution=res,
-                  extent=extent, extent_margin=margin)
+                  extent=extent, extent_margin=margin, snapshots=snaps)
+
+
+def _snapshots(v, dt_out) -> Snapshots:
+    """``snapshots = { interval, directory, fields }``: particle VTK files (snapshots.py)."""
+    sn = _table(v, "snapshots")
+    _keys(sn, SNAPSHOT_KEYS, "snapshots")
+    for k in ("interval", "directory"):
+        if k not in sn:
+            raise _err(f"snapshots.{k}", "is required")
+    interval = _num(sn["interval"], "snapshots.interval", positive=True)
+    ratio = interval / dt_out
+    every = round(ratio)
+    if every < 1 or abs(ratio - every) > SNAPSHOT_MULTIPLE_RTOL * every:
+        raise _err("snapshots.interval", f"must be a multiple of output_interval = {dt_out:g} s "
+                                         f"(the state is sampled at output times only), got "
+                                         f"{interval:g} s = {ratio:.6g} x output_interval")
+    d = sn["directory"]
+    if not isinstance(d, str) or not d.strip():
+        raise _err("snapshots.directory", f"must be a non-empty path, got {d!r}")
+    directory = os.path.abspath(os.path.expanduser(d))
+    fields = sn.get("fields", list(DEFAULT_SNAPSHOT_FIELDS))
+    if (not isinstance(fields, (list, tuple)) or not fields
+            or not all(isinstance(f, str) for f in fields)):
+        raise _err("snapshots.fields", f"must be a non-empty list of names, got {fields!r}")
+    for k, f in enumerate(fields):
+        if f not in SNAPSHOT_FIELDS:
+            raise _err(f"snapshots.fields[{k}]", f"unknown field {f!r} (known: "
+                                                 f"{', '.join(SNAPSHOT_FIELDS)})")
+    if len(set(fields)) != len(fields):
+        raise _err("snapshots.fields", "lists a name twice")
+    return Snapshots(interval=every * dt_out, every=int(every), directory=directory,
+                     fields=tuple(fields))
 
 
 def _material(label, model, lib, overrides, key):

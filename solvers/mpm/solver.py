@@ -14,6 +14,7 @@ import xarray as xr
 from solvers.mpm import step as K
 from solvers.mpm.materials import state as ST
 from solvers.mpm.probes import ProbeRecorder
+from solvers.mpm.snapshots import SnapshotWriter
 from solvers.mpm.scene import ENERGY_OUTPUTS, PROBE_QUANTITIES, auto_extent, parse, \
     place_probes, seed_particles
 from solvers.mpm.shapes import KINDS
@@ -170,7 +171,12 @@ class MPMSolver(Solver):
                               f"{', '.join(map(str, fields))})")
         prms = self._parameters(dict(params or {}))
         run = _Run(self, prms)
-        run.advance()
+        run.snapshots = SnapshotWriter.open(self.cfg, params)   # None without scene.snapshots
+        try:
+            run.advance()
+        finally:
+            if run.snapshots is not None:
+                run.snapshots.close()
         ds = self._template.copy(deep=True)
         for name, arr in run.recorder.results().items():
             ds[name].values[...] = arr
@@ -229,10 +235,12 @@ class _Run:
         self.dt_used_min = math.inf
         self.dt_used_max = 0.0
         self.wall = 0.0
+        self.vmax = None          # max (c + |v|) for the next CFL step, set by ``_step``
         for k, (upd, ini) in enumerate(solver.loops):
             if ini(prms[k], self.S, solver.mat_index[k], self.err):
                 self._raise_first("initial state")
         self.recorder = ProbeRecorder(cfg, solver.probe_index, solver.times.size)
+        self.snapshots = None     # a snapshots.SnapshotWriter, set by MPMSolver.run
 
     # -- errors ----------------------------------------------------------------------------
     def _describe(self, i):
@@ -289,6 +297,8 @@ class _Run:
         t0 = _time.perf_counter()
         times = self.solver.times
         self.recorder.record(0, self)
+        if self.snapshots is not None:
+            self.snapshots.maybe_write(0, self)
         dt_floor = cfg.dt_min
         for k in range(1, times.size):
             target = times[k]
@@ -296,7 +306,7 @@ class _Run:
                 rem = target - self.t
                 if rem <= 1e-12 * target:
                     break
-                vmax = K.max_speed(self.vx, self.vy, self.S)
+                vmax = self.max_speed()
                 if not math.isfinite(vmax):
                     self.err[:] = 0
                     K.check_state(self.S, self.err)
@@ -332,6 +342,8 @@ class _Run:
                                       f"= {cfg.max_steps} reached before end_time "
                                       f"{cfg.end_time:g} s")
             self.recorder.record(k, self)
+            if self.snapshots is not None:
+                self.snapshots.maybe_write(k, self)
         self.wall = _time.perf_counter() - t0
 
     def _step(self, dt):
@@ -357,13 +369,22 @@ class _Run:
         if K.g2p_gradient(self.x, self.y, self.kind, self.lp, ox, oy, self.inv_dx, self.gvx,
                           self.gvy, self.xn, self.yn, self.Lg, self.err):
             self._raise_first("velocity gradient")
-        K.bulk_viscosity(self.S, self.Lg, c.q1, c.q2, g.dx)
+        vmax = 0.0
         for k, (upd, _ini) in enumerate(self.solver.loops):
-            if upd(self.prms[k], self.S, self.solver.mat_index[k], self.Lg, dt, self.t, self.x,
-                   self.y, self.err):
+            nbad, vmat = upd(self.prms[k], self.S, self.solver.mat_index[k], self.Lg, c.q1,
+                             c.q2, g.dx, dt, self.t, self.x, self.y, self.vx, self.vy,
+                             self.err)
+            if nbad:
                 self._raise_first("material update")
-        if K.check_state(self.S, self.err):
-            self._raise_first("state check")
+            vmax = max(vmax, vmat)
+        self.vmax = vmax
+
+    def max_speed(self):
+        """max (c + |v|) over the particles: from the material loops of the last step, or
+        computed (first step)."""
+        if self.vmax is None:
+            self.vmax = K.max_speed(self.vx, self.vy, self.S)
+        return self.vmax
 
     def summary(self):
         g = self.g

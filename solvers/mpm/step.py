@@ -2,17 +2,23 @@
 
 Per step, in this order (``solver._Run.step``):
 
-1. ``max_speed``         max_p (c_p + |v_p|) for the CFL time step;
+1. ``max_speed``         max_p (c_p + |v_p|) for the CFL time step (first step only: later
+                         steps take it from the material loops of the step before);
 2. ``p2g``               mass, momentum and internal + body force to the grid;
 3. ``grid_solve``        symmetry fold, v^L = (p + f·dt)/m, boundary conditions, Δv, unfold;
 4. ``g2p_velocity``      particle velocity (FLIP/PIC blend) and new positions (kept aside);
 5. ``p2g`` (momentum)    MUSL remap of the new particle momentum at the old positions;
 6. ``grid_solve``        v^{n+1} = p/m with the boundary conditions;
 7. ``g2p_gradient``      velocity gradient L_p from v^{n+1}; positions moved; grid guard;
-8. ``bulk_viscosity``    q from div v (written to column Q before the material kernels);
-9. material kernels      ``update(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y)`` per
-                         material, over that material's particle index list (``loop_for``);
-10. ``check_state``      finite state (guard), energies at output times (``energies``).
+8. material loops        per material, over its particle index list (``loop_for``): the bulk
+                         viscosity q from div v (column Q), ``advance`` (``update`` when a
+                         guard fails), the row checked finite (the state guard) and
+                         max (c + |v|) kept for the next step's CFL time step;
+                         energies at output times (``energies``).
+
+Doing q, the state check and the CFL reduction in the material loop, where the particle's
+state row is in cache anyway, saves three passes over the state array per step (docs/mpm.md,
+"Performance").
 
 Scatter without races: ``p2g`` splits the particles into one contiguous chunk per thread and
 each thread scatters into its own grid buffer (``buf[t]``, node-major); a second parallel loop over grid
@@ -29,7 +35,9 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from solvers.mpm.materials.state import C, PLASTIC_WORK, Q, RHO, SXX, SXY, SYY, E, N_STATE
+from solvers.mpm.materials.state import (C, PLASTIC_WORK, Q, RHO, SXX, SXY, SYY, E, N_STATE,
+                                          bulk_guards_pass, bulk_viscosity, finite_args,
+                                          row_finite)
 from solvers.mpm.shapes import shape1d
 
 # core error codes (the materials' codes are 1..5, see materials/state.py)
@@ -348,22 +356,6 @@ def g2p_gradient(xp, yp, kind, lp, ox, oy, inv_dx, gvx, gvy, xn, yn, Lg, err):
 
 
 @njit(cache=True, parallel=True)
-def bulk_viscosity(S, Lg, q1, q2, length):
-    """Column Q ← ρ l (Q1 l ε̇v² − Q2 c ε̇v) for ε̇v = Lxx + Lyy < 0, else 0 (before the
-    material kernels, which add q to σ and its work to E; materials/state.py)."""
-    if q1 == 0.0 and q2 == 0.0:
-        for p in prange(S.shape[0]):
-            S[p, Q] = 0.0
-        return
-    for p in prange(S.shape[0]):
-        ev = Lg[p, 0] + Lg[p, 3]
-        if ev < 0.0:
-            S[p, Q] = S[p, RHO] * length * (q1 * length * ev * ev - q2 * S[p, C] * ev)
-        else:
-            S[p, Q] = 0.0
-
-
-@njit(cache=True, parallel=True)
 def check_state(S, err):
     """Flag (ERR_CORE_NONFINITE) particles whose state row holds a NaN or inf."""
     nbad = 0
@@ -415,56 +407,111 @@ from solvers.mpm.materials import jwl as _jwl                  # noqa: E402
 from solvers.mpm.materials import water as _water              # noqa: E402
 
 
-@njit(cache=True, parallel=True)
-def _loop_elastic(prm, S, idx, Lg, dt, time, xp, yp, err):
-    nbad = 0
-    for k in prange(idx.size):
-        i = idx[k]
-        e = _elastic.update(prm, S, i, Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3], dt, time,
-                            xp[i], yp[i])
-        if e != 0:
-            err[i] = e
-            nbad += 1
-    return nbad
+@njit(cache=True, inline="always")
+def _trusted(S, i, Lg, dt, time, xp, yp):
+    """Row i may skip the per-row guards of ``update``: finite arguments and ρ > 0 (the row
+    itself was checked finite after the previous update, by ``_settle``)."""
+    return (S[i, RHO] > 0.0
+            and finite_args(Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3], dt, time, xp[i], yp[i]))
+
+
+@njit(cache=True, inline="always")
+def _settle(S, i, code, vx, vy):
+    """(code, c + |v|) of row i after its update: the core's state check (a non-finite row
+    is ERR_CORE_NONFINITE) and the particle's signal speed for the next CFL step."""
+    if code != 0:
+        return code, 0.0
+    if not row_finite(S, i):
+        return ERR_CORE_NONFINITE, 0.0
+    return 0, S[i, C] + math.sqrt(vx[i] * vx[i] + vy[i] * vy[i])
 
 
 @njit(cache=True, parallel=True)
-def _loop_johnson_cook(prm, S, idx, Lg, dt, time, xp, yp, err):
+def _loop_elastic(prm, S, idx, Lg, q1, q2, length, dt, time, xp, yp, vx, vy, err):
+    bulk_ok = bulk_guards_pass(prm, _elastic.NPRM, S, dt, time)
     nbad = 0
+    vmax = 0.0
     for k in prange(idx.size):
         i = idx[k]
-        e = _johnson_cook.update(prm, S, i, Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3], dt, time,
-                                 xp[i], yp[i])
+        S[i, Q] = bulk_viscosity(S[i, RHO], length, S[i, C], Lg[i, 0] + Lg[i, 3], q1, q2)
+        if bulk_ok and _trusted(S, i, Lg, dt, time, xp, yp):
+            e = _elastic.advance(prm, S, i, Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3], dt, time,
+                              xp[i], yp[i])
+        else:
+            e = _elastic.update(prm, S, i, Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3], dt, time,
+                             xp[i], yp[i])
+        e, speed = _settle(S, i, e, vx, vy)
+        vmax = max(vmax, speed)
         if e != 0:
             err[i] = e
             nbad += 1
-    return nbad
+    return nbad, vmax
 
 
 @njit(cache=True, parallel=True)
-def _loop_jwl(prm, S, idx, Lg, dt, time, xp, yp, err):
+def _loop_johnson_cook(prm, S, idx, Lg, q1, q2, length, dt, time, xp, yp, vx, vy, err):
+    bulk_ok = bulk_guards_pass(prm, _johnson_cook.NPRM, S, dt, time)
     nbad = 0
+    vmax = 0.0
     for k in prange(idx.size):
         i = idx[k]
-        e = _jwl.update(prm, S, i, Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3], dt, time,
-                        xp[i], yp[i])
+        S[i, Q] = bulk_viscosity(S[i, RHO], length, S[i, C], Lg[i, 0] + Lg[i, 3], q1, q2)
+        if bulk_ok and _trusted(S, i, Lg, dt, time, xp, yp):
+            e = _johnson_cook.advance(prm, S, i, Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3], dt, time,
+                              xp[i], yp[i])
+        else:
+            e = _johnson_cook.update(prm, S, i, Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3], dt, time,
+                             xp[i], yp[i])
+        e, speed = _settle(S, i, e, vx, vy)
+        vmax = max(vmax, speed)
         if e != 0:
             err[i] = e
             nbad += 1
-    return nbad
+    return nbad, vmax
 
 
 @njit(cache=True, parallel=True)
-def _loop_water(prm, S, idx, Lg, dt, time, xp, yp, err):
+def _loop_jwl(prm, S, idx, Lg, q1, q2, length, dt, time, xp, yp, vx, vy, err):
+    bulk_ok = bulk_guards_pass(prm, _jwl.NPRM, S, dt, time)
     nbad = 0
+    vmax = 0.0
     for k in prange(idx.size):
         i = idx[k]
-        e = _water.update(prm, S, i, Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3], dt, time,
-                          xp[i], yp[i])
+        S[i, Q] = bulk_viscosity(S[i, RHO], length, S[i, C], Lg[i, 0] + Lg[i, 3], q1, q2)
+        if bulk_ok and _trusted(S, i, Lg, dt, time, xp, yp):
+            e = _jwl.advance(prm, S, i, Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3], dt, time,
+                              xp[i], yp[i])
+        else:
+            e = _jwl.update(prm, S, i, Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3], dt, time,
+                             xp[i], yp[i])
+        e, speed = _settle(S, i, e, vx, vy)
+        vmax = max(vmax, speed)
         if e != 0:
             err[i] = e
             nbad += 1
-    return nbad
+    return nbad, vmax
+
+
+@njit(cache=True, parallel=True)
+def _loop_water(prm, S, idx, Lg, q1, q2, length, dt, time, xp, yp, vx, vy, err):
+    bulk_ok = bulk_guards_pass(prm, _water.NPRM, S, dt, time)
+    nbad = 0
+    vmax = 0.0
+    for k in prange(idx.size):
+        i = idx[k]
+        S[i, Q] = bulk_viscosity(S[i, RHO], length, S[i, C], Lg[i, 0] + Lg[i, 3], q1, q2)
+        if bulk_ok and _trusted(S, i, Lg, dt, time, xp, yp):
+            e = _water.advance(prm, S, i, Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3], dt, time,
+                              xp[i], yp[i])
+        else:
+            e = _water.update(prm, S, i, Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3], dt, time,
+                             xp[i], yp[i])
+        e, speed = _settle(S, i, e, vx, vy)
+        vmax = max(vmax, speed)
+        if e != 0:
+            err[i] = e
+            nbad += 1
+    return nbad, vmax
 
 
 @njit(cache=True)
@@ -518,15 +565,19 @@ _LOOPS = {_elastic: (_loop_elastic, _init_elastic),
 
 
 @njit(parallel=True)
-def _loop_any(update, prm, S, idx, Lg, dt, time, xp, yp, err):
+def _loop_any(update, prm, S, idx, Lg, q1, q2, length, dt, time, xp, yp, vx, vy, err):
     nbad = 0
+    vmax = 0.0
     for k in prange(idx.size):
         i = idx[k]
+        S[i, Q] = bulk_viscosity(S[i, RHO], length, S[i, C], Lg[i, 0] + Lg[i, 3], q1, q2)
         e = update(prm, S, i, Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3], dt, time, xp[i], yp[i])
+        e, speed = _settle(S, i, e, vx, vy)
+        vmax = max(vmax, speed)
         if e != 0:
             err[i] = e
             nbad += 1
-    return nbad
+    return nbad, vmax
 
 
 @njit
@@ -547,8 +598,8 @@ def loop_for(module):
         return _LOOPS[module]
     upd, ini = module.update, module.init
 
-    def update_loop(prm, S, idx, Lg, dt, time, xp, yp, err):
-        return _loop_any(upd, prm, S, idx, Lg, dt, time, xp, yp, err)
+    def update_loop(prm, S, idx, Lg, q1, q2, length, dt, time, xp, yp, vx, vy, err):
+        return _loop_any(upd, prm, S, idx, Lg, q1, q2, length, dt, time, xp, yp, vx, vy, err)
 
     def init_loop(prm, S, idx, err):
         return _init_any(ini, prm, S, idx, err)

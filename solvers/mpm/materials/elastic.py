@@ -67,10 +67,19 @@ def init(prm, S, i):
 
 @njit(cache=True, fastmath=False)
 def update(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
-    """Jaumann-rate hypoelastic update of particle i; returns a code."""
+    """The guards (``check_update``), then ``advance``. Returns a code."""
     code = check_update(prm, NPRM, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y)
     if code != OK:
         return code
+    return advance(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y)
+
+
+@njit(cache=True, fastmath=False)
+def advance(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
+    """Jaumann-rate hypoelastic update of particle i; returns a code.
+
+    Unguarded: for callers that have made ``check_update``'s checks cheaper in bulk (the
+    solver's loops, step.py)."""
     rho0, q, rho_n = prm[I_RHO0], S[i, Q], S[i, RHO]
     G, K = moduli(prm[I_E], prm[I_NU])
     trD, Dxy = Lxx + Lyy, 0.5 * (Lxy + Lyx)

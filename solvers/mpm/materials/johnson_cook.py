@@ -188,10 +188,19 @@ def init(prm, S, i):
 
 @njit(cache=True, fastmath=False)
 def update(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
-    """Advance particle i over dt (see module doc; docs/mpm_materials.md §3). Returns a code."""
+    """The guards (``check_update``), then ``advance``. Returns a code."""
     code = check_update(prm, NPRM, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y)
     if code != OK:
         return code
+    return advance(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y)
+
+
+@njit(cache=True, fastmath=False)
+def advance(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
+    """Advance particle i over dt (see module doc; docs/mpm_materials.md §3). Returns a code.
+
+    Unguarded: for callers that have made ``check_update``'s checks cheaper in bulk (the
+    solver's loops, step.py)."""
     rho0, G, q, rho_n = prm[I_RHO0], prm[I_G], S[i, Q], S[i, RHO]
     trD, Dxy = Lxx + Lyy, 0.5 * (Lxy + Lyx)
     rho1 = density_update(rho_n, trD, dt)

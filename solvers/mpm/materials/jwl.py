@@ -119,10 +119,19 @@ def init(prm, S, i):
 
 @njit(cache=True, fastmath=False)
 def update(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
-    """Burn fraction at time + dt, continuity, p = F p_JWL with the trapezoidal energy update."""
+    """The guards (``check_update``), then ``advance``. Returns a code."""
     code = check_update(prm, NPRM, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y)
     if code != OK:
         return code
+    return advance(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y)
+
+
+@njit(cache=True, fastmath=False)
+def advance(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
+    """Burn fraction at time + dt, continuity, p = F p_JWL with the trapezoidal energy update.
+
+    Unguarded: for callers that have made ``check_update``'s checks cheaper in bulk (the
+    solver's loops, step.py)."""
     rho0, D, q, rho_n = prm[I_RHO0], prm[I_D], S[i, Q], S[i, RHO]
     F = burn_fraction(D, prm[I_DETX], prm[I_DETY], prm[I_W], time + dt, x, y)
     if S[i, BURN] > F:

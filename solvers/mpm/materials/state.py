@@ -131,18 +131,41 @@ def require(material: str, prm: np.ndarray, names, rules) -> None:
 
 # --- numba helpers shared by the kernels -----------------------------------------------------
 @njit(cache=True, fastmath=False)
+def finite_values(a, k0, k1):
+    """True when a[k0:k1] (1-D) is finite. Each test is independent (no chain of dependent
+    floating-point adds: this runs for every particle and step)."""
+    ok = True
+    for k in range(k0, k1):
+        ok &= a[k] * 0.0 == 0.0
+    return ok
+
+
+@njit(cache=True, fastmath=False)
+def row_finite(S, i):
+    """True when the state row i is finite."""
+    ok = True
+    for k in range(N_STATE):
+        ok &= S[i, k] * 0.0 == 0.0
+    return ok
+
+
+@njit(cache=True, fastmath=False)
 def check_call(prm, nprm, S, i):
     """Shape guard and finiteness of the parameters and of the row. Returns an error code."""
     if i < 0 or i >= S.shape[0] or S.shape[1] < N_STATE or prm.shape[0] < nprm:
         return ERR_SHAPE
-    acc = 0.0
-    for k in range(nprm):
-        acc += prm[k] * 0.0          # NaN/inf give NaN; finite values give 0 (no overflow)
-    for k in range(N_STATE):
-        acc += S[i, k] * 0.0
-    if acc != 0.0:
+    if not (finite_values(prm, 0, nprm) and row_finite(S, i)):
         return ERR_NONFINITE
     return OK
+
+
+@njit(cache=True, fastmath=False)
+def bulk_guards_pass(prm, nprm, S, dt, time):
+    """The per-call part of ``check_update`` for a loop over many rows of ``S``: shapes,
+    finite parameters, dt > 0, finite time. A loop that passes it may call a material's
+    unguarded ``advance`` for a row that is finite with ρ > 0 and finite arguments."""
+    return (S.shape[1] >= N_STATE and prm.shape[0] >= nprm and finite_values(prm, 0, nprm)
+            and dt > 0.0 and dt * 0.0 == 0.0 and time * 0.0 == 0.0)
 
 
 @njit(cache=True, fastmath=False)

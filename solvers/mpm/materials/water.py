@@ -61,10 +61,19 @@ def init(prm, S, i):
 
 @njit(cache=True, fastmath=False)
 def update(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
-    """Continuity, energy-consistent MG pressure with cut-off, σ = −(p + q) I."""
+    """The guards (``check_update``), then ``advance``. Returns a code."""
     code = check_update(prm, NPRM, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y)
     if code != OK:
         return code
+    return advance(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y)
+
+
+@njit(cache=True, fastmath=False)
+def advance(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
+    """Continuity, energy-consistent MG pressure with cut-off, σ = −(p + q) I.
+
+    Unguarded: for callers that have made ``check_update``'s checks cheaper in bulk (the
+    solver's loops, step.py)."""
     rho0, q, rho_n = prm[I_RHO0], S[i, Q], S[i, RHO]
     rho1 = density_update(rho_n, Lxx + Lyy, dt)
     if not (rho1 > 0.0 and rho1 < math.inf):          # J = ρ_n/ρ_{n+1} > 0
