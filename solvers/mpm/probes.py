@@ -16,6 +16,7 @@ import numpy as np
 
 from solvers.mpm import step as K
 from solvers.mpm.materials import state as ST
+from solvers.mpm.scene import ENERGY_OUTPUTS
 
 
 def probe_values(name, S, vx, vy, x, y):
@@ -55,9 +56,20 @@ class ProbeRecorder:
         self.idx = np.asarray(probe_index, dtype=np.int64)
         n_probes = self.idx.size
         self.data = {n: np.full((n_times, n_probes), np.nan) for n in self.names}
-        self.energy = {n: np.full(n_times, np.nan) for n in
-                       ("kinetic_energy", "internal_energy", "plastic_work", "total_energy",
-                        "momentum_x", "momentum_y")}
+        self.energy = {n: np.full(n_times, np.nan) for n in ENERGY_OUTPUTS}
+        self.explosives = None      # [(particle index, E0)] of the explosive materials
+
+    def _explosives(self, run):
+        """(particle indices, chemical energy E0 per reference volume) of every material
+        whose module names a ``CHEMICAL_ENERGY`` parameter."""
+        out = []
+        for k, lab in enumerate(run.solver.labels):
+            module = run.cfg.materials[lab].module
+            name = getattr(module, "CHEMICAL_ENERGY", None)
+            if name is not None:
+                e0 = float(run.prms[k][list(module.PARAMETERS).index(name)])
+                out.append((run.solver.mat_index[k], e0))
+        return out
 
     def record(self, k, run):
         i = self.idx
@@ -70,6 +82,12 @@ class ProbeRecorder:
         self.energy["kinetic_energy"][k] = ke
         self.energy["internal_energy"][k] = ie
         self.energy["plastic_work"][k] = pw
+        if self.explosives is None:
+            self.explosives = self._explosives(run)
+        # chemical energy the burn has made available so far (it is part of E from t = 0)
+        self.energy["explosive_release"][k] = sum(
+            e0 * float(np.dot(run.S[idx, ST.BURN], run.vol0[idx]))
+            for idx, e0 in self.explosives)
         self.energy["total_energy"][k] = ke + ie
 
     def results(self):

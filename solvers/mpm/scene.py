@@ -49,7 +49,8 @@ PROBE_QUANTITIES = {
 DEFAULT_OUTPUTS = ("pressure", "flow_stress", "equivalent_stress", "S11", "S22", "S12",
                    "plastic_strain", "velocity_x", "velocity_y")
 ENERGY_OUTPUTS = {"kinetic_energy": "J m-1", "internal_energy": "J m-1",
-                  "plastic_work": "J m-1", "total_energy": "J m-1",
+                  "plastic_work": "J m-1", "explosive_release": "J m-1",
+                  "total_energy": "J m-1",
                   "momentum_x": "kg s-1", "momentum_y": "kg s-1"}   # per metre of thickness
 SNAPSHOT_KEYS = ("interval", "directory", "fields")
 # particle fields a snapshot can hold: the probe quantities (positions are the points

@@ -30,6 +30,9 @@ from .state import (BURN, C as COL_C, E, ERR_DENSITY, ERR_NONFINITE, ERR_OTHER, 
 
 NAME = "jwl_programmed_burn"
 HAS_STRENGTH = False
+# parameter holding the chemical energy per unit reference volume: the core reports
+# Σ BURN · E0 · V0 as the energy the burn has released (probes.py, "explosive_release")
+CHEMICAL_ENERGY = "eos.E0"
 
 PARAMETERS = {
     "rho0": 1630.0,        # kg/m³

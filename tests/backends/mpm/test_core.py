@@ -231,8 +231,8 @@ def test_outputs_template_and_run_match():
     sol = MPMSolver.from_scene(s)
     tpl = sol.outputs()
     assert set(tpl.data_vars) == {"pressure", "S11", "velocity_x", "kinetic_energy",
-                                  "internal_energy", "plastic_work", "total_energy",
-                                  "momentum_x", "momentum_y"}
+                                  "internal_energy", "plastic_work", "explosive_release",
+                                  "total_energy", "momentum_x", "momentum_y"}
     assert tpl.pressure.dims == ("time", "probe") and tpl.sizes == {"time": 5, "probe": 1}
     assert tpl.kinetic_energy.dims == ("time",)
     assert all("units" in v.attrs for v in tpl.data_vars.values())
@@ -391,6 +391,14 @@ def test_contact_explosion_small():
     e = ds.total_energy.values
     assert e[0] == pytest.approx(7.0e9 * 0.08 * 0.04, rel=0.02)   # TNT chemical energy (half)
     assert abs(e[-1] / e[0] - 1) < 0.02
+    # the burn releases the charge's chemical energy: nothing at t = 0, never decreasing,
+    # all of it (E0 × the charge's volume, half charge) once the front has crossed the charge
+    # (0.04 m from the centre at D = 6930 m/s: 5.8 µs)
+    rel = ds.explosive_release.values
+    tnt = sol.parts.material == sol.labels.index("tnt")
+    assert rel[0] == 0.0 and np.all(np.diff(rel) >= 0.0)
+    assert rel[-1] == pytest.approx(7.0e9 * sol.parts.vol0[tnt].sum(), rel=1e-12)
+    assert 0.0 < rel[ds.time.values.searchsorted(3e-6)] < 0.5 * rel[-1]
     p = ds.pressure.sel(probe="H").values
     assert np.isfinite(p).all() and p.max() > 2e9               # shock through the plate
     assert ds.plastic_work.values[-1] > 0
