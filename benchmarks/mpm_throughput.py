@@ -152,7 +152,7 @@ def profiled_step(r: _Run, dt: float, acc: dict) -> None:
           c.gravity[1], True, r.buf, r.gm, r.gpx, r.gpy, r.gfx, r.gfy)
     tick("p2g (forces)", t0)
     t0 = time.perf_counter()
-    K.grid_solve(r.gm, r.gpx, r.gpy, r.gfx, r.gfy, dt, True, True, r.fixx, r.fixy, r.sides,
+    K.grid_solve(r.gm, r.gpx, r.gpy, r.gfx, r.gfy, dt, True, True, r.fixx, r.fixy, r.etax, r.etay, r.sides,
                  r.bnodes, g.pad, r.mtiny, r.gvx, r.gvy, r.gdx, r.gdy)
     tick("grid_solve x2", t0)
     t0 = time.perf_counter()
@@ -164,7 +164,7 @@ def profiled_step(r: _Run, dt: float, acc: dict) -> None:
           r.buf, r.gm, r.gpx, r.gpy, r.gfx, r.gfy)
     tick("p2g (MUSL remap)", t0)
     t0 = time.perf_counter()
-    K.grid_solve(r.gm, r.gpx, r.gpy, r.gfx, r.gfy, dt, False, False, r.fixx, r.fixy, r.sides,
+    K.grid_solve(r.gm, r.gpx, r.gpy, r.gfx, r.gfy, dt, False, False, r.fixx, r.fixy, r.etax, r.etay, r.sides,
                  r.bnodes, g.pad, r.mtiny, r.gvx, r.gvy, r.gdx, r.gdy)
     tick("grid_solve x2", t0)
     t0 = time.perf_counter()

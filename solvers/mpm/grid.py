@@ -22,6 +22,13 @@ The image treatment makes the wall sit exactly on the boundary line with the B-s
 stencils that reach past it (zeroing every node on and beyond the line instead shifts the
 effective wall by a fraction of a cell: the fixed–free bar's period is then off by ≈ 0.3 dx/L).
 
+* ``absorbing`` (the far field): a viscous boundary (Lysmer & Kuhlemeyer 1969) — the nodes on
+  the boundary line carry dashpots with the traction t = −ρ c_p v_n n − ρ c_s v_t t of the
+  material next to the side (coefficients per node ρ c dx, per metre of thickness), so a
+  plane wave at normal incidence leaves without reflection. The dashpot force is taken
+  implicitly in the grid update, v = (p + f dt)/(m + η dt): stable for any η, and the node
+  stops but never reverses when η dt ≫ m.
+
 Clamps are rectangles whose nodes get zero velocity (both components).
 """
 
@@ -33,8 +40,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 SIDES = ("left", "right", "bottom", "top")
-SIDE_KINDS = {"free": 0, "fixed": 1, "roller": 2, "symmetry": 3}
-FREE, FIXED, ROLLER, SYMMETRY = 0, 1, 2, 3
+SIDE_KINDS = {"free": 0, "fixed": 1, "roller": 2, "symmetry": 3, "absorbing": 4}
+FREE, FIXED, ROLLER, SYMMETRY, ABSORBING = 0, 1, 2, 3, 4
+MIRRORED = (FIXED, ROLLER, SYMMETRY)        # sides treated by the image method
 
 
 @dataclass
@@ -107,6 +115,29 @@ class Grid:
         """int64[4]: node index of the left, right, bottom, top boundary lines."""
         p = self.pad
         return np.array([p, p + self.ncx, p, p + self.ncy], dtype=np.int64)
+
+    def folded_side_codes(self):
+        """int64[4]: like ``side_codes`` but 0 for the sides without images (free, absorbing)."""
+        return np.array([k if k in MIRRORED else FREE for k in self.side_codes()],
+                        dtype=np.int64)
+
+    def dashpots(self, impedance):
+        """(eta_x, eta_y) float64[nnx, nny]: dashpot coefficients (kg s⁻¹ per metre of
+        thickness) of the absorbing sides. ``impedance[side] = (ρ c_p, ρ c_s)``; the normal
+        component takes ρ c_p dx, the tangential one ρ c_s dx; a corner node gets both sides'."""
+        ex = np.zeros((self.nnx, self.nny))
+        ey = np.zeros_like(ex)
+        il, ir, jb, jt = self.boundary_nodes()
+        lines = {"left": (il, slice(None)), "right": (ir, slice(None)),
+                 "bottom": (slice(None), jb), "top": (slice(None), jt)}
+        for side, line in lines.items():
+            if self.sides[side] != "absorbing":
+                continue
+            zp, zs = impedance[side]
+            normal, tangential = (ex, ey) if side in ("left", "right") else (ey, ex)
+            normal[line] += zp * self.dx
+            tangential[line] += zs * self.dx
+        return ex, ey
 
     def masks(self):
         """(fixx, fixy) uint8[nnx, nny]: 1 where that velocity component is set to zero."""

@@ -302,7 +302,8 @@ def parse(scene) -> Config:
                 raise _err(f"{key}.max", "must not be below min")
             clamps.append((lo[0], lo[1], hi[0], hi[1]))
     grid = Grid.cover(x0, x1, y0, y1, dx, pad, sides, clamps)
-    if any(v != "free" for v in sides.values()) and min(grid.ncx, grid.ncy) < 2 * pad:
+    if (any(v not in ("free", "absorbing") for v in sides.values())
+            and min(grid.ncx, grid.ncy) < 2 * pad):
         raise _err("boundaries", f"a fixed, roller or symmetry side needs a domain of at least "
                                  f"2 x padding = {2 * pad} cells across")
 

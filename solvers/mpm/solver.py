@@ -227,7 +227,8 @@ class _Run:
         self.kind = KINDS[cfg.shape]
         self.lp = 0.5 / cfg.ppc
         self.inv_dx = 1.0 / g.dx
-        self.sides = g.side_codes()
+        self.sides = g.folded_side_codes()
+        self.etax, self.etay = g.dashpots(self._impedances())
         self.bnodes = g.boundary_nodes()
         self.mtiny = 1e-12 * float(self.mass.min())
         self.t = 0.0
@@ -241,6 +242,32 @@ class _Run:
                 self._raise_first("initial state")
         self.recorder = ProbeRecorder(cfg, solver.probe_index, solver.times.size)
         self.snapshots = None     # a snapshots.SnapshotWriter, set by MPMSolver.run
+
+    def _impedances(self):
+        """{side: (ρ0 c_p, ρ0 c_s)} of each absorbing side: the material of the particle
+        nearest to the side's boundary line at t = 0, at its reference state (c_p: the wave
+        speed its ``init`` sets; c_s = √(G/ρ0), 0 for a fluid)."""
+        g, sol = self.g, self.solver
+        out = {}
+        for side, kind in g.sides.items():
+            if kind != "absorbing":
+                continue
+            dist = {"left": self.x - g.x0, "right": g.x1 - self.x, "bottom": self.y - g.y0,
+                    "top": g.y1 - self.y}[side]
+            k = int(sol.parts.material[int(np.argmin(np.abs(dist)))])
+            module, prm = self.cfg.materials[sol.labels[k]].module, self.prms[k]
+            names = list(module.PARAMETERS)
+            rho0 = float(prm[names.index("rho0")])
+            row = ST.new_state(1)
+            module.init(prm, row, 0)
+            if "shear_modulus" in names:
+                G = float(prm[names.index("shear_modulus")])
+            elif "E" in names and "nu" in names:
+                G = float(prm[names.index("E")]) / (2.0 * (1.0 + float(prm[names.index("nu")])))
+            else:
+                G = 0.0
+            out[side] = (rho0 * float(row[0, ST.C]), math.sqrt(rho0 * G))
+        return out
 
     # -- errors ----------------------------------------------------------------------------
     def _describe(self, i):
@@ -354,7 +381,7 @@ class _Run:
               self.inv_dx, c.gravity[0], c.gravity[1], True, self.buf, self.gm, self.gpx,
               self.gpy, self.gfx, self.gfy)
         K.grid_solve(self.gm, self.gpx, self.gpy, self.gfx, self.gfy, dt, True, True, self.fixx,
-                     self.fixy, self.sides, self.bnodes, g.pad, self.mtiny, self.gvx, self.gvy,
+                     self.fixy, self.etax, self.etay, self.sides, self.bnodes, g.pad, self.mtiny, self.gvx, self.gvy,
                      self.gdx, self.gdy)
         if K.g2p_velocity(self.x, self.y, self.vx, self.vy, self.kind, self.lp, ox, oy,
                           self.inv_dx, self.gvx, self.gvy, self.gdx, self.gdy, dt, c.flip,
@@ -364,7 +391,7 @@ class _Run:
               self.inv_dx, 0.0, 0.0, False, self.buf, self.gm, self.gpx, self.gpy, self.gfx,
               self.gfy)
         K.grid_solve(self.gm, self.gpx, self.gpy, self.gfx, self.gfy, dt, False, False,
-                     self.fixx, self.fixy, self.sides, self.bnodes, g.pad, self.mtiny, self.gvx,
+                     self.fixx, self.fixy, self.etax, self.etay, self.sides, self.bnodes, g.pad, self.mtiny, self.gvx,
                      self.gvy, self.gdx, self.gdy)
         if K.g2p_gradient(self.x, self.y, self.kind, self.lp, ox, oy, self.inv_dx, self.gvx,
                           self.gvy, self.xn, self.yn, self.Lg, self.err):

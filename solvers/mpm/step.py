@@ -204,12 +204,14 @@ def _mirror_signs(kind, side):
 
 
 @njit(cache=True, parallel=True)
-def grid_solve(gm, gpx, gpy, gfx, gfy, dt, forces, fold_mass, fixx, fixy, sides, bnodes,
-               pad, mtiny, gvx, gvy, gdx, gdy):
+def grid_solve(gm, gpx, gpy, gfx, gfy, dt, forces, fold_mass, fixx, fixy, etax, etay, sides,
+               bnodes, pad, mtiny, gvx, gvy, gdx, gdy):
     """Grid velocities with boundary conditions.
 
     ``forces``: v^L = (p + f·dt)/m and Δv = v^L − p/m (both with the boundary conditions);
-    otherwise v = p/m (MUSL remap). Fixed, roller and symmetry sides (``sides[s] != 0``) fold
+    otherwise v = p/m (MUSL remap). Absorbing sides: nodes with dashpots (``etax``, ``etay``
+    > 0) take v^L = (p + f·dt)/(m + η·dt) (implicit dashpot, grid.py). Fixed, roller and
+    symmetry sides (``sides[s] != 0``: the folded codes, grid.folded_side_codes) fold
     the ghost layers onto their mirrors first (x sides, then y sides; the mass only when
     ``fold_mass``) and mirror the velocities back onto the ghosts last (y sides, then x
     sides): the contribution of image particles (odd image for a fixed wall, even tangential /
@@ -238,6 +240,10 @@ def grid_solve(gm, gpx, gpy, gfx, gfy, dt, forces, fold_mass, fixx, fixy, sides,
                 if forces:
                     nvx = vx + dt * gfx[i, j] / m
                     nvy = vy + dt * gfy[i, j] / m
+                    if etax[i, j] > 0.0:
+                        nvx = (gpx[i, j] + dt * gfx[i, j]) / (m + dt * etax[i, j])
+                    if etay[i, j] > 0.0:
+                        nvy = (gpy[i, j] + dt * gfy[i, j]) / (m + dt * etay[i, j])
                 else:
                     nvx = vx
                     nvy = vy

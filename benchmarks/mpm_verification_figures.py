@@ -1,0 +1,193 @@
+"""Figures and numbers of the MPM verification problems (docs/mpm_verification.md).
+
+Runs the problems of tests/backends/mpm/test_verification.py through that module's own scene
+loaders and measurements (the scenes are studies/scenes/verify_*.toml), prints every number the
+doc quotes and writes docs/figures/mpm_verify_{bar,disks,plate_impact,tnt}.png. A few seconds
+once numba's cache is warm:
+
+    python benchmarks/mpm_verification_figures.py
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from solvers.mpm import MPMSolver  # noqa: E402
+from tests.backends.mpm import test_verification as V  # noqa: E402
+
+FIGURES = ROOT / "docs" / "figures"
+DPI = 100
+
+
+def bar():
+    amp = 2 * V.V0 / math.pi
+    for cells in (16, 32, 64):
+        ds, vcm = V.run_bar(cells=cells)
+        z = V.zero_crossings(ds.time.values, vcm)
+        e = ds.total_energy.values
+        period = 2 * np.mean(np.diff(z)) / V.PERIOD - 1
+        print(f"bar {cells:3d} cells: period {100 * period:+.3f} %, <v> amplitude "
+              f"{100 * (np.max(np.abs(vcm)) / amp - 1):+.4f} %, energy drift "
+              f"{100 * (e[-1] / e[0] - 1):+.3f} % "
+              f"(max |dev| {100 * np.max(np.abs(e / e[0] - 1)):.2f} %)")
+        if cells == 32:
+            keep = ds, vcm
+    for shape in ("linear", "gimp"):
+        ds, vcm = V.run_bar(cells=32, shape=shape, periods=2)
+        z = V.zero_crossings(ds.time.values, vcm)
+        e = ds.total_energy.values
+        period = 2 * np.mean(np.diff(z)) / V.PERIOD - 1
+        print(f"bar 32 cells {shape}: period {100 * period:+.3f} %, "
+              f"energy drift {100 * (e[-1] / e[0] - 1):+.3f} %")
+    ds, vcm = keep
+    t = ds.time.values
+    w = 2 * math.pi / V.PERIOD
+    fig, ax = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
+    tip = ds.velocity_x.sel(probe="tip").values
+    ax[0].plot(t, tip * 1e3, "C0", lw=1.5, label="tip (MPM)")
+    ax[0].plot(t, V.V0 * np.cos(w * t) * 1e3, "k--", lw=0.8,
+               label="tip, exact $v_0\\cos\\omega_1 t$")
+    ax[0].plot(t, vcm * 1e3, "C1", lw=1.5, label="centre of mass (MPM)")
+    ax[0].plot(t, amp * np.cos(w * t) * 1e3, "k:", lw=0.8,
+               label="c.o.m., exact $(2v_0/\\pi)\\cos\\omega_1 t$")
+    ax[0].set_ylabel("velocity (mm/s)")
+    ax[0].set_ylim(-17, 11)
+    ax[0].legend(fontsize=7, ncol=2, loc="lower center")
+    e = ds.total_energy.values
+    ax[1].plot(t, 100 * (e / e[0] - 1), "C2")
+    ax[1].set_ylabel("total energy (% of initial)")
+    ax[1].set_xlabel("time (s)")
+    fig.suptitle("Fixed–free elastic bar, first mode, 32 cells (verify_elastic_bar.toml)",
+                 fontsize=9)
+    fig.tight_layout()
+    fig.savefig(FIGURES / "mpm_verify_bar.png", dpi=DPI)
+    plt.close(fig)
+
+
+def disks():
+    ds = MPMSolver.from_scene(V.disks_scene()).run({})
+    a, b = ds.sel(probe="a"), ds.sel(probe="b")
+    e = ds.total_energy.values
+    dv = np.max(np.abs(a.velocity_x.values + b.velocity_x.values))
+    ds11 = np.max(np.abs(a.S11.values - b.S11.values)) / np.max(np.abs(a.S11.values))
+    k = ds.kinetic_energy.values
+    print(f"disks: max |v_a + v_b| = {dv:.1e}, max |S11_a - S11_b| / max|S11| = {ds11:.1e}, "
+          f"energy {100 * (e / e[0] - 1).min():+.2f} … {100 * (e / e[0] - 1).max():+.2f} %, "
+          f"final v_a = {a.velocity_x.values[-1]:.4f}, min KE / KE0 = {k.min() / k[0]:.3f}")
+    pic = MPMSolver.from_scene(V.disks_scene(flip=0.0, end=2.0)).run({}).total_energy.values
+    print(f"disks PIC (2 s): energy {100 * (pic[-1] / pic[0] - 1):+.1f} %")
+    t = ds.time.values
+    fig, ax = plt.subplots(figsize=(7, 3.2))
+    ax.plot(t, ds.kinetic_energy.values, label="kinetic")
+    ax.plot(t, ds.internal_energy.values, label="strain")
+    ax.plot(t, e, "k", label="total (FLIP)")
+    ax.axhline(2 * 0.5 * 1000.0 * math.pi * 0.2**2 * 0.02, color="k", ls=":", lw=0.8,
+               label="exact total")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("energy (J/m)")
+    ax.legend(fontsize=7)
+    ax.set_title("Two colliding elastic disks, 20 cells (verify_colliding_disks.toml)",
+                 fontsize=9)
+    fig.tight_layout()
+    fig.savefig(FIGURES / "mpm_verify_disks.png", dpi=DPI)
+    plt.close(fig)
+
+
+def plate():
+    runs = {v: V.plate_impact(v) for v in V.PLATE_SPEEDS}
+    runs["500 + strength"] = V.plate_impact(500, strength=True)
+    for key, r in runs.items():
+        ex, m = r["exact"], r["measured"]
+        print(f"plate {key} m/s: U_s {m['us']:.1f} vs {ex['us']:.1f} "
+              f"({100 * V._rel(r, 'us'):+.2f} %); p* {m['p'] / 1e9:.3f} vs "
+              f"{ex['p'] / 1e9:.3f} GPa ({100 * V._rel(r, 'p'):+.2f} %); p*-s_xx "
+              f"{m['sn'] / 1e9:.3f} GPa ({100 * (m['sn'] / ex['p'] - 1):+.2f} %); u "
+              f"{m['u']:.1f} vs {ex['u']:.1f} ({100 * V._rel(r, 'u'):+.2f} %); energy drift "
+              f"{100 * r['energy_drift']:+.3f} %; wall {r['ds'].attrs['wall_time']:.2f} s")
+    fig, ax = plt.subplots(2, 2, figsize=(9, 5.5), sharex=True)
+    for col, v in enumerate(V.PLATE_SPEEDS):
+        for key, ls in ((v, "-"), ("500 + strength", "--")):
+            if key == "500 + strength" and v != 500:
+                continue
+            r = runs[key]
+            ds, t = r["ds"], r["ds"].time.values * 1e6
+            for k, name in enumerate(ds.probe.values):
+                lab = f"{name}" if key == v else None
+                ax[0, col].plot(t, ds.pressure.values[:, k] / 1e9, f"C{k}", ls=ls, lw=1,
+                                label=lab)
+                ax[1, col].plot(t, ds.velocity_x.values[:, k], f"C{k}", ls=ls, lw=1)
+                ax[0, col].axvline((r["arrivals"][k] + V.BEHIND_FRONT) * 1e6, color=f"C{k}",
+                                   lw=0.5, ls=":")
+        ex = runs[v]["exact"]
+        ax[0, col].axhline(ex["p"] / 1e9, color="k", lw=1, ls=":",
+                           label=f"$\\rho_0 U_s u_p$ = {ex['p'] / 1e9:.2f} GPa")
+        ax[1, col].axhline(ex["u"], color="k", lw=1, ls=":",
+                           label=f"$u_p = v/2$ = {ex['u']:.0f} m/s")
+        ax[0, col].set_title(f"{v} m/s, G = 0" + (" (dashed: JC strength)" if v == 500 else ""),
+                             fontsize=9)
+        ax[0, col].legend(fontsize=7, loc="lower right")
+        ax[1, col].legend(fontsize=7, loc="lower right")
+        ax[1, col].set_xlabel("time (µs)")
+    ax[0, 0].set_ylabel("EOS pressure p* (GPa)")
+    ax[1, 0].set_ylabel("particle velocity (m/s)")
+    fig.suptitle("Symmetric 4340 plate impact, dx = 0.125 mm; probes 3, 5, 7, 9 mm into the "
+                 "target; dotted verticals: start of each plateau window", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(FIGURES / "mpm_verify_plate_impact.png", dpi=DPI)
+    plt.close(fig)
+
+
+def plate_resolution():
+    """The hydrodynamic 500 m/s impact at four cell sizes (the tests use 0.125 mm)."""
+    for dx in (0.5e-3, 0.25e-3, 0.125e-3, 0.0625e-3):
+        r = V.plate_impact(500, dx=dx)
+        print(f"plate 500 m/s, dx = {dx * 1e3:.4g} mm: U_s {100 * V._rel(r, 'us'):+.2f} %, "
+              f"p {100 * V._rel(r, 'p'):+.2f} %, u {100 * V._rel(r, 'u'):+.2f} %")
+
+
+def tnt():
+    ds, D = V.tnt_slab()
+    e = ds.total_energy.values
+    peak = ds.pressure.sel(probe="b").values.max()
+    peak_a = ds.pressure.sel(probe="a").values.max()
+    print(f"tnt: D = {D:.0f} m/s ({100 * (D / V.D_TNT - 1):+.2f} %), peak at b {peak / 1e9:.2f} "
+          f"GPa ({100 * (peak / V.P_CJ - 1):+.1f} %; at a {peak_a / 1e9:.2f} GPa), "
+          f"energy drift {100 * (e[-1] / e[0] - 1):+.3f} %")
+    t = ds.time.values * 1e6
+    fig, ax = plt.subplots(figsize=(7, 3.2))
+    for k, (name, x) in enumerate((("a", 0.03), ("b", 0.06))):
+        ax.plot(t, ds.pressure.sel(probe=name).values / 1e9, f"C{k}",
+                label=f"probe {name}, x = {x} m")
+        ax.axvline(x / V.D_TNT * 1e6, color=f"C{k}", ls=":", lw=0.8)
+    ax.axhline(V.P_CJ / 1e9, color="k", ls="--", lw=0.8, label="$P_{CJ}$ = 21 GPa")
+    ax.set_xlabel("time (µs)  (dotted: arrival at D = 6930 m/s)")
+    ax.set_ylabel("pressure (GPa)")
+    ax.legend(fontsize=7)
+    ax.set_title("1-D TNT slab, dx = 0.5 mm (verify_tnt_slab.toml)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(FIGURES / "mpm_verify_tnt.png", dpi=DPI)
+    plt.close(fig)
+
+
+def main():
+    FIGURES.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    for f in (bar, disks, plate, plate_resolution, tnt):
+        f()
+    print(f"total {time.perf_counter() - t0:.1f} s")
+
+
+if __name__ == "__main__":
+    main()
