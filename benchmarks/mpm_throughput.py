@@ -149,23 +149,20 @@ def profiled_step(r: _Run, dt: float, acc: dict) -> None:
 
     t0 = time.perf_counter()
     K.p2g(r.x, r.y, r.vx, r.vy, r.mass, r.S, r.kind, r.lp, ox, oy, r.inv_dx, c.gravity[0],
-          c.gravity[1], True, r.buf, r.gm, r.gpx, r.gpy, r.gfx, r.gfy)
-    tick("p2g (forces)", t0)
+          c.gravity[1], r.buf, r.gm, r.gpx, r.gpy, r.gfx, r.gfy)
+    tick("p2g", t0)
     t0 = time.perf_counter()
-    K.grid_solve(r.gm, r.gpx, r.gpy, r.gfx, r.gfy, dt, True, True, r.fixx, r.fixy, r.etax, r.etay, r.sides,
-                 r.bnodes, g.pad, r.mtiny, r.gvx, r.gvy, r.gdx, r.gdy)
+    K.grid_solve(r.gm, r.gpx, r.gpy, r.gfx, r.gfy, dt, True, True, r.fixx, r.fixy, r.etax,
+                 r.etay, r.sides, r.bnodes, g.pad, r.mtiny, r.gvx, r.gvy, r.gdx, r.gdy)
     tick("grid_solve x2", t0)
     t0 = time.perf_counter()
-    K.g2p_velocity(r.x, r.y, r.vx, r.vy, r.kind, r.lp, ox, oy, r.inv_dx, r.gvx, r.gvy, r.gdx,
-                   r.gdy, dt, c.flip, r.xn, r.yn, r.err)
-    tick("g2p_velocity", t0)
+    K.g2p_velocity_remap(r.x, r.y, r.vx, r.vy, r.mass, r.kind, r.lp, ox, oy, r.inv_dx, r.gvx,
+                         r.gvy, r.gdx, r.gdy, dt, c.flip, r.xn, r.yn, r.buf, r.gpx, r.gpy,
+                         r.err)
+    tick("g2p_velocity + MUSL remap", t0)
     t0 = time.perf_counter()
-    K.p2g(r.x, r.y, r.vx, r.vy, r.mass, r.S, r.kind, r.lp, ox, oy, r.inv_dx, 0.0, 0.0, False,
-          r.buf, r.gm, r.gpx, r.gpy, r.gfx, r.gfy)
-    tick("p2g (MUSL remap)", t0)
-    t0 = time.perf_counter()
-    K.grid_solve(r.gm, r.gpx, r.gpy, r.gfx, r.gfy, dt, False, False, r.fixx, r.fixy, r.etax, r.etay, r.sides,
-                 r.bnodes, g.pad, r.mtiny, r.gvx, r.gvy, r.gdx, r.gdy)
+    K.grid_solve(r.gm, r.gpx, r.gpy, r.gfx, r.gfy, dt, False, False, r.fixx, r.fixy, r.etax,
+                 r.etay, r.sides, r.bnodes, g.pad, r.mtiny, r.gvx, r.gvy, r.gdx, r.gdy)
     tick("grid_solve x2", t0)
     t0 = time.perf_counter()
     K.g2p_gradient(r.x, r.y, r.kind, r.lp, ox, oy, r.inv_dx, r.gvx, r.gvy, r.xn, r.yn, r.Lg,

@@ -378,21 +378,19 @@ class _Run:
         g = self.g
         ox, oy = g.ox, g.oy
         K.p2g(self.x, self.y, self.vx, self.vy, self.mass, self.S, self.kind, self.lp, ox, oy,
-              self.inv_dx, c.gravity[0], c.gravity[1], True, self.buf, self.gm, self.gpx,
-              self.gpy, self.gfx, self.gfy)
+              self.inv_dx, c.gravity[0], c.gravity[1], self.buf, self.gm, self.gpx, self.gpy,
+              self.gfx, self.gfy)
         K.grid_solve(self.gm, self.gpx, self.gpy, self.gfx, self.gfy, dt, True, True, self.fixx,
-                     self.fixy, self.etax, self.etay, self.sides, self.bnodes, g.pad, self.mtiny, self.gvx, self.gvy,
-                     self.gdx, self.gdy)
-        if K.g2p_velocity(self.x, self.y, self.vx, self.vy, self.kind, self.lp, ox, oy,
-                          self.inv_dx, self.gvx, self.gvy, self.gdx, self.gdy, dt, c.flip,
-                          self.xn, self.yn, self.err):
+                     self.fixy, self.etax, self.etay, self.sides, self.bnodes, g.pad,
+                     self.mtiny, self.gvx, self.gvy, self.gdx, self.gdy)
+        if K.g2p_velocity_remap(self.x, self.y, self.vx, self.vy, self.mass, self.kind, self.lp,
+                                ox, oy, self.inv_dx, self.gvx, self.gvy, self.gdx, self.gdy, dt,
+                                c.flip, self.xn, self.yn, self.buf, self.gpx, self.gpy,
+                                self.err):
             self._raise_first("grid to particle")
-        K.p2g(self.x, self.y, self.vx, self.vy, self.mass, self.S, self.kind, self.lp, ox, oy,
-              self.inv_dx, 0.0, 0.0, False, self.buf, self.gm, self.gpx, self.gpy, self.gfx,
-              self.gfy)
         K.grid_solve(self.gm, self.gpx, self.gpy, self.gfx, self.gfy, dt, False, False,
-                     self.fixx, self.fixy, self.etax, self.etay, self.sides, self.bnodes, g.pad, self.mtiny, self.gvx,
-                     self.gvy, self.gdx, self.gdy)
+                     self.fixx, self.fixy, self.etax, self.etay, self.sides, self.bnodes, g.pad,
+                     self.mtiny, self.gvx, self.gvy, self.gdx, self.gdy)
         if K.g2p_gradient(self.x, self.y, self.kind, self.lp, ox, oy, self.inv_dx, self.gvx,
                           self.gvy, self.xn, self.yn, self.Lg, self.err):
             self._raise_first("velocity gradient")

@@ -6,11 +6,11 @@ Per step, in this order (``solver._Run.step``):
                          steps take it from the material loops of the step before);
 2. ``p2g``               mass, momentum and internal + body force to the grid;
 3. ``grid_solve``        symmetry fold, v^L = (p + f·dt)/m, boundary conditions, Δv, unfold;
-4. ``g2p_velocity``      particle velocity (FLIP/PIC blend) and new positions (kept aside);
-5. ``p2g`` (momentum)    MUSL remap of the new particle momentum at the old positions;
-6. ``grid_solve``        v^{n+1} = p/m with the boundary conditions;
-7. ``g2p_gradient``      velocity gradient L_p from v^{n+1}; positions moved; grid guard;
-8. material loops        per material, over its particle index list (``loop_for``): the bulk
+4. ``g2p_velocity_remap`` particle velocity (FLIP/PIC blend), new positions (kept aside) and
+                         the MUSL remap of the new momentum at the old positions (one pass);
+5. ``grid_solve``        v^{n+1} = p/m with the boundary conditions;
+6. ``g2p_gradient``      velocity gradient L_p from v^{n+1}; positions moved; grid guard;
+7. material loops        per material, over its particle index list (``loop_for``): the bulk
                          viscosity q from div v (column Q), ``advance`` (``update`` when a
                          guard fails), the row checked finite (the state guard) and
                          max (c + |v|) kept for the next step's CFL time step;
@@ -20,9 +20,10 @@ Doing q, the state check and the CFL reduction in the material loop, where the p
 state row is in cache anyway, saves three passes over the state array per step (docs/mpm.md,
 "Performance").
 
-Scatter without races: ``p2g`` splits the particles into one contiguous chunk per thread and
-each thread scatters into its own grid buffer (``buf[t]``, node-major); a second parallel loop over grid
-columns sums the buffers. Gathers (G2P) and material updates are race-free per particle.
+Scatter without races: ``p2g`` and the remap split the particles into one contiguous chunk per
+thread and each thread scatters into its own grid buffer (``buf[t]``, node-major); a second
+parallel loop over grid columns sums the buffers. Gathers and material updates are race-free
+per particle.
 
 Every kernel that indexes the grid first checks the particle's stencil is on the grid and
 skips (and flags) it otherwise, so a bad particle can never write out of bounds.
@@ -65,10 +66,9 @@ def _on_grid(bx, by, nnx, nny):
 
 
 @njit(cache=True, parallel=True)
-def p2g(xp, yp, vx, vy, mass, S, kind, lp, ox, oy, inv_dx, gravx, gravy, forces, buf,
+def p2g(xp, yp, vx, vy, mass, S, kind, lp, ox, oy, inv_dx, gravx, gravy, buf,
         gm, gpx, gpy, gfx, gfy):
-    """Scatter to the grid. ``forces``: mass, momentum and forces (first pass); otherwise only
-    momentum (MUSL remap; ``gm`` and the forces are left as they are). Returns the number of
+    """Scatter mass, momentum and internal + body force to the grid. Returns the number of
     particles skipped because their stencil is off the grid (0 in a healthy run)."""
     nt = buf.shape[0]
     n = xp.size
@@ -92,51 +92,40 @@ def p2g(xp, yp, vx, vy, mass, S, kind, lp, ox, oy, inv_dx, gravx, gravy, forces,
             m = mass[p]
             mvx = m * vx[p]
             mvy = m * vy[p]
-            if forces:
-                vol = m / S[p, RHO]
-                sxx = vol * S[p, SXX]
-                syy = vol * S[p, SYY]
-                sxy = vol * S[p, SXY]
-                for a in range(3):
-                    i = bx + a
-                    for c in range(3):
-                        j = by + c
-                        w = wx[a] * wy[c]
-                        gx = dwx[a] * wy[c]
-                        gy = wx[a] * dwy[c]
-                        b[i, j, 0] += w * m
-                        b[i, j, 1] += w * mvx
-                        b[i, j, 2] += w * mvy
-                        b[i, j, 3] += w * m * gravx - (sxx * gx + sxy * gy)
-                        b[i, j, 4] += w * m * gravy - (sxy * gx + syy * gy)
-            else:
-                for a in range(3):
-                    i = bx + a
-                    for c in range(3):
-                        j = by + c
-                        w = wx[a] * wy[c]
-                        b[i, j, 1] += w * mvx
-                        b[i, j, 2] += w * mvy
+            vol = m / S[p, RHO]
+            sxx = vol * S[p, SXX]
+            syy = vol * S[p, SYY]
+            sxy = vol * S[p, SXY]
+            for a in range(3):
+                i = bx + a
+                for c in range(3):
+                    j = by + c
+                    w = wx[a] * wy[c]
+                    gx = dwx[a] * wy[c]
+                    gy = wx[a] * dwy[c]
+                    b[i, j, 0] += w * m
+                    b[i, j, 1] += w * mvx
+                    b[i, j, 2] += w * mvy
+                    b[i, j, 3] += w * m * gravx - (sxx * gx + sxy * gy)
+                    b[i, j, 4] += w * m * gravy - (sxy * gx + syy * gy)
     for i in prange(nnx):
         for j in range(nny):
+            sm = 0.0
             spx = 0.0
             spy = 0.0
+            sfx = 0.0
+            sfy = 0.0
             for t in range(nt):
+                sm += buf[t, i, j, 0]
                 spx += buf[t, i, j, 1]
                 spy += buf[t, i, j, 2]
+                sfx += buf[t, i, j, 3]
+                sfy += buf[t, i, j, 4]
+            gm[i, j] = sm
             gpx[i, j] = spx
             gpy[i, j] = spy
-            if forces:
-                sm = 0.0
-                sfx = 0.0
-                sfy = 0.0
-                for t in range(nt):
-                    sm += buf[t, i, j, 0]
-                    sfx += buf[t, i, j, 3]
-                    sfy += buf[t, i, j, 4]
-                gm[i, j] = sm
-                gfx[i, j] = sfx
-                gfy[i, j] = sfy
+            gfx[i, j] = sfx
+            gfy[i, j] = sfy
     return skipped
 
 
@@ -273,45 +262,75 @@ def grid_solve(gm, gpx, gpy, gfx, gfy, dt, forces, fold_mass, fixx, fixy, etax, 
 
 
 @njit(cache=True, parallel=True)
-def g2p_velocity(xp, yp, vx, vy, kind, lp, ox, oy, inv_dx, gvx, gvy, gdx, gdy, dt, flip,
-                 xn, yn, err):
+def g2p_velocity_remap(xp, yp, vx, vy, mass, kind, lp, ox, oy, inv_dx, gvx, gvy, gdx, gdy, dt,
+                       flip, xn, yn, buf, gpx, gpy, err):
     """Particle velocity v ← flip·(v + Σ N Δv) + (1 − flip)·Σ N v^L and new positions
-    x_new = x + dt·Σ N v^L (into ``xn``, ``yn``). Returns the number of flagged particles."""
+    x_new = x + dt·Σ N v^L (into ``xn``, ``yn``), and at once the MUSL remap: the new momentum
+    m v scattered with the same (old-position) weights into ``gpx``, ``gpy`` — one pass, the
+    stencil evaluated once. Returns the number of flagged particles."""
+    nt = buf.shape[0]
+    n = xp.size
     nnx, nny = gvx.shape
     nbad = 0
-    for p in prange(xp.size):
-        bx, wx0, wx1, wx2, dx0, dx1, dx2 = shape1d(kind, (xp[p] - ox) * inv_dx, lp)
-        by, wy0, wy1, wy2, dy0, dy1, dy2 = shape1d(kind, (yp[p] - oy) * inv_dx, lp)
-        if not _on_grid(bx, by, nnx, nny):
-            err[p] = ERR_LEFT_GRID
-            nbad += 1
-            continue
-        wx = (wx0, wx1, wx2)
-        wy = (wy0, wy1, wy2)
-        vlx = 0.0
-        vly = 0.0
-        dvx = 0.0
-        dvy = 0.0
-        for a in range(3):
-            i = bx + a
-            for c in range(3):
-                j = by + c
-                w = wx[a] * wy[c]
-                vlx += w * gvx[i, j]
-                vly += w * gvy[i, j]
-                dvx += w * gdx[i, j]
-                dvy += w * gdy[i, j]
-        nvx = flip * (vx[p] + dvx) + (1.0 - flip) * vlx
-        nvy = flip * (vy[p] + dvy) + (1.0 - flip) * vly
-        x1 = xp[p] + dt * vlx
-        y1 = yp[p] + dt * vly
-        vx[p] = nvx
-        vy[p] = nvy
-        xn[p] = x1
-        yn[p] = y1
-        if (nvx * 0.0 + nvy * 0.0 + x1 * 0.0 + y1 * 0.0) != 0.0:
-            err[p] = ERR_CORE_NONFINITE
-            nbad += 1
+    for t in prange(nt):
+        b = buf[t]
+        lo = (t * n) // nt
+        hi = ((t + 1) * n) // nt
+        for i in range(b.shape[0]):
+            for j in range(b.shape[1]):
+                b[i, j, 1] = 0.0
+                b[i, j, 2] = 0.0
+        for p in range(lo, hi):
+            bx, wx0, wx1, wx2, dx0, dx1, dx2 = shape1d(kind, (xp[p] - ox) * inv_dx, lp)
+            by, wy0, wy1, wy2, dy0, dy1, dy2 = shape1d(kind, (yp[p] - oy) * inv_dx, lp)
+            if not _on_grid(bx, by, nnx, nny):
+                err[p] = ERR_LEFT_GRID
+                nbad += 1
+                continue
+            wx = (wx0, wx1, wx2)
+            wy = (wy0, wy1, wy2)
+            vlx = 0.0
+            vly = 0.0
+            dvx = 0.0
+            dvy = 0.0
+            for a in range(3):
+                i = bx + a
+                for c in range(3):
+                    j = by + c
+                    w = wx[a] * wy[c]
+                    vlx += w * gvx[i, j]
+                    vly += w * gvy[i, j]
+                    dvx += w * gdx[i, j]
+                    dvy += w * gdy[i, j]
+            nvx = flip * (vx[p] + dvx) + (1.0 - flip) * vlx
+            nvy = flip * (vy[p] + dvy) + (1.0 - flip) * vly
+            x1 = xp[p] + dt * vlx
+            y1 = yp[p] + dt * vly
+            vx[p] = nvx
+            vy[p] = nvy
+            xn[p] = x1
+            yn[p] = y1
+            if (nvx * 0.0 + nvy * 0.0 + x1 * 0.0 + y1 * 0.0) != 0.0:
+                err[p] = ERR_CORE_NONFINITE
+                nbad += 1
+                continue
+            mvx = mass[p] * nvx
+            mvy = mass[p] * nvy
+            for a in range(3):
+                i = bx + a
+                for c in range(3):
+                    w = wx[a] * wy[c]
+                    b[i, by + c, 1] += w * mvx
+                    b[i, by + c, 2] += w * mvy
+    for i in prange(nnx):
+        for j in range(nny):
+            spx = 0.0
+            spy = 0.0
+            for t in range(nt):
+                spx += buf[t, i, j, 1]
+                spy += buf[t, i, j, 2]
+            gpx[i, j] = spx
+            gpy[i, j] = spy
     return nbad
 
 

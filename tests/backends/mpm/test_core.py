@@ -281,7 +281,7 @@ def test_p2g_conserves_mass_momentum_and_force_balance(nthreads):
     shp = (g.nnx, g.nny)
     gm, gpx, gpy, gfx, gfy = (np.zeros(shp) for _ in range(5))
     for kind in KINDS.values():
-        skipped = K.p2g(x, y, vx, vy, m, S, kind, 0.25, g.ox, g.oy, 1 / dx, 0.0, -9.81, True,
+        skipped = K.p2g(x, y, vx, vy, m, S, kind, 0.25, g.ox, g.oy, 1 / dx, 0.0, -9.81,
                         K.grid_buffers(nthreads, *shp), gm, gpx, gpy, gfx, gfy)
         assert skipped == 0
         assert gm.sum() == pytest.approx(m.sum(), rel=1e-13)
@@ -299,7 +299,7 @@ def test_p2g_skips_off_grid_particles():
     S = np.zeros((2, ST.N_STATE))
     S[:, ST.RHO] = 1.0
     skipped = K.p2g(np.array([0.5, 99.0]), np.array([0.5, 0.5]), np.zeros(2), np.zeros(2),
-                    np.ones(2), S, 0, 0.25, g.ox, g.oy, 10.0, 0.0, 0.0, True,
+                    np.ones(2), S, 0, 0.25, g.ox, g.oy, 10.0, 0.0, 0.0,
                     K.grid_buffers(1, *shp), *arrays)
     assert skipped == 1 and arrays[0].sum() == pytest.approx(1.0)
 
