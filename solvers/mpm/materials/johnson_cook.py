@@ -11,9 +11,11 @@ consistency condition is solved exactly for the nonlinear, rate-dependent JC law
 
     σeq* − 3G Δεp = σy(εp_n + Δεp, Δεp/(Δt ε̇0), T_n),
 
-by a safeguarded Newton iteration on the bracket [0, (σeq* − σy(εp_n, 1, T_n))/(3G)], and the
-deviator is scaled by m = σy/σeq* (eq. 15–16), so the stress lies on the yield surface to
-round-off. The trial state is plastic when σeq* > σy(εp_n, ε̇* = 1, T_n).
+by Newton's method in ln Δεp (monotone there: the residual is convex in ln Δεp, also across
+the ε̇* ≥ 1 clamp and for εp_n = 0 with n < 1), started at an upper bound of the root and kept
+in a sign bracket inside [0, (σeq* − σy(εp_n, 1, T_n))/(3G)]; the deviator is scaled by
+m = σy/σeq* (eq. 15–16), so the stress lies on the yield surface to round-off. The trial state
+is plastic when σeq* > σy(εp_n, ε̇* = 1, T_n).
 """
 
 from __future__ import annotations
@@ -56,8 +58,10 @@ NPRM = len(PARAMETERS)
 (I_C, I_S1, I_S2, I_S3, I_G0, I_A, I_RHO0, I_G, I_JA, I_JB, I_JN, I_JC, I_JM, I_EPS0, I_TROOM,
  I_TMELT, I_CP, I_TQ) = range(NPRM)
 
-RETURN_MAXIT = 60
+RETURN_MAXIT = 60          # a 200,000-state sweep needs at most 12 (docs/mpm_materials.md §3)
 RETURN_RTOL = 1e-13
+RETURN_SHRINK = 1e-3       # round-off guard step when no lower bracket point is known yet
+RETURN_TINY = 2.2250738585072014e-308   # smallest normal double: floor of the Δεp iterate
 
 
 def pack(values: dict | None = None) -> np.ndarray:
@@ -115,11 +119,40 @@ def radial_return(sxx, syy, sxy, szz, sigma_y):
 
 
 @njit(cache=True, fastmath=False)
+def _jc_return_start(seq, A, B, n, eps_p, th, hi):
+    """Start of the return iteration: min(hi, Δεp_h) with Δεp_h the strain increment at which
+    th (A + B (εp_n + Δεp)^n) = σeq* (rate factor 1). Both bound the root from above (σy ≥ the
+    rate-free value, 3GΔεp > 0), so Newton in ln Δεp descends monotonically from there.
+    Δεp_h is what matters for εp_n = 0 and n < 1, where the root can be ~20 decades below hi;
+    round-off in σeq* − th A can put it on either side of the root, which the bracket absorbs."""
+    x = hi
+    if n > 0.0 and th * B > 0.0:
+        z = (seq - th * A) / (th * B)    # (εp_n + Δεp_h)^n
+        if z > 0.0:
+            xh = z ** (1.0 / n) - eps_p
+            if xh > 0.0 and xh < x:
+                x = xh
+    return x
+
+
+@njit(cache=True, fastmath=False)
 def jc_radial_return(sxx, syy, sxy, szz, G, dt, A, B, n, C, m, eps0_dot, eps_p, T_star):
     """Radial return of a trial deviator for the rate-dependent Johnson–Cook law.
 
     Returns (s_xx, s_yy, s_xy, s_zz, Δεp, σy, code): σy is the flow stress the deviator was
     returned to (σy(εp_n, 1, T*) when elastic); Δεp = (σeq* − σy)/(3G) (seed eq. 18).
+
+    The consistency condition g(Δεp) = 3GΔεp + σy(εp_n + Δεp, Δεp/(Δt ε̇0), T*) − σeq* = 0 is
+    solved by Newton's method in u = ln Δεp, where g is increasing and convex for every n > 0,
+    C ≥ 0, 0 ≤ T* ≤ 1, including the kink of the rate clamp ε̇* ≥ 1 (a convex kink in u) and
+    εp_n = 0 with n < 1 (Δεp^n = e^{nu} is smooth in u, its Δεp-slope is infinite at 0). From
+    any start the first Newton iterate is ≥ the root and the rest decrease monotonically to it,
+    so the sign bracket [lo, hi] never has to be bisected in exact arithmetic; the bisection
+    (geometric) is a guard against round-off only. Start: the smaller of the two upper bounds
+    of the root, (σeq* − σy0)/(3G) and the strain at which the rate-free hardening alone
+    reaches σeq* (this one is what makes a return onto a tiny Δεp ~ 1e-26 take a few steps).
+    ERR_OTHER only for dt ≤ 0 or a non-finite residual (non-finite/overflowing inputs); no
+    finite physical input fails (docs/mpm_materials.md §3).
     """
     seq = von_mises(sxx, syy, sxy, szz)
     sy0 = johnson_cook_flow_stress(A, B, n, C, m, eps_p, 1.0, T_star)
@@ -128,6 +161,8 @@ def jc_radial_return(sxx, syy, sxy, szz, G, dt, A, B, n, C, m, eps0_dot, eps_p, 
     if not G > 0.0:                       # no elasticity: only the scaling is defined
         k = sy0 / seq
         return sxx * k, syy * k, sxy * k, szz * k, 0.0, sy0, OK
+    if not dt * eps0_dot > 0.0:           # the plastic strain rate is undefined
+        return sxx, syy, sxy, szz, 0.0, sy0, ERR_OTHER
     g3 = 3.0 * G
     rate_k = 1.0 / (dt * eps0_dot)
     if T_star <= 0.0:                     # thermal factor: T* is frozen over the step
@@ -136,19 +171,21 @@ def jc_radial_return(sxx, syy, sxy, szz, G, dt, A, B, n, C, m, eps0_dot, eps_p, 
         th = 0.0
     else:
         th = 1.0 - T_star ** m
-    lo, hi = 0.0, (seq - sy0) / g3        # f(lo) > 0 ≥ f(hi): σy grows with Δεp
-    x = hi
+    lo, hi = 0.0, (seq - sy0) / g3        # g(lo) < 0 ≤ g(hi): σy grows with Δεp
+    x = max(_jc_return_start(seq, A, B, n, eps_p, th, hi), RETURN_TINY)
     converged = False
     for _ in range(RETURN_MAXIT):
-        ep = eps_p + x                    # > 0 inside the loop
+        ep = eps_p + x
         epn = ep ** n
         rs = x * rate_k
-        r, dr = 1.0, 0.0
+        r, dr = 1.0, 0.0                  # rate factor and its u-derivative
         if rs > 1.0:
             r += C * math.log(rs)
-            dr = C / x
+            dr = C
         h = A + B * epn
-        fval = seq - g3 * x - h * r * th  # consistency residual
+        fval = seq - g3 * x - h * r * th  # consistency residual, −g
+        if not fval * 0.0 == 0.0:         # NaN/inf: non-finite or overflowing input
+            break
         if abs(fval) <= RETURN_RTOL * seq:
             converged = True
             break
@@ -156,16 +193,24 @@ def jc_radial_return(sxx, syy, sxy, szz, G, dt, A, B, n, C, m, eps0_dot, eps_p, 
             lo = x
         else:
             hi = x
-        deriv = g3 + (n * B * epn / ep * r + h * dr) * th      # d(3GΔεp + σy)/dΔεp
-        xn = x + fval / deriv
-        if not (xn > lo and xn < hi):
-            xn = 0.5 * (lo + hi)
+        w = x / ep if ep > 0.0 else 1.0   # d ln(εp_n + Δεp)/d ln Δεp
+        dg = g3 * x + (n * B * epn * w * r + h * dr) * th       # dg/du, u = ln Δεp
+        xn = x * math.exp(fval / dg)      # Newton step in u
+        if not (xn > lo and xn < hi):     # round-off guard: geometric bisection
+            xn = math.sqrt(lo * hi) if lo > 0.0 else RETURN_SHRINK * hi
+        if xn < RETURN_TINY:              # (x ≥ TINY > 0 keeps dg > 0)
+            xn = RETURN_TINY
         if xn == x or hi - lo <= 1e-15 * hi:
             converged = True
             break
         x = xn
     if not converged:
         return sxx, syy, sxy, szz, 0.0, sy0, ERR_OTHER
+    if x == RETURN_TINY and hi == RETURN_TINY:
+        # g(TINY) > 0: the root lies below the smallest normal double (possible only for
+        # εp_n = 0, n < 0.045 and σeq*/σy0 − 1 > 1e-13). To double precision Δεp = 0 and
+        # σy = σeq* − 3GΔεp = σeq*: the deviator is already on the yield surface.
+        return sxx, syy, sxy, szz, 0.0, seq, OK
     sy = johnson_cook_flow_stress(A, B, n, C, m, eps_p + x, x * rate_k, T_star)
     k = sy / seq
     return sxx * k, syy * k, sxy * k, szz * k, x, sy, OK
