@@ -119,6 +119,18 @@ def _keys(tbl, allowed, key):
                        f"unknown key (takes {', '.join(sorted(allowed))})")
 
 
+def _names(v, key, known, what):
+    """A non-empty list of distinct names, each one of ``known``."""
+    if not isinstance(v, (list, tuple)) or not v or not all(isinstance(o, str) for o in v):
+        raise _err(key, f"must be a non-empty list of names, got {v!r}")
+    for k, o in enumerate(v):
+        if o not in known:
+            raise _err(f"{key}[{k}]", f"unknown {what} {o!r} (known: {', '.join(known)})")
+    if len(set(v)) != len(v):
+        raise _err(key, "lists a name twice")
+    return list(v)
+
+
 def _flatten(tbl, prefix=""):
     """Nested tables to dotted names: {"jc": {"A": 1}} → {"jc.A": 1}."""
     out = {}
@@ -263,16 +275,8 @@ def parse(scene) -> Config:
     else:
         margin = EXTENT_MARGIN_CELLS
 
-    outs = s.get("outputs", list(DEFAULT_OUTPUTS))
-    if (not isinstance(outs, (list, tuple)) or not outs
-            or not all(isinstance(o, str) for o in outs)):
-        raise _err("outputs", f"must be a non-empty list of names, got {outs!r}")
-    for k, o in enumerate(outs):
-        if o not in PROBE_QUANTITIES:
-            raise _err(f"outputs[{k}]", f"unknown output {o!r} (known: "
-                                        f"{', '.join(PROBE_QUANTITIES)})")
-    if len(set(outs)) != len(outs):
-        raise _err("outputs", "lists a name twice")
+    outs = _names(s.get("outputs", list(DEFAULT_OUTPUTS)), "outputs", PROBE_QUANTITIES,
+                  "output")
 
     # boundaries ---------------------------------------------------------------------------
     sides = dict.fromkeys(SIDES, "free")
@@ -455,16 +459,8 @@ def _snapshots(v, dt_out) -> Snapshots:
     if not isinstance(d, str) or not d.strip():
         raise _err("snapshots.directory", f"must be a non-empty path, got {d!r}")
     directory = os.path.abspath(os.path.expanduser(d))
-    fields = sn.get("fields", list(DEFAULT_SNAPSHOT_FIELDS))
-    if (not isinstance(fields, (list, tuple)) or not fields
-            or not all(isinstance(f, str) for f in fields)):
-        raise _err("snapshots.fields", f"must be a non-empty list of names, got {fields!r}")
-    for k, f in enumerate(fields):
-        if f not in SNAPSHOT_FIELDS:
-            raise _err(f"snapshots.fields[{k}]", f"unknown field {f!r} (known: "
-                                                 f"{', '.join(SNAPSHOT_FIELDS)})")
-    if len(set(fields)) != len(fields):
-        raise _err("snapshots.fields", "lists a name twice")
+    fields = _names(sn.get("fields", list(DEFAULT_SNAPSHOT_FIELDS)), "snapshots.fields",
+                    SNAPSHOT_FIELDS, "field")
     return Snapshots(interval=every * dt_out, every=int(every), directory=directory,
                      fields=tuple(fields))
 
