@@ -6,6 +6,9 @@ table."""
 from __future__ import annotations
 
 import math
+import os
+import subprocess
+import sys
 import tomllib
 from pathlib import Path
 
@@ -336,6 +339,21 @@ def test_guard_material_codes(monkeypatch, code, text):
     assert text in msg and f"[code {code}]" in msg
     assert "material update" in msg and "material 'm' [faulty]" in msg
     assert "particle " in msg and "rho = " in msg and "mu = " in msg
+
+
+def test_guards_under_numba_boundscheck(tmp_path):
+    """The guard tests above again in a fresh process with NUMBA_BOUNDSCHECK=1 (every array
+    access of every kernel checked, a fresh numba cache so everything compiles with the
+    checks): a guard that let a bad particle index the grid would raise IndexError there
+    instead of the SolverError the tests expect."""
+    repo = Path(__file__).resolve().parents[3]
+    env = dict(os.environ, NUMBA_BOUNDSCHECK="1", NUMBA_CACHE_DIR=str(tmp_path),
+               PYTHONPATH=str(repo) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    out = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                          str(Path(__file__)), "-k", "test_guard_ and not boundscheck"],
+                         cwd=repo, env=env, capture_output=True, text=True, timeout=900)
+    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-2000:]
+    assert " passed" in out.stdout and "failed" not in out.stdout
 
 
 def test_guard_bad_parameter_is_solver_error():
