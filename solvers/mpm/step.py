@@ -65,6 +65,17 @@ def _on_grid(bx, by, nnx, nny):
     return bx >= 0 and by >= 0 and bx + 2 < nnx and by + 2 < nny
 
 
+@njit(cache=True)
+def _stencil(kind, x, y, ox, oy, inv_dx, lp):
+    """(bx, by, wx, wy, dwx, dwy) of a particle at (x, y): the lower-left node of its 3×3
+    stencil, the 1-D weights and their derivatives in physical units (1/m)."""
+    bx, wx0, wx1, wx2, dx0, dx1, dx2 = shape1d(kind, (x - ox) * inv_dx, lp)
+    by, wy0, wy1, wy2, dy0, dy1, dy2 = shape1d(kind, (y - oy) * inv_dx, lp)
+    return (bx, by, (wx0, wx1, wx2), (wy0, wy1, wy2),
+            (dx0 * inv_dx, dx1 * inv_dx, dx2 * inv_dx),
+            (dy0 * inv_dx, dy1 * inv_dx, dy2 * inv_dx))
+
+
 @njit(cache=True, parallel=True)
 def p2g(xp, yp, vx, vy, mass, S, kind, lp, ox, oy, inv_dx, gravx, gravy, buf,
         gm, gpx, gpy, gfx, gfy):
@@ -80,15 +91,10 @@ def p2g(xp, yp, vx, vy, mass, S, kind, lp, ox, oy, inv_dx, gravx, gravy, buf,
         lo = (t * n) // nt
         hi = ((t + 1) * n) // nt
         for p in range(lo, hi):
-            bx, wx0, wx1, wx2, dx0, dx1, dx2 = shape1d(kind, (xp[p] - ox) * inv_dx, lp)
-            by, wy0, wy1, wy2, dy0, dy1, dy2 = shape1d(kind, (yp[p] - oy) * inv_dx, lp)
+            bx, by, wx, wy, dwx, dwy = _stencil(kind, xp[p], yp[p], ox, oy, inv_dx, lp)
             if not _on_grid(bx, by, nnx, nny):
                 skipped += 1
                 continue
-            wx = (wx0, wx1, wx2)
-            wy = (wy0, wy1, wy2)
-            dwx = (dx0 * inv_dx, dx1 * inv_dx, dx2 * inv_dx)
-            dwy = (dy0 * inv_dx, dy1 * inv_dx, dy2 * inv_dx)
             m = mass[p]
             mvx = m * vx[p]
             mvy = m * vy[p]
@@ -281,14 +287,11 @@ def g2p_velocity_remap(xp, yp, vx, vy, mass, kind, lp, ox, oy, inv_dx, gvx, gvy,
                 b[i, j, 1] = 0.0
                 b[i, j, 2] = 0.0
         for p in range(lo, hi):
-            bx, wx0, wx1, wx2, dx0, dx1, dx2 = shape1d(kind, (xp[p] - ox) * inv_dx, lp)
-            by, wy0, wy1, wy2, dy0, dy1, dy2 = shape1d(kind, (yp[p] - oy) * inv_dx, lp)
+            bx, by, wx, wy, dwx, dwy = _stencil(kind, xp[p], yp[p], ox, oy, inv_dx, lp)
             if not _on_grid(bx, by, nnx, nny):
                 err[p] = ERR_LEFT_GRID
                 nbad += 1
                 continue
-            wx = (wx0, wx1, wx2)
-            wy = (wy0, wy1, wy2)
             vlx = 0.0
             vly = 0.0
             dvx = 0.0
@@ -342,16 +345,11 @@ def g2p_gradient(xp, yp, kind, lp, ox, oy, inv_dx, gvx, gvy, xn, yn, Lg, err):
     nnx, nny = gvx.shape
     nbad = 0
     for p in prange(xp.size):
-        bx, wx0, wx1, wx2, dx0, dx1, dx2 = shape1d(kind, (xp[p] - ox) * inv_dx, lp)
-        by, wy0, wy1, wy2, dy0, dy1, dy2 = shape1d(kind, (yp[p] - oy) * inv_dx, lp)
+        bx, by, wx, wy, dwx, dwy = _stencil(kind, xp[p], yp[p], ox, oy, inv_dx, lp)
         if not _on_grid(bx, by, nnx, nny):
             err[p] = ERR_LEFT_GRID
             nbad += 1
             continue
-        wx = (wx0, wx1, wx2)
-        wy = (wy0, wy1, wy2)
-        dwx = (dx0 * inv_dx, dx1 * inv_dx, dx2 * inv_dx)
-        dwy = (dy0 * inv_dx, dy1 * inv_dx, dy2 * inv_dx)
         lxx = 0.0
         lxy = 0.0
         lyx = 0.0
