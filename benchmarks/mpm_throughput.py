@@ -75,7 +75,6 @@ import numba  # noqa: E402
 
 from benchmarks._record import FIGURES, write_section  # noqa: E402
 from solvers.mpm import MPMSolver  # noqa: E402
-from solvers.mpm import step as K  # noqa: E402
 from solvers.mpm.solver import _Run  # noqa: E402
 
 SCENES = ROOT / "studies" / "scenes"
@@ -141,42 +140,16 @@ def drive(run: _Run, steps: int, profile: dict | None = None) -> float:
 
 
 def profiled_step(r: _Run, dt: float, acc: dict) -> None:
-    """The calls of ``_Run._step`` one by one, each timed (the kernels are synchronous);
-    only for the breakdown — the throughput figures time ``_Run._step`` itself."""
-    c, g = r.cfg, r.g
-    ox, oy = g.ox, g.oy
+    """``_Run._step`` with each kernel timed (the kernels are synchronous; ``lap`` is called
+    after each) — only for the breakdown; the throughput figures time ``_Run._step`` alone."""
+    last = [time.perf_counter()]
 
-    def tick(name, t0):
-        acc[name] = acc.get(name, 0.0) + time.perf_counter() - t0
+    def lap(name):
+        now = time.perf_counter()
+        acc[name] = acc.get(name, 0.0) + now - last[0]
+        last[0] = now
 
-    t0 = time.perf_counter()
-    K.p2g(r.x, r.y, r.vx, r.vy, r.mass, r.S, r.kind, r.lp, ox, oy, r.inv_dx, c.gravity[0],
-          c.gravity[1], r.buf, r.gm, r.gpx, r.gpy, r.gfx, r.gfy)
-    tick("p2g", t0)
-    t0 = time.perf_counter()
-    K.grid_solve(r.gm, r.gpx, r.gpy, r.gfx, r.gfy, dt, True, True, r.fixx, r.fixy, r.etax,
-                 r.etay, r.sides, r.bnodes, g.pad, r.mtiny, r.gvx, r.gvy, r.gdx, r.gdy)
-    tick("grid_solve x2", t0)
-    t0 = time.perf_counter()
-    K.g2p_velocity_remap(r.x, r.y, r.vx, r.vy, r.mass, r.kind, r.lp, ox, oy, r.inv_dx, r.gvx,
-                         r.gvy, r.gdx, r.gdy, dt, c.flip, r.xn, r.yn, r.buf, r.gpx, r.gpy,
-                         r.err)
-    tick("g2p_velocity + MUSL remap", t0)
-    t0 = time.perf_counter()
-    K.grid_solve(r.gm, r.gpx, r.gpy, r.gfx, r.gfy, dt, False, False, r.fixx, r.fixy, r.etax,
-                 r.etay, r.sides, r.bnodes, g.pad, r.mtiny, r.gvx, r.gvy, r.gdx, r.gdy)
-    tick("grid_solve x2", t0)
-    t0 = time.perf_counter()
-    K.g2p_gradient(r.x, r.y, r.kind, r.lp, ox, oy, r.inv_dx, r.gvx, r.gvy, r.xn, r.yn, r.Lg,
-                   r.err)
-    tick("g2p_gradient", t0)
-    vmax = 0.0
-    for k, (upd, _ini) in enumerate(r.solver.loops):
-        t0 = time.perf_counter()
-        vmax = max(vmax, upd(r.prms[k], r.S, r.solver.mat_index[k], r.Lg, c.q1, c.q2, g.dx,
-                             dt, r.t, r.x, r.y, r.vx, r.vy, r.err)[1])
-        tick(f"material: {r.solver.labels[k]} (+ q, state check, CFL speed)", t0)
-    r.vmax = vmax
+    r._step(dt, lap)
 
 
 def throughput(n: int, steps: int, repeats: int, threads: int, profile: bool) -> dict:

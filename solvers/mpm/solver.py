@@ -189,6 +189,10 @@ class MPMSolver(Solver):
 
 # ------------------------------------------------------------------------------------------
 
+def _no_lap(name):
+    pass
+
+
 class _Run:
     """The arrays of one realization and the time loop."""
 
@@ -373,27 +377,35 @@ class _Run:
                 self.snapshots.maybe_write(k, self)
         self.wall = _time.perf_counter() - t0
 
-    def _step(self, dt):
+    def _step(self, dt, lap=None):
+        """One MUSL step (step.py). ``lap(name)``, when given, is called after each kernel
+        with the kernel's name (the benchmark's per-kernel profile)."""
         c = self.cfg
         g = self.g
         ox, oy = g.ox, g.oy
+        lap = lap or _no_lap
         K.p2g(self.x, self.y, self.vx, self.vy, self.mass, self.S, self.kind, self.lp, ox, oy,
               self.inv_dx, c.gravity[0], c.gravity[1], self.buf, self.gm, self.gpx, self.gpy,
               self.gfx, self.gfy)
+        lap("p2g")
         K.grid_solve(self.gm, self.gpx, self.gpy, self.gfx, self.gfy, dt, True, True, self.fixx,
                      self.fixy, self.etax, self.etay, self.sides, self.bnodes, g.pad,
                      self.mtiny, self.gvx, self.gvy, self.gdx, self.gdy)
+        lap("grid_solve x2")
         if K.g2p_velocity_remap(self.x, self.y, self.vx, self.vy, self.mass, self.kind, self.lp,
                                 ox, oy, self.inv_dx, self.gvx, self.gvy, self.gdx, self.gdy, dt,
                                 c.flip, self.xn, self.yn, self.buf, self.gpx, self.gpy,
                                 self.err):
             self._raise_first("grid to particle")
+        lap("g2p_velocity + MUSL remap")
         K.grid_solve(self.gm, self.gpx, self.gpy, self.gfx, self.gfy, dt, False, False,
                      self.fixx, self.fixy, self.etax, self.etay, self.sides, self.bnodes, g.pad,
                      self.mtiny, self.gvx, self.gvy, self.gdx, self.gdy)
+        lap("grid_solve x2")
         if K.g2p_gradient(self.x, self.y, self.kind, self.lp, ox, oy, self.inv_dx, self.gvx,
                           self.gvy, self.xn, self.yn, self.Lg, self.err):
             self._raise_first("velocity gradient")
+        lap("g2p_gradient")
         vmax = 0.0
         for k, (upd, _ini) in enumerate(self.solver.loops):
             nbad, vmat = upd(self.prms[k], self.S, self.solver.mat_index[k], self.Lg, c.q1,
@@ -402,6 +414,7 @@ class _Run:
             if nbad:
                 self._raise_first("material update")
             vmax = max(vmax, vmat)
+            lap(f"material: {self.solver.labels[k]} (+ q, state check, CFL speed)")
         self.vmax = vmax
 
     def max_speed(self):

@@ -431,21 +431,25 @@ from solvers.mpm.materials import water as _water              # noqa: E402
 
 
 @njit(cache=True, inline="always")
-def _trusted(S, i, Lg, dt, time, xp, yp):
-    """Row i may skip the per-row guards of ``update``: finite arguments and ρ > 0 (the row
-    itself was checked finite after the previous update, by ``_settle``)."""
+def _prepare(S, i, Lg, q1, q2, length, dt, time, xp, yp):
+    """Write the bulk viscosity of row i's step (column Q, before the material update) and
+    tell whether the row may skip the per-row guards of ``update``: finite arguments and
+    ρ > 0 (the row itself was checked finite after the previous update, by ``_settle``)."""
+    S[i, Q] = bulk_viscosity(S[i, RHO], length, S[i, C], Lg[i, 0] + Lg[i, 3], q1, q2)
     return (S[i, RHO] > 0.0
             and finite_args(Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3], dt, time, xp[i], yp[i]))
 
 
 @njit(cache=True, inline="always")
-def _settle(S, i, code, vx, vy):
-    """(code, c + |v|) of row i after its update: the core's state check (a non-finite row
-    is ERR_CORE_NONFINITE) and the particle's signal speed for the next CFL step."""
+def _settle(S, i, code, vx, vy, err):
+    """(failed, c + |v|) of row i after its update: the code, or the core's state check (a
+    non-finite row is ERR_CORE_NONFINITE), flagged in ``err``; the particle's signal speed
+    for the next CFL step."""
+    if code == 0 and not row_finite(S, i):
+        code = ERR_CORE_NONFINITE
     if code != 0:
-        return code, 0.0
-    if not row_finite(S, i):
-        return ERR_CORE_NONFINITE, 0.0
+        err[i] = code
+        return 1, 0.0
     return 0, S[i, C] + math.sqrt(vx[i] * vx[i] + vy[i] * vy[i])
 
 
@@ -456,18 +460,14 @@ def _loop_elastic(prm, S, idx, Lg, q1, q2, length, dt, time, xp, yp, vx, vy, err
     vmax = 0.0
     for k in prange(idx.size):
         i = idx[k]
-        S[i, Q] = bulk_viscosity(S[i, RHO], length, S[i, C], Lg[i, 0] + Lg[i, 3], q1, q2)
-        if bulk_ok and _trusted(S, i, Lg, dt, time, xp, yp):
-            e = _elastic.advance(prm, S, i, Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3], dt, time,
-                              xp[i], yp[i])
+        L = (Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3])
+        if _prepare(S, i, Lg, q1, q2, length, dt, time, xp, yp) and bulk_ok:
+            e = _elastic.advance(prm, S, i, L[0], L[1], L[2], L[3], dt, time, xp[i], yp[i])
         else:
-            e = _elastic.update(prm, S, i, Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3], dt, time,
-                             xp[i], yp[i])
-        e, speed = _settle(S, i, e, vx, vy)
+            e = _elastic.update(prm, S, i, L[0], L[1], L[2], L[3], dt, time, xp[i], yp[i])
+        bad, speed = _settle(S, i, e, vx, vy, err)
+        nbad += bad
         vmax = max(vmax, speed)
-        if e != 0:
-            err[i] = e
-            nbad += 1
     return nbad, vmax
 
 
@@ -478,18 +478,14 @@ def _loop_johnson_cook(prm, S, idx, Lg, q1, q2, length, dt, time, xp, yp, vx, vy
     vmax = 0.0
     for k in prange(idx.size):
         i = idx[k]
-        S[i, Q] = bulk_viscosity(S[i, RHO], length, S[i, C], Lg[i, 0] + Lg[i, 3], q1, q2)
-        if bulk_ok and _trusted(S, i, Lg, dt, time, xp, yp):
-            e = _johnson_cook.advance(prm, S, i, Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3], dt, time,
-                              xp[i], yp[i])
+        L = (Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3])
+        if _prepare(S, i, Lg, q1, q2, length, dt, time, xp, yp) and bulk_ok:
+            e = _johnson_cook.advance(prm, S, i, L[0], L[1], L[2], L[3], dt, time, xp[i], yp[i])
         else:
-            e = _johnson_cook.update(prm, S, i, Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3], dt, time,
-                             xp[i], yp[i])
-        e, speed = _settle(S, i, e, vx, vy)
+            e = _johnson_cook.update(prm, S, i, L[0], L[1], L[2], L[3], dt, time, xp[i], yp[i])
+        bad, speed = _settle(S, i, e, vx, vy, err)
+        nbad += bad
         vmax = max(vmax, speed)
-        if e != 0:
-            err[i] = e
-            nbad += 1
     return nbad, vmax
 
 
@@ -500,18 +496,14 @@ def _loop_jwl(prm, S, idx, Lg, q1, q2, length, dt, time, xp, yp, vx, vy, err):
     vmax = 0.0
     for k in prange(idx.size):
         i = idx[k]
-        S[i, Q] = bulk_viscosity(S[i, RHO], length, S[i, C], Lg[i, 0] + Lg[i, 3], q1, q2)
-        if bulk_ok and _trusted(S, i, Lg, dt, time, xp, yp):
-            e = _jwl.advance(prm, S, i, Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3], dt, time,
-                              xp[i], yp[i])
+        L = (Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3])
+        if _prepare(S, i, Lg, q1, q2, length, dt, time, xp, yp) and bulk_ok:
+            e = _jwl.advance(prm, S, i, L[0], L[1], L[2], L[3], dt, time, xp[i], yp[i])
         else:
-            e = _jwl.update(prm, S, i, Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3], dt, time,
-                             xp[i], yp[i])
-        e, speed = _settle(S, i, e, vx, vy)
+            e = _jwl.update(prm, S, i, L[0], L[1], L[2], L[3], dt, time, xp[i], yp[i])
+        bad, speed = _settle(S, i, e, vx, vy, err)
+        nbad += bad
         vmax = max(vmax, speed)
-        if e != 0:
-            err[i] = e
-            nbad += 1
     return nbad, vmax
 
 
@@ -522,18 +514,14 @@ def _loop_water(prm, S, idx, Lg, q1, q2, length, dt, time, xp, yp, vx, vy, err):
     vmax = 0.0
     for k in prange(idx.size):
         i = idx[k]
-        S[i, Q] = bulk_viscosity(S[i, RHO], length, S[i, C], Lg[i, 0] + Lg[i, 3], q1, q2)
-        if bulk_ok and _trusted(S, i, Lg, dt, time, xp, yp):
-            e = _water.advance(prm, S, i, Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3], dt, time,
-                              xp[i], yp[i])
+        L = (Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3])
+        if _prepare(S, i, Lg, q1, q2, length, dt, time, xp, yp) and bulk_ok:
+            e = _water.advance(prm, S, i, L[0], L[1], L[2], L[3], dt, time, xp[i], yp[i])
         else:
-            e = _water.update(prm, S, i, Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3], dt, time,
-                             xp[i], yp[i])
-        e, speed = _settle(S, i, e, vx, vy)
+            e = _water.update(prm, S, i, L[0], L[1], L[2], L[3], dt, time, xp[i], yp[i])
+        bad, speed = _settle(S, i, e, vx, vy, err)
+        nbad += bad
         vmax = max(vmax, speed)
-        if e != 0:
-            err[i] = e
-            nbad += 1
     return nbad, vmax
 
 
@@ -593,13 +581,11 @@ def _loop_any(update, prm, S, idx, Lg, q1, q2, length, dt, time, xp, yp, vx, vy,
     vmax = 0.0
     for k in prange(idx.size):
         i = idx[k]
-        S[i, Q] = bulk_viscosity(S[i, RHO], length, S[i, C], Lg[i, 0] + Lg[i, 3], q1, q2)
+        _prepare(S, i, Lg, q1, q2, length, dt, time, xp, yp)
         e = update(prm, S, i, Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3], dt, time, xp[i], yp[i])
-        e, speed = _settle(S, i, e, vx, vy)
+        bad, speed = _settle(S, i, e, vx, vy, err)
+        nbad += bad
         vmax = max(vmax, speed)
-        if e != 0:
-            err[i] = e
-            nbad += 1
     return nbad, vmax
 
 
