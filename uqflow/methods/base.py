@@ -79,11 +79,21 @@ class PropagationMethod(abc.ABC):
     def analyze(self, design: xr.Dataset, runs: xr.Dataset) -> xr.Dataset:
         """Statistics of the outputs in ``runs`` (failed realizations have NaN outputs)."""
 
-    def enough(self, design: xr.Dataset, runs: xr.Dataset) -> bool:
-        """True when the realizations finished so far already answer the question.
+    def stop_points(self, n_planned: int) -> np.ndarray:
+        """Realization counts (increasing, each <= ``n_planned``) at which ``enough`` is asked.
 
-        The executor asks after every batch (in realization order); realizations never
-        started are then dropped. The default runs the whole design.
+        They depend on the design alone, never on batches, workers, completion order or a
+        resume: the executor asks ``enough`` on the prefix ``[0, n)`` of the design for each
+        ``n`` in turn, once every realization of that prefix has finished, and stops at the
+        first ``n`` that answers True. The default (no points) runs the whole design.
+        """
+        return np.zeros(0, dtype=np.int64)
+
+    def enough(self, design: xr.Dataset, runs: xr.Dataset) -> bool:
+        """True when the first ``runs.sizes["realization"]`` realizations answer the question.
+
+        Asked only at ``stop_points``; realizations past the stopping count are dropped.
+        The default runs the whole design.
         """
         return False
 

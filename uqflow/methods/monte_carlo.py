@@ -51,6 +51,16 @@ class MonteCarlo(PropagationMethod):
         design.attrs["rule"] = self.options.rule
         return design
 
+    def stop_points(self, n_planned):
+        # Checks about 9 % apart: the overshoot past the first sufficient count stays below
+        # that, and the number of checks grows only with log(n).
+        if self.options.target_rel_stderr is None:
+            return np.zeros(0, dtype=np.int64)
+        first = min(self.options.min_samples, n_planned)
+        k_max = int(np.ceil(8 * np.log2(max(n_planned / first, 1.0))))
+        counts = np.ceil(first * 2.0 ** (np.arange(k_max + 1) / 8)).astype(np.int64)
+        return np.unique(np.minimum(counts, n_planned))
+
     def enough(self, design, runs):
         target = self.options.target_rel_stderr
         ok = ok_mask(runs)
