@@ -18,6 +18,7 @@ The model, the numerics and measured accuracy are described in docs/fields.md.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping
 from typing import Literal
 
@@ -661,7 +662,6 @@ class FieldSample(Mapping):
     @classmethod
     def from_design(cls, fields: list[RandomField], design, realization: int) -> "FieldSample":
         """The sample of realization ``realization`` (an index) of a kl-weibull design."""
-        from uqflow.realization import germ_variable
         return cls(fields, {f.name: np.asarray(design[germ_variable(f.name)].values[realization])
                             for f in fields})
 
@@ -690,6 +690,16 @@ class FieldSample(Mapping):
 
     def __repr__(self) -> str:
         return f"FieldSample({', '.join(self._fields)})"
+
+
+def germ_variable(field_name: str) -> str:
+    """Name of the design variable holding a field's KL germs (netCDF-safe)."""
+    return "germ_" + re.sub(r"[^0-9A-Za-z_]", "_", field_name)
+
+
+def field_value_variable(parameter: str) -> str:
+    """Name of the runs variable holding a stored field's values for ``parameter``."""
+    return "field_" + re.sub(r"[^0-9A-Za-z_]", "_", parameter)
 
 
 def germ_seed(seed: np.random.SeedSequence, realization: int,

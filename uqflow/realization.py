@@ -7,7 +7,6 @@ and on a remote one, and so a method's tests can evaluate a design directly.
 from __future__ import annotations
 
 import inspect
-import re
 import time
 import traceback
 
@@ -15,6 +14,7 @@ import numpy as np
 import xarray as xr
 
 from uqflow.errors import SolverError
+from uqflow.fields import FieldSample, field_value_variable, germ_variable
 
 STATUS_OK, STATUS_FAILED, STATUS_PENDING = "ok", "failed", "pending"
 
@@ -34,16 +34,6 @@ def empty_runs(design: xr.Dataset, template: xr.Dataset) -> xr.Dataset:
         runs["clipped_points"] = ("realization", np.zeros(n, dtype=np.int64), {
             "long_name": "field values clipped into the parameter's physical range"})
     return runs
-
-
-def germ_variable(field_name: str) -> str:
-    """Name of the design variable holding a field's KL germs (netCDF-safe)."""
-    return "germ_" + re.sub(r"[^0-9A-Za-z_]", "_", field_name)
-
-
-def field_value_variable(parameter: str) -> str:
-    """Name of the runs variable holding a stored field's values for ``parameter``."""
-    return "field_" + re.sub(r"[^0-9A-Za-z_]", "_", parameter)
 
 
 def add_field_value_variables(runs: xr.Dataset, fields: list | None, solver) -> xr.Dataset:
@@ -104,9 +94,6 @@ def run_batch(solver, names: list[str], values: np.ndarray, outputs: list[str],
     (``germ_variable(name)`` -> (rows, modes)); ``seeds`` the per-realization seeds, passed
     to solvers whose ``run`` takes ``seed`` (e.g. for a random grid).
     """
-    if fields:
-        from uqflow.fields import FieldSample
-
     seeded = takes_seed(solver)          # once per batch: inspect is slow next to a run
     statuses, messages, times, clipped, evaluated = [], [], [], [], []
     results = {name: [] for name in outputs}

@@ -22,7 +22,8 @@ from uqflow.methods import get_method
 from uqflow.methods.base import output_names
 from uqflow.methods.kl_weibull import KLWeibull
 from uqflow.methods.monte_carlo import MonteCarlo
-from uqflow.realization import evaluate_design, germ_variable
+from uqflow.fields import germ_variable
+from uqflow.realization import evaluate_design
 from uqflow.sampling import unit_hypercube
 
 POINTS = np.linspace(0.0, 1.0, 41)

@@ -16,10 +16,9 @@ import numpy as np
 from pydantic import Field
 
 from uqflow.errors import StudyError
-from uqflow.fields import germ_seed
+from uqflow.fields import germ_seed, germ_variable
 from uqflow.methods.base import make_design, register_method
 from uqflow.methods.monte_carlo import MonteCarlo, SampleStatisticsOptions
-from uqflow.realization import germ_variable
 from uqflow.sampling import unit_hypercube
 
 

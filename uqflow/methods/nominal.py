@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import xarray as xr
 
+from uqflow.fields import germ_variable
 from uqflow.methods.base import (PropagationMethod, failure_warning, finish_statistics,
                                  make_design, ok_mask, output_names, register_method)
-from uqflow.realization import germ_variable
 
 
 @register_method("nominal")
