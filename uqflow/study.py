@@ -134,6 +134,8 @@ class Study:
     outputs: list[str]
     output_path: Path
     fields: list = field(default_factory=list)
+    #: the other files the study reads, by the key naming them: {"scene": (path, sha256)}
+    read_files: dict[str, tuple[str, str]] = field(default_factory=dict)
 
     @property
     def name(self) -> str:
@@ -141,7 +143,12 @@ class Study:
 
     @property
     def sha256(self) -> str:
-        return hashlib.sha256(self.text.encode()).hexdigest()
+        """Provenance hash: the study text and the content of every file it reads (a scene
+        file edited after a partial run must not resume into it)."""
+        digest = hashlib.sha256(self.text.encode())
+        for key in sorted(self.read_files):
+            digest.update(f"\0{key}\0{self.read_files[key][1]}".encode())
+        return digest.hexdigest()
 
 
 def _key(loc) -> str:
@@ -327,7 +334,9 @@ def _resolve(spec: StudySpec, path: Path, text: str, label: str) -> Study:
     except StudyError as exc:
         raise StudyError(exc.reason, key="solver") from None
 
-    scene, scene_label = _load_scene(spec.scene, folder, label)
+    scene, scene_label, scene_text = _load_scene(spec.scene, folder, label)
+    read_files = {} if scene_label is None else \
+        {"scene": (scene_label, hashlib.sha256(scene_text.encode()).hexdigest())}
     try:
         solver = solver_class.from_scene(scene)
     except SceneError as exc:
@@ -395,7 +404,7 @@ def _resolve(spec: StudySpec, path: Path, text: str, label: str) -> Study:
         raise StudyError(f"a result file ends in .nc, got '{out}'", key="output.path")
     return Study(spec=spec, path=path, text=text, solver_class=solver_class, scene=scene,
                  solver=solver, space=space, method=method, outputs=outputs,
-                 output_path=output_path, fields=fields)
+                 output_path=output_path, fields=fields, read_files=read_files)
 
 
 def _random_fields(spec: StudySpec, solver: Solver, label: str) -> list:
@@ -431,16 +440,16 @@ def _random_fields(spec: StudySpec, solver: Solver, label: str) -> list:
     return fields
 
 
-def _load_scene(scene, folder: Path, label: str) -> tuple[dict, str | None]:
-    """The scene table: inline, or read from a TOML file relative to the study's folder."""
+def _load_scene(scene, folder: Path, label: str) -> tuple[dict, str | None, str | None]:
+    """The scene table, the scene file's path and its text (both None for an inline table)."""
     if isinstance(scene, dict):
-        return scene, None
+        return scene, None, None
     scene_path = folder / scene
     if not scene_path.is_file():
         what = "is a folder, not a scene file" if scene_path.is_dir() else "no such scene file"
         raise StudyError(f"{what}: {scene_path}", key="scene")
-    raw, _ = read_toml(scene_path, str(scene_path))
-    return raw, str(scene_path)
+    raw, text = read_toml(scene_path, str(scene_path))
+    return raw, str(scene_path), text
 
 
 def _correlation(spec: StudySpec, inputs: list[RandomInput]) -> np.ndarray | None:
