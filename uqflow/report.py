@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import xarray as xr
+from scipy import stats as sps
 
 from uqflow.errors import StudyError
 from uqflow.store import open_result
@@ -187,6 +188,9 @@ def summary_table(tree: xr.DataTree) -> str:
         right = {3, 4}
     lines += _grid(header, rows, right) if rows else ["(no outputs)"]
     lines += notes
+    if stats.attrs.get("stderr_note"):
+        # Which error the interval rests on decides how far it can be trusted: say it.
+        lines.append(f"standard error and interval of the mean: {stats.attrs['stderr_note']}")
     lines.append("")
     lines.append(_cost_line(stats, attrs, method))
     failure = _first_failure(runs)
@@ -448,8 +452,17 @@ def _convergence(ctx: _Context, out: str):
     std = np.asarray(trace.sel(trace_statistic="std").values, float)
     units = ctx.units(out)
     fig, (ax, ax2) = _figure(height=5.2, rows=2)
-    ax.fill_between(counts, mean - 1.96 * stderr, mean + 1.96 * stderr, color="#9ab7d3",
-                    alpha=0.6, linewidth=0, label="± 1.96 stderr")
+    level = float(ctx.stats.attrs.get("confidence", 0.95))
+    replicates = ctx.stats.attrs.get("replicates")
+    if ctx.stats.attrs.get("stderr_kind") == "rqmc" and replicates:
+        # The band is the interval the table reports: t with R - 1 degrees of freedom.
+        half = sps.t.ppf(0.5 + level / 2, int(replicates) - 1) * stderr
+        label = (f"{100 * level:g} % interval, randomized QMC ({int(replicates)} replicates, "
+                 f"t with {int(replicates) - 1} dof)")
+    else:
+        half, label = 1.96 * stderr, "± 1.96 stderr"
+    ax.fill_between(counts, mean - half, mean + half, color="#9ab7d3",
+                    alpha=0.6, linewidth=0, label=label)
     ax.plot(counts, mean, color="#1f4e79", marker="o", markersize=3, label="running mean")
     ax.axhline(mean[-1], color="#c0392b", linestyle="--", linewidth=1,
                label=f"final mean {mean[-1]:.4g}")

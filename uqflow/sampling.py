@@ -13,6 +13,8 @@ import numpy as np
 from scipy.stats import qmc
 
 RULES = ("random", "lhs", "sobol", "halton")
+#: Rules whose points are not independent: their error comes from independent replicates.
+QUASI_RANDOM_RULES = ("sobol", "halton")
 
 
 def unit_hypercube(rule: str, n_points: int, dimension: int,
@@ -50,3 +52,34 @@ def unit_hypercube(rule: str, n_points: int, dimension: int,
     # Generator.random and the digital (Sobol, Halton) points lie in [0, 1): 0 itself can come
     # out (with tiny probability). Keep the promise of the open interval.
     return np.maximum(u, np.finfo(float).tiny)
+
+
+def replicate_seed(seed: np.random.SeedSequence, replicate: int) -> np.random.SeedSequence:
+    """The seed of scrambling ``replicate``: the child ``seed.spawn`` would give, made without
+    advancing ``seed`` (so the design stays a function of the study seed alone)."""
+    return np.random.SeedSequence(seed.entropy, spawn_key=(*seed.spawn_key, int(replicate)),
+                                  pool_size=seed.pool_size)
+
+
+def replicated_unit_hypercube(rule: str, replicates: int, points_per_replicate: int,
+                              dimension: int, seed: np.random.SeedSequence) -> np.ndarray:
+    """``replicates`` independently scrambled copies of a quasi-random rule, interleaved.
+
+    Row ``j * replicates + r`` is point ``j`` of replicate ``r``, so every prefix of
+    ``replicates * m`` rows holds the first ``m`` points of every replicate: a prefix at
+    ``replicates * 2**k`` is made of whole balanced Sobol' prefixes, and the spread of the
+    replicate means over it is an honest error estimate (randomized QMC; Owen 1997, L'Ecuyer
+    and Lemieux 2002). Shape (replicates * points_per_replicate, dimension).
+    """
+    if rule not in QUASI_RANDOM_RULES:
+        raise ValueError(f"replicated designs are for the quasi-random rules "
+                         f"({', '.join(QUASI_RANDOM_RULES)}), not '{rule}'")
+    replicates, points_per_replicate = int(replicates), int(points_per_replicate)
+    if replicates < 1 or points_per_replicate < 0:
+        raise ValueError(f"need replicates >= 1 and points_per_replicate >= 0, got "
+                         f"{replicates}, {points_per_replicate}")
+    blocks = [unit_hypercube(rule, points_per_replicate, dimension, replicate_seed(seed, r))
+              for r in range(replicates)]
+    # (replicate, point, dim) -> (point, replicate, dim): point-major rows interleave them.
+    stacked = np.stack(blocks, axis=1)
+    return stacked.reshape(replicates * points_per_replicate, int(dimension))

@@ -1,4 +1,18 @@
-"""Monte Carlo: sample the inputs, run every sample, estimate moments with their error."""
+"""Monte Carlo: sample the inputs, run every sample, estimate moments with their error.
+
+The standard error of the mean depends on the rule (see docs/inputs.md, "Error of the mean"):
+
+* ``random``: the i.i.d. formula s / sqrt(n), a Student t interval with n - 1 degrees of freedom.
+* ``lhs``: the same formula, which is conservative: a Latin hypercube mean has variance at most
+  N / (N - 1) times the i.i.d. one (Owen 1997), and usually far less.
+* ``sobol``/``halton`` (randomized QMC): the design is ``replicates`` independent scramblings,
+  interleaved (realization j R + r is point j of replicate r). The mean is the mean of the R
+  replicate means, its standard error their spread / sqrt(R), its interval a Student t with
+  R - 1 degrees of freedom. The points of one replicate are not independent, so the i.i.d.
+  formula would overstate their error by orders of magnitude.
+
+Variance, std and quantiles of the output are the pooled sample estimates for every rule.
+"""
 
 from __future__ import annotations
 
@@ -6,13 +20,16 @@ from typing import Literal
 
 import numpy as np
 import xarray as xr
-from pydantic import Field, field_validator
+from pydantic import Field, ValidationInfo, field_validator, model_validator
 from scipy import stats as sps
 
 from uqflow.methods.base import (MethodOptions, PropagationMethod, failure_warning,
                                  finish_statistics, make_design, ok_mask, output_names,
                                  register_method)
-from uqflow.sampling import unit_hypercube
+from uqflow.sampling import QUASI_RANDOM_RULES, replicated_unit_hypercube, unit_hypercube
+
+#: ``stderr_kind`` of the statistics, per rule: which formula the standard error uses.
+STDERR_KINDS = {"random": "iid", "lhs": "iid-conservative", "sobol": "rqmc", "halton": "rqmc"}
 
 
 class SampleStatisticsOptions(MethodOptions):
@@ -34,8 +51,47 @@ class SampleStatisticsOptions(MethodOptions):
 
 
 class MonteCarloOptions(SampleStatisticsOptions):
-    samples: int = Field(1000, ge=1, description="number of realizations (the most run)")
+    # rule and replicates come before samples: the samples check reads them.
     rule: Literal["random", "lhs", "sobol", "halton"] = "random"
+    # 8, from the expected half-width of the t interval, t(R-1) c4(R) sigma_R / sqrt(R), with
+    # sigma_R the std of one replicate's mean on n/R points, ~ (n/R)^-alpha: for smooth outputs
+    # (alpha = 3/2, scrambled Sobol') it grows like R, for rough ones (alpha = 1/2) it falls
+    # to 1.96. R = 8 is within 16 % of the best for rough outputs (2.28); R = 4 would be
+    # narrower for smooth ones but leaves 3 degrees of freedom (the error estimate's own
+    # spread ~ 1/sqrt(2 dof) = 41 %, against 27 % at R = 8). A power of two, so 2^k samples
+    # split into balanced Sobol' prefixes. docs/inputs.md has the table.
+    replicates: int = Field(8, ge=2, le=4096, description="independent scramblings of a "
+                            "quasi-random rule (sobol, halton); their spread is the error")
+    samples: int = Field(1000, ge=1, description="number of realizations (the most run)")
+
+    @field_validator("samples")
+    @classmethod
+    def _whole_replicates(cls, samples, info: ValidationInfo):
+        rule, r = info.data.get("rule"), info.data.get("replicates")
+        if rule not in QUASI_RANDOM_RULES or r is None:
+            return samples
+        if rule == "sobol":
+            m = samples // r
+            if samples % r or m & (m - 1):
+                below = r * 2 ** max(int(np.floor(np.log2(max(samples / r, 1)))), 0)
+                near = sorted({below, 2 * below} - {samples})
+                raise ValueError(
+                    f"{samples} is not replicates ({r}) times a power of two, which rule "
+                    f"'sobol' needs for balanced replicates; nearest: "
+                    f"{' or '.join(map(str, near))}")
+        elif samples % r:
+            below = samples // r * r
+            near = [c for c in (below, below + r) if c >= r]
+            raise ValueError(f"{samples} is not a multiple of replicates ({r}), which rule "
+                             f"'halton' needs; nearest: {' or '.join(map(str, near))}")
+        return samples
+
+    @model_validator(mode="after")
+    def _replicates_only_for_quasi_random(self):
+        if "replicates" in self.model_fields_set and self.rule not in QUASI_RANDOM_RULES:
+            raise ValueError(f"'replicates' applies to rule sobol or halton only; rule "
+                             f"'{self.rule}' has independent points (drop the key)")
+        return self
 
 
 @register_method("monte-carlo")
@@ -46,16 +102,35 @@ class MonteCarlo(PropagationMethod):
 
     def plan(self, space, fields, seed):
         self.check(space, fields)
-        u = unit_hypercube(self.options.rule, self.options.samples, len(space), seed)
+        rule, n = self.options.rule, self.options.samples
+        if rule in QUASI_RANDOM_RULES:
+            r = self.options.replicates
+            u = replicated_unit_hypercube(rule, r, n // r, len(space), seed)
+        else:
+            u = unit_hypercube(rule, n, len(space), seed)
         design = make_design(space, space.from_unit_hypercube(u))
-        design.attrs["rule"] = self.options.rule
+        design.attrs["rule"] = rule
+        if rule in QUASI_RANDOM_RULES:
+            design.attrs["replicates"] = self.options.replicates
         return design
 
+    def _replicates(self, design) -> int | None:
+        """R of a randomized-QMC design, None for independent points."""
+        if design.attrs.get("rule", self.options.rule) not in QUASI_RANDOM_RULES:
+            return None
+        return int(design.attrs.get("replicates", getattr(self.options, "replicates", 0)))
+
     def stop_points(self, n_planned):
-        # Checks about 9 % apart: the overshoot past the first sufficient count stays below
-        # that, and the number of checks grows only with log(n).
         if self.options.target_rel_stderr is None:
             return np.zeros(0, dtype=np.int64)
+        if self.options.rule in QUASI_RANDOM_RULES:
+            # Only whole balanced prefixes of every replicate: R 2^k realizations.
+            r = self.options.replicates
+            counts = r * 2 ** np.arange(int(np.log2(max(n_planned // r, 1))) + 1)
+            counts = counts[(counts >= self.options.min_samples) & (counts <= n_planned)]
+            return counts.astype(np.int64)
+        # Checks about 9 % apart: the overshoot past the first sufficient count stays below
+        # that, and the number of checks grows only with log(n).
         first = min(self.options.min_samples, n_planned)
         k_max = int(np.ceil(8 * np.log2(max(n_planned / first, 1.0))))
         counts = np.ceil(first * 2.0 ** (np.arange(k_max + 1) / 8)).astype(np.int64)
@@ -63,13 +138,19 @@ class MonteCarlo(PropagationMethod):
 
     def enough(self, design, runs):
         target = self.options.target_rel_stderr
+        if target is None:
+            return False
+        r = self._replicates(design)
+        if r is not None:
+            # Judge the longest prefix of whole replicate prefixes with nothing pending.
+            pending = np.flatnonzero(runs["status"].values == "pending")
+            finished = int(pending[0]) if pending.size else runs.sizes["realization"]
+            runs = runs.isel(realization=slice(0, finished // r * r))
         ok = ok_mask(runs)
-        if target is None or ok.sum() < self.options.min_samples:
+        if ok.sum() < self.options.min_samples:
             return False
         for out in output_names(runs):
-            y = runs[out].values[ok]
-            mean, var = _mean_var(y)
-            stderr = np.sqrt(var / y.shape[0])
+            mean, stderr, _, _ = _mean_error(runs[out].values, ok, r)
             # A field output is judged against its largest |mean|: elements crossing zero
             # would otherwise never reach any relative target.
             scale = np.maximum(np.abs(mean), np.max(np.abs(mean)))
@@ -83,24 +164,33 @@ class MonteCarlo(PropagationMethod):
         ok = ok_mask(runs)
         n = int(ok.sum())
         opts = self.options
+        rule = design.attrs.get("rule", opts.rule)
+        r = self._replicates(design)
         q_labels = [f"q{100 * q:g}" for q in opts.quantiles]
         labels = ["mean", "variance", "std", "stderr", "ci_low", "ci_high", *q_labels]
-        t = sps.t.ppf(0.5 + opts.confidence / 2, n - 1) if n > 1 else np.nan
-        data = {}
+        data, dof = {}, n - 1
         for out in output_names(runs):
             y = runs[out].values[ok]
             dims = runs[out].dims[1:]
             if n == 0:
                 block = np.full((len(labels),) + runs[out].shape[1:], np.nan)
             else:
-                mean, var = _mean_var(y)
-                std = np.sqrt(var)
-                stderr = std / np.sqrt(n)
+                mean, stderr, dof, replicate_means = _mean_error(runs[out].values, ok, r)
+                t = sps.t.ppf(0.5 + opts.confidence / 2, dof) if dof > 0 else np.nan
+                _, var = _mean_var(y)
                 quant = np.quantile(y, opts.quantiles, axis=0)
-                block = np.stack([mean, var, std, stderr, mean - t * stderr, mean + t * stderr,
-                                  *quant])
+                block = np.stack([mean, var, np.sqrt(var), stderr, mean - t * stderr,
+                                  mean + t * stderr, *quant])
+                if r is not None:
+                    data[f"{out}_replicate_means"] = (
+                        ("replicate", *dims), replicate_means,
+                        {"long_name": f"mean of {out} over each scrambled replicate (NaN: "
+                                      f"no successful realization in it)"})
             data[out] = (("statistic", *dims), block)
-            data[f"{out}_trace"], counts = self._trace(y, dims)
+            if r is None:
+                data[f"{out}_trace"], counts = self._trace(y, dims)
+            else:
+                data[f"{out}_trace"], counts = _rqmc_trace(runs[out].values, ok, r, dims)
         coords = {"statistic": labels, "trace_statistic": ["mean", "std", "stderr"]}
         if data:
             coords["trace_samples"] = counts
@@ -111,8 +201,11 @@ class MonteCarlo(PropagationMethod):
         if n < 2:
             warnings.append(f"only {n} realization(s) succeeded: no variance can be estimated")
         stats = finish_statistics(stats, design, runs, self.name, warnings)
-        stats.attrs.update(rule=design.attrs.get("rule", opts.rule), samples_ok=n,
-                           confidence=opts.confidence)
+        stats.attrs.update(rule=rule, samples_ok=n, confidence=opts.confidence,
+                           stderr_kind=STDERR_KINDS[rule], degrees_of_freedom=int(max(dof, 0)),
+                           stderr_note=_stderr_note(rule, r, dof))
+        if r is not None:
+            stats.attrs["replicates"] = r
         return stats
 
     def _trace(self, y, dims):
@@ -141,6 +234,67 @@ class MonteCarlo(PropagationMethod):
         block = np.stack([mean, np.sqrt(var), np.sqrt(var / c)], axis=1)
         return (("trace_samples", "trace_statistic", *dims), block,
                 {"long_name": "running estimates against sample count"}), counts
+
+
+def _stderr_note(rule: str, replicates: int | None, dof: int) -> str:
+    """One line saying which error estimate the standard error and the interval use."""
+    if replicates is not None:
+        return (f"randomized QMC: spread of the means of {replicates} independently scrambled "
+                f"{rule} replicates, Student t with {dof} degrees of freedom")
+    if rule == "lhs":
+        return (f"i.i.d. formula, conservative for Latin hypercube (its variance is at most "
+                f"N/(N-1) times the i.i.d. one, Owen 1997), Student t with {dof} degrees of "
+                f"freedom")
+    return f"i.i.d. formula s/sqrt(n), Student t with {dof} degrees of freedom"
+
+
+def _mean_error(values, ok, replicates):
+    """Mean, its standard error, the degrees of freedom of that error, replicate means.
+
+    ``values`` are all realizations (realization first), ``ok`` which succeeded. Independent
+    points (``replicates`` None): the sample mean and s / sqrt(n), n - 1 degrees of freedom.
+    Randomized QMC: realization i belongs to replicate i mod R; the mean is the mean of the
+    replicate means, the error their spread / sqrt(R'), R' - 1 degrees of freedom, where R'
+    counts the replicates with at least one successful realization. ``enough``, ``analyze``
+    and the trace all go through here, so they cannot disagree.
+    """
+    y = values[ok]
+    if replicates is None:
+        mean, var = _mean_var(y)
+        return mean, np.sqrt(var / y.shape[0]), y.shape[0] - 1, None
+    which = np.flatnonzero(ok) % replicates
+    present = np.array([np.any(which == r) for r in range(replicates)])
+    replicate_means = np.full((replicates,) + y.shape[1:], np.nan)
+    for r in np.flatnonzero(present):
+        # _mean_var keeps an output that is equal on every point exact (no rounding noise).
+        replicate_means[r] = _mean_var(y[which == r])[0]
+    mean, var = _mean_var(replicate_means[present])
+    count = int(present.sum())
+    return mean, np.sqrt(var / max(count, 1)), count - 1, replicate_means
+
+
+def _rqmc_trace(values, ok, replicates, dims):
+    """Running mean, pooled std and RQMC standard error after R 2^k realizations (whole,
+    balanced prefixes of every replicate) and after all of them."""
+    n = values.shape[0]
+    counts = replicates * 2 ** np.arange(int(np.log2(max(n // replicates, 1))) + 1)
+    counts = np.unique(np.append(counts[counts <= n], n // replicates * replicates))
+    counts = counts[counts > 0]
+    rows = []
+    for c in counts:
+        mask = ok[:c]
+        if mask.sum() == 0:
+            rows.append(np.full((3,) + values.shape[1:], np.nan))
+            continue
+        mean, stderr, _, _ = _mean_error(values[:c], mask, replicates)
+        _, var = _mean_var(values[:c][mask])
+        rows.append(np.stack([mean, np.sqrt(var), stderr]))
+    block = np.stack(rows) if rows else np.full((1, 3) + values.shape[1:], np.nan)
+    if not rows:
+        counts = np.array([max(n, 1)])
+    return (("trace_samples", "trace_statistic", *dims), block,
+            {"long_name": "running estimates against sample count",
+             "stderr_kind": "rqmc", "replicates": replicates}), counts
 
 
 def _mean_var(y):
