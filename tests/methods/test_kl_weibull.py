@@ -233,6 +233,7 @@ def test_end_to_end_with_a_field_solver():
     sample = FieldSample.from_design([field], design, 3)
     E = sample.values("bar.E", solver.mid, mean=2e11, lower=0.0)
     F = design["inputs"].values[3, 0]
+    # the same n-term sum of dx/E two ways: ≤ 2·n·eps (n ≤ a few hundred: ≤ 1e-13)
     assert runs["u"].values[3] == pytest.approx(F / 1e-4 * np.sum(np.diff(solver.x) / E),
                                                 rel=1e-12)
     stats = method.analyze(design, runs)

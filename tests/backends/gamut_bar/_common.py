@@ -10,6 +10,8 @@ import numpy as np
 from solvers.gamut_bar import GamutBarSolver
 from solvers.gamut_bar.materials import MATERIALS, ro_stress
 
+EPS = float(np.finfo(float).eps)   # unit roundoff × 2: the scale of every rounding bound below
+
 
 def solver(**scene):
     return GamutBarSolver.from_scene(scene)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ._common import material, run, solver
+from ._common import EPS, material, run, solver
 
 SEED = {"M1": (0.06244, 791.6e6), "M2": (0.04762, 1105.4e6)}   # Table 1, deterministic
 
@@ -30,7 +30,9 @@ def test_cyclic_m1_loops_are_stable_and_fit_the_seed():
     # every loop closes: the stress amplitude is the level's, force controlled
     m = material("M1")
     amps = np.geomspace(m["sigma_y"], 1.1 * m["sigma_y"], 10)
-    assert ds["stress_amplitude"].values == pytest.approx(amps, rel=1e-12)
+    # amplitudes are prescribed forces over A (geomspace, then ×A and ÷A): geomspace's
+    # power errs by ≈ eps·|ln σ_y| ≈ 20 eps, the product and quotient by 2 eps more
+    assert ds["stress_amplitude"].values == pytest.approx(amps, rel=32 * EPS)
     assert np.all(np.diff(ds["plastic_strain_amplitude"].values) > 0)
     n_p, K_p = ds["n_prime"].item(), ds["K_prime"].item()
     # measured n' = 0.0559 (−10.4 %), K' = 762.7 MPa (−3.6 %): Masing loops of a calibrated
@@ -62,8 +64,9 @@ def test_cyclic_outputs_and_pull_to_failure():
     assert ds.sizes["loop"] == 10
     e, s = ds["strain"].values, ds["stress"].values
     assert e[0] == 0.0 and s[0] == 0.0
-    assert s.max() == pytest.approx(1.1 * m["sigma_y"], rel=1e-12)
-    assert s.min() == pytest.approx(-1.1 * m["sigma_y"], rel=1e-12)
+    # prescribed peak forces over A: as for the amplitudes, ≤ 32 eps (geomspace + 2 roundings)
+    assert s.max() == pytest.approx(1.1 * m["sigma_y"], rel=32 * EPS)
+    assert s.min() == pytest.approx(-1.1 * m["sigma_y"], rel=32 * EPS)
     # after the cycles the bar is pulled to failure and fails as the monotonic one does
     assert ds["failure_strain"].item() == pytest.approx(m["eps_f"], rel=1e-6)
     # compression mirrors tension: the loops are symmetric
@@ -77,4 +80,5 @@ def test_cyclic_step_count_fixed_per_scene():
     b = sol.run({"bar.sigma_f": 650e6, "bar.sigma_y": 545e6})
     assert a.sizes["step"] == b.sizes["step"] == sol.outputs().sizes["step"]
     assert np.all(np.isfinite(b["strain"].values))
-    assert b["stress"].values.max() == pytest.approx(1.1 * 545e6, rel=1e-12)
+    # a prescribed peak force over A: ≤ 32 eps (geomspace + 2 roundings)
+    assert b["stress"].values.max() == pytest.approx(1.1 * 545e6, rel=32 * EPS)

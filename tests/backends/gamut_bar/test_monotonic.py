@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ._common import FakeFields, material, ro, run, solver
+from ._common import EPS, FakeFields, material, ro, run, solver
 
 BOTH = ["M1", "M2"]
 
@@ -15,6 +15,14 @@ BOTH = ["M1", "M2"]
 def initial_slope(ds):
     e, s = ds["strain"].values, ds["stress"].values
     return s[1] / e[1]
+
+
+def elastic_slope_bound(local_bonds):
+    """Relative error bound of initial_slope: the first step is linear elastic, so one Newton
+    iteration is the banded Cholesky solve, exact up to κ(K)·eps with κ ≈ (4/π²)·n² for a
+    chain of n segments (nonlocal bonds of bounded range keep that order; n² covers it), plus
+    a few roundings for ε = u/L and σ = F/A."""
+    return (local_bonds**2 + 4) * EPS
 
 
 # --------------------------------------------------------------------------------------------
@@ -25,15 +33,15 @@ def initial_slope(ds):
 @pytest.mark.parametrize("name", BOTH)
 def test_patch_initial_slope_is_E(name, grid):
     ds = run(material=name, grid=grid)
-    # measured: |slope/E − 1| < 1e-12 on both grids (tolerance asked: 0.1 %)
-    assert initial_slope(ds) == pytest.approx(material(name)["E"], rel=1e-3)
-    assert initial_slope(ds) == pytest.approx(material(name)["E"], rel=1e-9)
+    # bound: κ(K)·eps of the elastic solve (elastic_slope_bound), far inside the 0.1 % asked
+    assert initial_slope(ds) == pytest.approx(material(name)["E"], rel=elastic_slope_bound(500))
 
 
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_patch_on_other_stochastic_grids(seed):
     ds = solver(grid="stochastic", material="M2").run({}, seed=seed)
-    assert initial_slope(ds) == pytest.approx(material("M2")["E"], rel=1e-9)
+    # bound: κ(K)·eps of the elastic solve
+    assert initial_slope(ds) == pytest.approx(material("M2")["E"], rel=elastic_slope_bound(500))
 
 
 # --------------------------------------------------------------------------------------------
@@ -88,7 +96,9 @@ def test_curve_comes_from_the_network_not_the_formula():
     e, s = ds["strain"].values, ds["stress"].values
     # elastic: the two halves in series (exact: with harmonic-mean bond moduli each element
     # carries the homogeneous bar's force under the local strain field)
-    assert initial_slope(ds) == pytest.approx(m["E"] / (0.5 / 0.7 + 0.5), rel=1e-9)
+    # bound: κ(K)·eps of the elastic solve (the 0.7 contrast changes κ by < 2; n² covers it)
+    assert initial_slope(ds) == pytest.approx(m["E"] / (0.5 / 0.7 + 0.5),
+                                              rel=2 * elastic_slope_bound(500))
     for E in (m["E"], 0.7 * m["E"]):
         ref = ro(e[1:], dict(m, E=E))
         assert np.abs(s[1:] / ref - 1.0).max() > 0.15  # neither Ramberg–Osgood curve (0.176)
@@ -150,7 +160,7 @@ def test_three_points():
     ds = run(local_bonds=2)
     m = material("M1")
     assert ds.sizes["point"] == 3 and ds.sizes["bond"] == 2
-    assert initial_slope(ds) == pytest.approx(m["E"], rel=1e-9)
+    assert initial_slope(ds) == pytest.approx(m["E"], rel=elastic_slope_bound(2))  # κ·eps
     assert ds["failure_strain"].item() == pytest.approx(m["eps_f"], rel=1e-6)
     assert np.all(np.isfinite(ds["sigma_stdev"].values))
 
@@ -159,7 +169,8 @@ def test_five_thousand_points():
     # run time against the number of points: benchmarks/gamut_bar_speed.py (BENCHMARKS.md)
     ds = solver(local_bonds=5000).run({})
     m = material("M1")
-    assert initial_slope(ds) == pytest.approx(m["E"], rel=1e-9)
+    # bound: κ(K)·eps of the elastic solve, κ ~ n² = 2.5e7
+    assert initial_slope(ds) == pytest.approx(m["E"], rel=elastic_slope_bound(5000))
     assert ds["failure_strain"].item() == pytest.approx(m["eps_f"], rel=1e-6)
 
 

@@ -212,6 +212,7 @@ def test_mean_curve_interpolates_exactly_and_counts_the_survivors():
     # a at 0.005: 50; b: 100 -> 75. At 0.02: a 200, b 400. At 0.03: a 300 (its last state),
     # b 500. At 0.05: b only, 700. At 0.08: b's last state. 0.1: nobody.
     np.testing.assert_array_equal(count, [2, 2, 2, 2, 1, 1, 0])
+    # each value: a linear interpolation (≤ 4 roundings) and a mean of two (2 more): ≤ 6 eps
     np.testing.assert_allclose(mean[:6], [0.0, 75.0, 300.0, 400.0, 700.0, 900.0], rtol=1e-14)
     assert np.isnan(mean[6])
 
@@ -232,6 +233,7 @@ def test_mean_curve_on_a_result_matches_numpy_interp(trees):
     mean, count = gb.mean_curve(runs, strains)
     by_hand = [np.interp(strains, runs["strain"].values[r], runs["stress"].values[r])
                for r in range(3)]
+    # the same interpolation and 3-term mean in another order: ≤ 2 × 7 eps ≈ 3e-15
     np.testing.assert_allclose(mean, np.mean(by_hand, axis=0), rtol=1e-12)
     assert count.tolist() == [3, 3]
 
