@@ -1,7 +1,11 @@
 """Command line: ``uqflow run | validate | report | list``.
 
-User errors print one line and exit 2; a study stopped by failing realizations exits 1;
-nothing prints a traceback unless ``UQFLOW_DEBUG`` is set.
+Exit codes: 0 done; 1 a study stopped mid-run (too many failed realizations, the result file
+could not be written, a dask task died; the runs so far are on disk); 2 a user error found
+before anything ran (study, scene, result path, scheduler), printed as one line
+``uqflow: error: <file>: <key>: <reason>``; 3 an internal error (a bug in uqflow or a solver
+outside a realization), printed as one line ``uqflow: internal error: ...``; 130
+interrupted. No command prints a Python traceback unless ``UQFLOW_DEBUG=1`` is set.
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ from uqflow.errors import AccuracyWarning, StudyError, UqflowError
 
 EXIT_USAGE = 2
 EXIT_FAILED = 1
+EXIT_INTERNAL = 3
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -25,6 +30,9 @@ def _parser() -> argparse.ArgumentParser:
 
     run = sub.add_parser("run", help="run a study file and write its result and figures")
     run.add_argument("study", type=Path)
+    run.add_argument("-o", "--output", type=Path, default=None, metavar="PATH",
+                     help="write the result here instead of the study's [output] path "
+                     "(figures beside it; --resume and --force apply to it)")
     run.add_argument("--workers", type=int, default=None,
                      help="dask worker processes on this machine (0: run in this process)")
     run.add_argument("--scheduler", default=None,
@@ -62,7 +70,8 @@ def _run(args) -> int:
         # Methods also return their warnings in the result; print each once, below the table.
         warnings.simplefilter("ignore", AccuracyWarning)
         outcome = run_study(study, workers=args.workers, scheduler=args.scheduler,
-                            resume=args.resume, force=args.force, show_progress=not args.quiet)
+                            resume=args.resume, force=args.force, show_progress=not args.quiet,
+                            output=args.output)
     if outcome.resumed:
         print(f"resumed: {outcome.resumed} realizations were already done")
     tree = report.open_result(outcome.path)
@@ -152,6 +161,13 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("uqflow: interrupted; finish with --resume", file=sys.stderr)
         return 130
+    except Exception as exc:  # last line of defence: a bug must still read as one line
+        if os.environ.get("UQFLOW_DEBUG"):
+            raise
+        print(f"uqflow: internal error: {type(exc).__name__}: {' '.join(str(exc).split())} "
+              f"(a bug: rerun with UQFLOW_DEBUG=1 for the traceback and report it)",
+              file=sys.stderr)
+        return EXIT_INTERNAL
 
 
 if __name__ == "__main__":

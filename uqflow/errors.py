@@ -29,6 +29,11 @@ class SceneError(StudyError):
     """A solver's scene is invalid; ``key`` is the dotted scene key."""
 
 
+class ResultFileError(UqflowError):
+    """The result file could not be written mid-run (disk full, folder gone); the last good
+    checkpoint is still on disk. One line, naming the file."""
+
+
 class SolverError(UqflowError):
     """A realization failed inside the solver (diverged, non-physical state).
 

@@ -1,12 +1,20 @@
-"""Run a study: plan, execute realizations on dask in batches, checkpoint, analyze, store.
+"""Run a study: plan, execute realizations (in this process or on dask), checkpoint, analyze,
+store.
 
-One solver instance per worker process is built from the scene on first use and cached.
-Realization values come from the method's design, fixed before anything runs, so results do
-not depend on the number of workers or on the order in which batches finish.
+Realization values and seeds come from the method's design, fixed before anything runs, and a
+method may stop early only at realization counts fixed by the design (``stop_points``), so the
+result does not depend on the number of workers, the batch size, the order in which tasks
+finish or a resume. One solver instance per worker process is built from the scene on first
+use and cached. Finished realizations reach the result file within ``checkpoint_interval``
+seconds plus the run time of one realization, whatever the batch size: a task runs its
+realizations until a time budget is spent and hands back what it finished; the rest goes back
+to the queue.
 """
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
 import json
 import logging
 import os
@@ -18,13 +26,15 @@ import numpy as np
 import xarray as xr
 
 from uqflow import progress as progress_mod
-from uqflow.errors import StudyError, UqflowError
+from uqflow.errors import ResultFileError, StudyError, UqflowError
 from uqflow.realization import (STATUS_FAILED, STATUS_PENDING, add_field_value_variables,
                                 batch_arguments, empty_runs, run_batch, store_batch)
-from uqflow.store import now, read_runs, versions, write_result
+from uqflow.store import check_writable, now, read_runs, versions, write_result
 from uqflow.study import Study
 
 _RUN_COLUMNS = {"status", "message", "wall_time", "clipped_points"}
+#: how long a client waits for a dask scheduler before saying it cannot reach it
+CONNECT_TIMEOUT_S = 30.0
 
 
 class StudyFailed(UqflowError):
@@ -54,8 +64,9 @@ def _worker_solver(solver_class, scene: dict):
     return _SOLVERS[key]
 
 
-def _work(solver_class, scene, names, outputs, arguments):
-    return run_batch(_worker_solver(solver_class, scene), names, outputs=outputs, **arguments)
+def _work(solver_class, scene, names, outputs, arguments, budget):
+    return run_batch(_worker_solver(solver_class, scene), names, outputs=outputs,
+                     budget=budget, **arguments)
 
 
 # --- on the client --------------------------------------------------------------------------
@@ -68,7 +79,11 @@ def _batch_size(study: Study, n_pending: int, workers: int) -> int:
     return int(np.clip(n_pending // (8 * max(workers, 1)), 1, 128))
 
 
-def _root_attrs(study: Study) -> dict:
+def _text_sha256(text: str) -> str:
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _root_attrs(study: Study, n_planned: int) -> dict:
     spec = study.spec
     return {
         "title": f"uqflow study '{study.name}'",
@@ -76,11 +91,14 @@ def _root_attrs(study: Study) -> dict:
         "study_file": str(study.path),
         "study": study.text,
         "study_sha256": study.sha256,
+        "study_text_sha256": _text_sha256(study.text),
+        "study_read_files": json.dumps(study.read_files, sort_keys=True),
         "solver": spec.solver,
         "solver_description": study.solver.describe(),
         "method": spec.method.kind,
         "method_options": json.dumps(study.method.options.model_dump(), default=str),
         "seed": spec.execution.seed,
+        "planned_realizations": n_planned,
         "created": now(),
         "complete": 0,
         "Conventions": "CF-1.10",
@@ -89,29 +107,55 @@ def _root_attrs(study: Study) -> dict:
 
 
 class _Checkpoint:
-    def __init__(self, path: Path, attrs: dict, interval: float):
-        self.path, self.attrs, self.interval = path, attrs, interval
+    """Writes the runs to the result file at most every ``spacing`` seconds, when new ones
+    have finished since the last write."""
+
+    def __init__(self, path: Path, attrs: dict, spacing: float):
+        self.path, self.attrs, self.spacing = path, attrs, spacing
         self.last = time.monotonic()
+        self.dirty = False
 
-    def maybe(self, runs: xr.Dataset, force: bool = False) -> None:
-        if force or time.monotonic() - self.last >= self.interval:
-            write_result(self.path, runs, None, self.attrs)
-            self.last = time.monotonic()
+    def seconds_until_due(self) -> float:
+        return max(self.last + self.spacing - time.monotonic(), 0.0)
+
+    def maybe(self, runs: xr.Dataset) -> None:
+        if self.dirty and self.seconds_until_due() == 0.0:
+            self.write(runs)
+
+    def write(self, runs: xr.Dataset) -> None:
+        write_result(self.path, runs, None, self.attrs)
+        self.last = time.monotonic()
+        self.dirty = False
 
 
-def _prepare(study: Study, resume: bool, force: bool):
-    """The runs to complete: fresh from the plan, or read back from a partial result."""
-    path = study.output_path
-    if path.exists() and not (resume or force):
-        raise StudyError(f"{path} exists: add --resume to finish it or --force to overwrite it",
-                         file=str(study.path), key="output.path")
+def _check_provenance(study: Study, attrs: dict, path: Path) -> None:
+    """Refuse to resume a result made by another study, or by this study with a changed
+    scene file (naming the file that changed)."""
+    if attrs.get("study_sha256") == study.sha256:
+        return
+    if attrs.get("study_text_sha256") == _text_sha256(study.text):
+        try:
+            stored = json.loads(str(attrs.get("study_read_files", "{}")))
+        except ValueError:
+            stored = {}
+        for key, (file, sha) in sorted(study.read_files.items()):
+            old = stored.get(key)
+            if not isinstance(old, list) or len(old) != 2 or old[1] != sha:
+                raise StudyError(f"the {key} file {file} changed since {path} was written; "
+                                 f"resuming would mix two {key}s: use --force to start again",
+                                 file=str(study.path), key=key)
+    raise StudyError(f"{path} was made by a different version of this study; "
+                     f"use --force to start again", file=str(study.path), key="output.path")
+
+
+def _prepare(study: Study, resume: bool, path: Path):
+    """The runs to complete: fresh from the plan, or read back from the partial result at
+    ``path``."""
     if resume and path.exists():
-        runs, attrs = read_runs(path)
-        if attrs.get("study_sha256") != study.sha256:
-            raise StudyError(f"{path} was made by a different version of this study; "
-                             f"use --force to start again", file=str(study.path),
-                             key="output.path")
+        runs, attrs = read_runs(path, verify=True)
+        _check_provenance(study, attrs, path)
         attrs["resumed"] = now()
+        attrs.setdefault("planned_realizations", runs.sizes["realization"])
         return runs, attrs
     seed = np.random.SeedSequence(study.spec.execution.seed)
     design = study.method.plan(study.space, study.fields or None, seed)
@@ -121,68 +165,66 @@ def _prepare(study: Study, resume: bool, force: bool):
     runs["realization_seed"] = ("realization", np.array(
         [np.random.SeedSequence(study.spec.execution.seed, spawn_key=(int(i),))
          .generate_state(1)[0] for i in runs["realization"].values], dtype=np.uint32))
-    return runs, _root_attrs(study)
+    return runs, _root_attrs(study, runs.sizes["realization"])
 
 
-def run_study(study: Study, *, workers: int | None = None, scheduler: str | None = None,
-              resume: bool = False, force: bool = False, show_progress: bool = True) -> Outcome:
-    """Run (or finish, with ``resume``) ``study`` and write its result file."""
-    started = time.perf_counter()
-    ex = study.spec.execution
-    workers = ex.workers if workers is None else workers
-    scheduler = scheduler if scheduler is not None else ex.scheduler
-    runs, attrs = _prepare(study, resume, force)
-    pending = np.flatnonzero(runs["status"].values == STATUS_PENDING)
-    resumed = int(runs.sizes["realization"] - pending.size)
-    checkpoint = _Checkpoint(study.output_path, attrs, ex.checkpoint_interval)
-    checkpoint.maybe(runs, force=True)
+class _Stopper:
+    """Asks the method whether it has enough at its ``stop_points`` only, on the prefix
+    ``[0, n)`` once every realization in it has finished, in increasing order: the stopping
+    count depends on the design alone."""
 
-    design = runs.drop_vars([*study.outputs, *_RUN_COLUMNS], errors="ignore")
-    names = [str(p) for p in runs["parameter"].values]
-    n_total = runs.sizes["realization"]
-    size = _batch_size(study, pending.size, workers if scheduler is None else 2)
-    batches = [pending[i:i + size] for i in range(0, pending.size, size)]
-    bar = progress_mod.Progress(n_total, resumed, enabled=show_progress)
-    stopper = _Stopper(study, design, runs, batches)
+    def __init__(self, method, design: xr.Dataset, runs: xr.Dataset, n_planned: int):
+        self.method, self.design, self.runs = method, design, runs
+        n = runs.sizes["realization"]
+        points = np.asarray(method.stop_points(int(n_planned)), dtype=np.int64)
+        self.points = [int(p) for p in points if 0 < p <= n]
+        self.next = 0
+        self.keep: int | None = None
 
-    def record(k, result):
-        store_batch(runs, batches[k], result)
-        bar.update(len(batches[k]), result["status"].count(STATUS_FAILED))
-        checkpoint.maybe(runs)
-        failed = int((runs["status"].values == STATUS_FAILED).sum())
-        if failed > ex.max_failure_fraction * n_total:
-            return _failure_stop(runs, failed, n_total, ex.max_failure_fraction)
-        return stopper.after(k)
+    def horizon(self) -> int | None:
+        """The next count at which ``enough`` will be asked (None: no more)."""
+        return self.points[self.next] if self.next < len(self.points) else None
 
-    stop_reason = None
-    if workers == 0 and scheduler is None:
-        for k, idx in enumerate(batches):
-            stop_reason = record(k, run_batch(study.solver, names, outputs=study.outputs,
-                                              **batch_arguments(runs, idx, study.fields)))
-            if stop_reason:
-                break
-    else:
-        stop_reason = _run_on_dask(study, workers, scheduler, names, runs, batches, record)
-    bar.close()
+    def advance(self) -> bool:
+        """Ask at every count whose prefix is now finished; True once one says enough."""
+        status = self.runs["status"].values
+        pending = np.flatnonzero(status == STATUS_PENDING)
+        first_pending = int(pending[0]) if pending.size else status.size
+        while self.keep is None and self.next < len(self.points):
+            n = self.points[self.next]
+            if n > first_pending:
+                return False
+            self.next += 1
+            if self.method.enough(self.design.isel(realization=slice(0, n)),
+                                  self.runs.isel(realization=slice(0, n))):
+                self.keep = n
+        return self.keep is not None
 
-    if stop_reason and stop_reason.startswith("failed:"):
-        checkpoint.maybe(runs, force=True)
-        raise StudyFailed(f"{study.path}: stopped: {stop_reason[7:]}; the runs so far are in "
-                          f"{study.output_path}")
-    if stopper.keep is not None:
-        runs = runs.isel(realization=slice(0, stopper.keep))
-        design = design.isel(realization=slice(0, stopper.keep))
-        attrs["stopped_early"] = f"target reached after {stopper.keep} realizations"
-    statistics = study.method.analyze(design, runs)
-    attrs.update(complete=1, finished=now(),
-                 elapsed_time=float(attrs.get("elapsed_time", 0.0))
-                 + time.perf_counter() - started,
-                 solver_runs=statistics.attrs.get("solver_runs", 0),
-                 failed_runs=statistics.attrs.get("failed_runs", 0),
-                 workers=workers if scheduler is None else f"scheduler {scheduler}")
-    write_result(study.output_path, runs, statistics, attrs)
-    warnings = [w for w in statistics.attrs.get("warnings", "").split("\n") if w]
-    return Outcome(study.output_path, runs, statistics, attrs, resumed, warnings)
+
+class _Execution:
+    """The client's bookkeeping: store finished realizations, count failures, checkpoint,
+    ask the stopper."""
+
+    def __init__(self, study: Study, runs: xr.Dataset, design: xr.Dataset, attrs: dict,
+                 checkpoint: _Checkpoint, bar):
+        self.study, self.runs, self.design = study, runs, design
+        self.checkpoint, self.bar = checkpoint, bar
+        self.n_total = runs.sizes["realization"]
+        self.stopper = _Stopper(study.method, design, runs,
+                                int(attrs.get("planned_realizations", self.n_total)))
+        self.names = [str(p) for p in runs["parameter"].values]
+
+    def record(self, indices: np.ndarray, result: dict) -> str | None:
+        """Store a task's results; the reason to stop, if any."""
+        done = indices[:len(result["status"])]
+        store_batch(self.runs, done, result)
+        self.bar.update(len(done), result["status"].count(STATUS_FAILED))
+        self.checkpoint.dirty = True
+        ex = self.study.spec.execution
+        failed = int((self.runs["status"].values == STATUS_FAILED).sum())
+        if failed > ex.max_failure_fraction * self.n_total:
+            return _failure_stop(self.runs, failed, self.n_total, ex.max_failure_fraction)
+        return "enough" if self.stopper.advance() else None
 
 
 def _failure_stop(runs, failed, n_total, fraction):
@@ -193,73 +235,186 @@ def _failure_stop(runs, failed, n_total, fraction):
             f"{runs['message'].values[first]}")
 
 
-class _Stopper:
-    """Asks the method whether it has enough, on prefixes of whole batches in order only, so
-    the stopping point is the same whatever order the batches finish in."""
+def run_study(study: Study, *, workers: int | None = None, scheduler: str | None = None,
+              resume: bool = False, force: bool = False, show_progress: bool = True,
+              output: str | Path | None = None) -> Outcome:
+    """Run (or finish, with ``resume``) ``study`` and write its result file (``output``,
+    when given, instead of the study's ``[output] path``; ``resume``/``force`` apply to it).
 
-    def __init__(self, study, design, runs, batches):
-        self.study, self.design, self.runs, self.batches = study, design, runs, batches
-        self.done = np.zeros(len(batches), bool)
-        self.checked = 0
-        self.keep = None
-        self.active = type(study.method).enough is not _base_enough()
+    Everything that can be checked before a realization runs is: the result path (a probe
+    file is written in its folder), a partial result and its checksum and provenance on
+    ``resume``, the dask scheduler. Those problems raise ``StudyError`` and leave any
+    existing file as it was; a write failing mid-run raises ``ResultFileError`` and keeps the
+    last checkpoint.
+    """
+    started = time.perf_counter()
+    ex = study.spec.execution
+    workers = ex.workers if workers is None else workers
+    source = {"key": "--scheduler"} if scheduler is not None else \
+        {"file": str(study.path), "key": "execution.scheduler"}
+    scheduler = scheduler if scheduler is not None else ex.scheduler
+    if output is not None:
+        path, where = Path(output).resolve(), {"key": "--output"}
+        if path.suffix != ".nc":
+            raise StudyError(f"a result file ends in .nc, got '{output}'", **where)
+    else:
+        path, where = study.output_path, {"file": str(study.path), "key": "output.path"}
+    check_writable(path, replace=resume or force, **where)
+    runs, attrs = _prepare(study, resume, path)
+    pending = np.flatnonzero(runs["status"].values == STATUS_PENDING)
+    resumed = int(runs.sizes["realization"] - pending.size)
+    design = runs.drop_vars([*study.outputs, *_RUN_COLUMNS], errors="ignore")
+    in_process = workers == 0 and scheduler is None
 
-    def after(self, k):
-        self.done[k] = True
-        if not self.active:
-            return None
-        while self.checked < len(self.batches) and self.done[self.checked]:
-            end = int(self.batches[self.checked][-1]) + 1
-            self.checked += 1
-            if np.any(self.runs["status"].values[:end] == STATUS_PENDING):
-                continue  # resumed file with holes before this point; decide later
-            if self.study.method.enough(self.design.isel(realization=slice(0, end)),
-                                        self.runs.isel(realization=slice(0, end))):
-                self.keep = end
-                return "enough"
-        return None
+    with contextlib.ExitStack() as stack:
+        client = None if in_process else stack.enter_context(_dask_client(workers, scheduler,
+                                                                             source))
+        # In this process a chunk runs until the next write is due; on dask a task spends at
+        # most half the interval and the client writes at most every half interval, so in
+        # both cases a realization is on disk within checkpoint_interval (plus one run).
+        spacing = ex.checkpoint_interval if in_process else ex.checkpoint_interval / 2
+        checkpoint = _Checkpoint(path, attrs, spacing)
+        try:
+            checkpoint.write(runs)
+        except ResultFileError as exc:
+            raise StudyError(str(exc)) from None
+        bar = progress_mod.Progress(runs.sizes["realization"], resumed, enabled=show_progress)
+        execution = _Execution(study, runs, design, attrs, checkpoint, bar)
+        stop_reason = "enough" if execution.stopper.advance() else None
+        if stop_reason is None and pending.size:
+            if in_process:
+                stop_reason = _run_in_process(execution, pending)
+            else:
+                stop_reason = _run_on_dask(execution, client, pending,
+                                           workers if scheduler is None else 2,
+                                           ex.checkpoint_interval / 2)
+                if checkpoint.dirty and not stop_reason:
+                    checkpoint.write(runs)  # closing a cluster takes seconds: save first
+        bar.close()
+
+    if stop_reason and stop_reason.startswith("failed:"):
+        checkpoint.write(runs)
+        raise StudyFailed(f"{study.path}: stopped: {stop_reason[7:]}; the runs so far are in "
+                          f"{path}")
+    keep = execution.stopper.keep
+    if keep is not None:
+        runs = runs.isel(realization=slice(0, keep))
+        design = design.isel(realization=slice(0, keep))
+        attrs["stopped_early"] = f"target reached after {keep} realizations"
+    statistics = study.method.analyze(design, runs)
+    attrs.update(complete=1, finished=now(),
+                 elapsed_time=float(attrs.get("elapsed_time", 0.0))
+                 + time.perf_counter() - started,
+                 solver_runs=statistics.attrs.get("solver_runs", 0),
+                 failed_runs=statistics.attrs.get("failed_runs", 0),
+                 workers=workers if scheduler is None else f"scheduler {scheduler}")
+    write_result(path, runs, statistics, attrs)
+    warnings = [w for w in statistics.attrs.get("warnings", "").split("\n") if w]
+    return Outcome(path, runs, statistics, attrs, resumed, warnings)
 
 
-def _base_enough():
-    from uqflow.methods.base import PropagationMethod
-    return PropagationMethod.enough
+def _run_in_process(execution: _Execution, pending: np.ndarray) -> str | None:
+    study, runs = execution.study, execution.runs
+    cap = study.spec.execution.batch or pending.size
+    start = 0
+    while start < pending.size:
+        # Stop at the next stop point: the question is asked before running past it.
+        horizon = execution.stopper.horizon()
+        end = pending.size if horizon is None else \
+            max(int(np.searchsorted(pending, horizon)), start + 1)
+        chunk = pending[start:min(end, start + cap)]
+        result = run_batch(study.solver, execution.names, outputs=study.outputs,
+                           budget=execution.checkpoint.seconds_until_due(),
+                           **batch_arguments(runs, chunk, study.fields))
+        start += len(result["status"])
+        reason = execution.record(chunk, result)
+        if reason:
+            return reason
+        execution.checkpoint.maybe(runs)
+    return None
 
 
-def _run_on_dask(study, workers, scheduler, names, runs, batches, record):
-    from dask.distributed import Client, LocalCluster, as_completed
+@contextlib.contextmanager
+def _dask_client(workers: int, scheduler: str | None, source: dict):
+    """A client of a new local cluster (``workers`` processes) or of ``scheduler``; a
+    malformed or unreachable address is a one-line ``StudyError`` naming ``source`` (the
+    file and key the address came from)."""
+    from dask.distributed import Client, LocalCluster
 
     cluster = None
-    if scheduler is None:
-        threads = str(max(1, (os.cpu_count() or 1) // max(workers, 1)))
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=":0", silence_logs=logging.ERROR,
-                               env={"NUMBA_NUM_THREADS": threads, "OMP_NUM_THREADS": threads,
-                                    "OPENBLAS_NUM_THREADS": threads, "MKL_NUM_THREADS": threads})
     try:
-        client = Client(cluster if cluster is not None else scheduler, timeout="30s")
-    except OSError as exc:
+        if scheduler is None:
+            threads = str(max(1, (os.cpu_count() or 1) // max(workers, 1)))
+            cluster = LocalCluster(
+                n_workers=workers, threads_per_worker=1, processes=True,
+                dashboard_address=":0", silence_logs=logging.ERROR,
+                env={"NUMBA_NUM_THREADS": threads, "OMP_NUM_THREADS": threads,
+                     "OPENBLAS_NUM_THREADS": threads, "MKL_NUM_THREADS": threads})
+        client = Client(cluster if cluster is not None else scheduler,
+                        timeout=CONNECT_TIMEOUT_S)
+    except (OSError, ValueError, TypeError, TimeoutError) as exc:
         if cluster is not None:
             cluster.close()
-        raise StudyError(f"cannot reach dask scheduler {scheduler}: {exc}",
-                         key="execution.scheduler") from None
-    stop_reason = None
+        if scheduler is None:
+            raise StudyError(f"cannot start a local dask cluster of {workers} workers: "
+                             f"{exc}", key="execution.workers") from None
+        raise StudyError(f"cannot reach dask scheduler '{scheduler}': {exc}", **source) \
+            from None
     try:
-        # Fields (their KL bases) travel to each worker once, not with every batch.
-        fields = client.scatter(study.fields, broadcast=True) if study.fields else None
-        futures = {}
-        for k, idx in enumerate(batches):
-            arguments = batch_arguments(runs, idx, study.fields)
-            if fields is not None:
-                arguments["fields"] = fields
-            futures[client.submit(_work, study.solver_class, study.scene, names, study.outputs,
-                                  arguments, pure=False)] = k
-        for future in as_completed(futures):
-            stop_reason = record(futures[future], future.result())
-            if stop_reason:
-                client.cancel(list(futures))
-                break
+        yield client
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
-    return stop_reason
+
+
+def _run_on_dask(execution: _Execution, client, pending: np.ndarray, workers: int,
+                 budget: float) -> str | None:
+    from dask.distributed import wait
+
+    study, runs = execution.study, execution.runs
+    # Fields (their KL bases) travel to each worker once, not with every batch.
+    fields = client.scatter(study.fields, broadcast=True) if study.fields else None
+    active: dict = {}
+
+    def submit(indices):
+        arguments = batch_arguments(runs, indices, study.fields)
+        if fields is not None:
+            arguments["fields"] = fields
+        # Lower realizations first: the stop points are prefixes of the design.
+        future = client.submit(_work, study.solver_class, study.scene, execution.names,
+                               study.outputs, arguments, budget, pure=False,
+                               priority=-int(indices[0]))
+        active[future] = indices
+
+    size = _batch_size(study, pending.size, workers)
+    for i in range(0, pending.size, size):
+        submit(pending[i:i + size])
+    reason = None
+    try:
+        while active and reason is None:
+            timeout = execution.checkpoint.seconds_until_due() \
+                if execution.checkpoint.dirty else None
+            try:
+                done = wait(list(active), timeout=timeout, return_when="FIRST_COMPLETED").done
+            except TimeoutError:
+                done = ()
+            for future in sorted(done, key=lambda f: int(active[f][0])):
+                indices = active.pop(future)
+                try:
+                    result = future.result()
+                except Exception as exc:  # the task itself, not a realization, failed
+                    execution.checkpoint.write(runs)
+                    raise UqflowError(f"{study.path}: a dask task failed "
+                                      f"({type(exc).__name__}: {' '.join(str(exc).split())}); "
+                                      f"the runs so far are in {execution.checkpoint.path}") from None
+                reason = execution.record(indices, result)
+                if reason:
+                    break
+                if len(result["status"]) < len(indices):
+                    submit(indices[len(result["status"]):])
+            execution.checkpoint.maybe(runs)
+    finally:
+        if active:
+            client.cancel(list(active))
+    return reason

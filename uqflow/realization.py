@@ -87,13 +87,17 @@ def run_one(solver, params: dict, fields, outputs: list[str], seed: int | None =
 
 def run_batch(solver, names: list[str], values: np.ndarray, outputs: list[str],
               fields: list | None = None, germs: dict | None = None,
-              seeds: np.ndarray | None = None) -> dict:
+              seeds: np.ndarray | None = None, budget: float | None = None) -> dict:
     """Run realizations given as rows of ``values``; returns plain arrays (cheap to ship).
 
     ``fields`` are the study's RandomFields and ``germs`` their germs for these rows
     (``germ_variable(name)`` -> (rows, modes)); ``seeds`` the per-realization seeds, passed
-    to solvers whose ``run`` takes ``seed`` (e.g. for a random grid).
+    to solvers whose ``run`` takes ``seed`` (e.g. for a random grid). With ``budget``
+    (seconds) the batch returns after the first realization that ends past it, so finished
+    realizations reach the caller (and its checkpoint) in bounded time: the result then
+    covers the first ``len(result["status"])`` rows, at least one.
     """
+    start = time.perf_counter()
     seeded = takes_seed(solver)          # once per batch: inspect is slow next to a run
     statuses, messages, times, clipped, evaluated = [], [], [], [], []
     results = {name: [] for name in outputs}
@@ -112,6 +116,8 @@ def run_batch(solver, names: list[str], values: np.ndarray, outputs: list[str],
         times.append(wall)
         for name in outputs:
             results[name].append(got.get(name))
+        if budget is not None and time.perf_counter() - start >= budget:
+            break
     return {"status": statuses, "message": messages, "wall_time": times, "outputs": results,
             "clipped_points": clipped, "field_values": evaluated}
 
@@ -129,7 +135,9 @@ def batch_arguments(runs: xr.Dataset, indices: np.ndarray, fields: list | None) 
 
 
 def store_batch(runs: xr.Dataset, indices: np.ndarray, batch: dict) -> None:
-    """Write a finished batch into ``runs`` in place."""
+    """Write a finished batch into ``runs`` in place (``indices`` may be longer than the
+    batch's results when it stopped at its time budget: only the first ones are written)."""
+    indices = indices[:len(batch["status"])]
     for k, idx in enumerate(indices):
         runs["status"].values[idx] = batch["status"][k]
         runs["message"].values[idx] = batch["message"][k]

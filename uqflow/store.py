@@ -2,12 +2,17 @@
 
 Groups ``runs`` (one row per realization) and ``statistics`` (the method's analysis), root
 attributes for provenance. Every write goes to a temporary file in the same folder that is
-then renamed over the result, so a killed study leaves the last complete checkpoint behind.
+then renamed over the result, so a killed study leaves the last complete checkpoint behind;
+a write that fails removes its temporary file and leaves that checkpoint alone. The root
+attribute ``runs_sha256`` is a checksum of the stored runs, verified before a resume trusts
+them.
 """
 
 from __future__ import annotations
 
+import hashlib
 import os
+import tempfile
 from datetime import datetime, timezone
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -15,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from uqflow.errors import StudyError
+from uqflow.errors import ResultFileError, StudyError
 
 ENGINE = "netcdf4"
 
@@ -61,18 +66,86 @@ def _clean(ds: xr.Dataset) -> xr.Dataset:
     return ds
 
 
+def runs_checksum(runs: xr.Dataset) -> str:
+    """SHA-256 over every variable of ``runs`` (design, seeds, status, outputs), by name.
+
+    Values are hashed in a canonical form (float64 with one NaN, int64, UTF-8 text) so the
+    checksum of the dataset written equals that of the dataset read back.
+    """
+    digest = hashlib.sha256()
+    for name in sorted(map(str, runs.variables)):
+        var = runs.variables[name]
+        digest.update(f"\0{name}\0{var.dims}\0{var.shape}\0".encode())
+        values = np.asarray(var.values)
+        if values.dtype.kind in "fc":
+            values = values.astype(np.complex128 if values.dtype.kind == "c" else np.float64)
+            digest.update(np.where(np.isnan(values), np.nan, values).tobytes())
+        elif values.dtype.kind in "iub":
+            digest.update(values.astype(np.int64).tobytes())
+        else:
+            digest.update("\x1f".join(map(str, values.ravel())).encode())
+    return digest.hexdigest()
+
+
+def check_writable(path: Path, *, replace: bool, file: str | None = None,
+                   key: str | None = None) -> None:
+    """Raise a one-line ``StudyError`` (naming ``file`` and ``key``, where the path came from)
+    unless a result can be written at ``path``.
+
+    Checked before anything runs: a folder in the way (never replaced, even by ``--force``),
+    a file where a folder should be, a folder that cannot be written in (a probe file is
+    created and removed, which tests what permissions, quotas and read-only mounts actually
+    allow, even for root), and an existing result without ``replace``.
+    """
+    path = Path(path)
+
+    def refuse(reason):
+        return StudyError(f"{path}: {reason}", file=file, key=key)
+
+    if path.is_dir():
+        raise refuse("is a folder, not a result file; choose another path (--force replaces "
+                      "only a result file)")
+    existing = next(parent for parent in path.parents if parent.exists())
+    if not existing.is_dir():
+        raise refuse(f"{existing} is a file, not a folder")
+    if path.exists() and not replace:
+        raise refuse("exists: add --resume to finish it or --force to overwrite it")
+    # The probe goes into the deepest folder that exists: folders still missing are created
+    # at the first write, so a study refused later (say, by its scheduler) leaves nothing.
+    try:
+        fd, probe = tempfile.mkstemp(dir=existing, prefix=f".{path.name}.", suffix=".probe")
+        os.close(fd)
+        os.remove(probe)
+    except OSError as exc:
+        raise refuse(f"cannot write in {existing}: {exc.strerror or exc}") from None
+
+
 def write_result(path: Path, runs: xr.Dataset, statistics: xr.Dataset | None,
                  attrs: dict) -> None:
-    """Write the result file atomically (temporary file, then rename)."""
+    """Write the result file atomically (temporary file, then rename).
+
+    On failure the temporary file is removed, the previous file stays as it was and a
+    one-line ``ResultFileError`` names the file and the reason.
+    """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    groups = {"/": xr.Dataset(attrs=_netcdf_attrs(attrs)), "runs": _clean(runs)}
+    groups = {"/": xr.Dataset(attrs=_netcdf_attrs({**attrs, "runs_sha256": runs_checksum(runs)})),
+              "runs": _clean(runs)}
     if statistics is not None:
         groups["statistics"] = _clean(statistics)
     tree = xr.DataTree.from_dict(groups)
     tmp = path.with_name(path.name + ".tmp")
-    tree.to_netcdf(tmp, engine=ENGINE)
-    os.replace(tmp, path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tree.to_netcdf(tmp, engine=ENGINE)
+        os.replace(tmp, path)
+    except (OSError, RuntimeError) as exc:  # netCDF4 reports some HDF5 failures as RuntimeError
+        try:
+            tmp.unlink(missing_ok=True)
+        except OSError:
+            pass
+        reason = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
+        raise ResultFileError(f"{path}: cannot write the result: {reason}; the last complete "
+                              f"checkpoint (if any) is unchanged") from None
 
 
 def open_result(path: str | Path) -> xr.DataTree:
@@ -87,12 +160,29 @@ def open_result(path: str | Path) -> xr.DataTree:
         raise StudyError(f"not a uqflow result file ({exc})", file=str(path)) from None
 
 
-def read_runs(path: Path) -> tuple[xr.Dataset, dict]:
-    """The ``runs`` group and root attributes of a (possibly partial) result file."""
+def read_runs(path: Path, verify: bool = False) -> tuple[xr.Dataset, dict]:
+    """The ``runs`` group and root attributes of a (possibly partial) result file.
+
+    With ``verify`` the runs must match their stored checksum (``runs_sha256``): a damaged or
+    edited file is refused rather than resumed into wrong statistics.
+    """
     tree = open_result(path)
     if "runs" not in tree.children:
         raise StudyError("has no 'runs' group: not a uqflow result file", file=str(path))
     runs = tree["runs"].to_dataset()
     for name in ("status", "message"):
+        if name not in runs:
+            raise StudyError(f"runs has no '{name}' variable: not a uqflow result file",
+                             file=str(path))
         runs[name] = runs[name].astype(object)
-    return runs, dict(tree.attrs)
+    attrs = dict(tree.attrs)
+    if verify:
+        stored = attrs.get("runs_sha256")
+        if stored is None:
+            raise StudyError("has no checksum of its runs (runs_sha256), so a resume cannot "
+                             "trust them; use --force to start again", file=str(path))
+        if stored != runs_checksum(runs):
+            raise StudyError("the stored runs do not match their checksum (runs_sha256): the "
+                             "file is damaged or was edited; use --force to start again",
+                             file=str(path))
+    return runs, attrs

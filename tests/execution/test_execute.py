@@ -95,19 +95,6 @@ def test_a_solver_failing_everywhere_stops_cleanly(write_study):
     assert uqflow.open_result(study.output_path).attrs["complete"] == 0
 
 
-def test_target_rel_stderr_stops_at_the_same_point_for_any_worker_count(write_study):
-    method = 'kind = "monte-carlo"\nsamples = 20000\ntarget_rel_stderr = 0.02'
-    study = load_study(write_study(method=method, execution="workers = 0\nbatch = 50"))
-    out = run_study(study, show_progress=False)
-    n = out.runs.sizes["realization"]
-    assert n < 20000 and n % 50 == 0
-    stats = out.statistics["y"]
-    assert stats.sel(statistic="stderr") / stats.sel(statistic="mean") <= 0.02
-    # One batch earlier the target was not met (the stop is at the first batch meeting it).
-    y = out.runs["y"].values[: n - 50]
-    assert y.std(ddof=1) / np.sqrt(y.size) / abs(y.mean()) > 0.02
-
-
 def test_existing_result_is_kept_without_resume_or_force(write_study):
     study = load_study(write_study())
     run_study(study, show_progress=False)

@@ -31,7 +31,7 @@ def _uqflow(*args, **kw):
 @pytest.mark.parametrize("workers", [0, 2])
 def test_killed_study_resumes_to_the_uninterrupted_result(write_study, workers):
     # 600 realizations of 5 ms each, checkpointed every 0.2 s: about 3 s of work.
-    execution = f"workers = {workers}\nbatch = 20\ncheckpoint_interval = 0.2\nseed = 11"
+    execution = f"workers = {workers}\nbatch = 300\ncheckpoint_interval = 0.2\nseed = 11"
     scene = '{ model = "ishigami", delay = 0.005 }'
     method = 'kind = "monte-carlo"\nsamples = 600\nrule = "lhs"'
     killed = write_study(name="killed", scene=scene, method=method, execution=execution)
