@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from scipy.stats import qmc
 
-from uqflow.sampling import RULES, unit_hypercube
+from uqflow.sampling import (QUASI_RANDOM_RULES, RULES, replicate_seed, replicated_unit_hypercube,
+                             unit_hypercube)
 
 
 def _seed(n=7):
@@ -111,3 +112,44 @@ def test_negative_sizes_raise():
         unit_hypercube("random", -1, 2, _seed())
     with pytest.raises(ValueError):
         unit_hypercube("random", 2, -1, _seed())
+
+
+# --------------------------------------------------------------------------------------------
+# Replicated (randomized QMC) designs
+# --------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("rule", QUASI_RANDOM_RULES)
+def test_replicates_are_interleaved_independent_scramblings(rule):
+    """Row j R + r is point j of replicate r, and replicate r is the rule's sequence under
+    its own child seed (so another replicate count keeps the first replicates' points)."""
+    seed, r, m = np.random.SeedSequence(11), 4, 32
+    u = replicated_unit_hypercube(rule, r, m, 3, seed)
+    assert u.shape == (r * m, 3)
+    for k in range(r):
+        np.testing.assert_array_equal(u[k::r], unit_hypercube(rule, m, 3,
+                                                              replicate_seed(seed, k)))
+    assert not np.any(np.all(u[0::r] == u[1::r], axis=1))     # replicates differ everywhere
+    np.testing.assert_array_equal(u, replicated_unit_hypercube(rule, r, m, 3, seed))
+    assert seed.n_children_spawned == 0                       # the seed is not consumed
+
+
+def test_every_replicate_prefix_of_a_power_of_two_is_balanced():
+    """Sobol' in 1-D projections is a (0, k, 1)-net at every 2^k prefix: the first R 2^k rows
+    hold, for every replicate and dimension, one point in each interval of width 2^-k."""
+    r, m, d = 8, 256, 3
+    u = replicated_unit_hypercube("sobol", r, m, d, np.random.SeedSequence(5))
+    for k in range(9):
+        prefix = u[:r * 2**k]
+        for rep in range(r):
+            cells = np.floor(prefix[rep::r] * 2**k).astype(int)
+            for dim in range(d):
+                np.testing.assert_array_equal(np.sort(cells[:, dim]), np.arange(2**k))
+
+
+def test_replicated_designs_refuse_independent_rules_and_bad_sizes():
+    for rule in ("random", "lhs"):
+        with pytest.raises(ValueError, match="quasi-random rules"):
+            replicated_unit_hypercube(rule, 4, 8, 2, _seed())
+    with pytest.raises(ValueError, match="replicates >= 1"):
+        replicated_unit_hypercube("sobol", 0, 8, 2, _seed())
+    assert replicated_unit_hypercube("halton", 3, 0, 2, _seed()).shape == (0, 2)
