@@ -133,6 +133,8 @@ def table_row(table, first):
 
 def close(text, value):
     """``text`` is ``value`` to the digits it shows (6 significant: relative 5e-6)."""
+    # Rounding to 6 significant digits moves a number by at most half a unit in the 6th
+    # digit: 5e-6 of it. abs_tol only lets a value that underflows the format ("0") match.
     return math.isclose(float(text), float(value), rel_tol=5e-6, abs_tol=1e-300)
 
 

@@ -75,7 +75,9 @@ def test_failures_are_recorded_and_the_study_goes_on(write_study):
     assert runs["message"].values[nan] == "non-finite output 'y'"
     assert np.isnan(runs["y"].values[status == "failed"]).all()
     ok = status == "ok"
-    assert out.statistics["y"].sel(statistic="mean") == pytest.approx(x[ok].mean(), rel=1e-12)
+    # Same n <= 400 numbers (|x| <= 2) summed in possibly another order: the difference of
+    # the means is at most 2 log2(n) eps max|x| ~ 8e-15; the mean itself is near 0, so abs.
+    assert out.statistics["y"].sel(statistic="mean") == pytest.approx(x[ok].mean(), abs=1e-13)
     assert out.statistics.attrs["failed_runs"] == int((~ok).sum())
     assert any("failed" in w for w in out.warnings)
 

@@ -30,7 +30,8 @@ def _uqflow(*args, **kw):
 @pytest.mark.slow
 @pytest.mark.parametrize("workers", [0, 2])
 def test_killed_study_resumes_to_the_uninterrupted_result(write_study, workers):
-    # 600 realizations of 5 ms each, checkpointed every 0.2 s: about 3 s of work.
+    # 600 realizations of 5 ms each in batches of 300, checkpointed every 0.2 s: about 3 s
+    # of work.
     execution = f"workers = {workers}\nbatch = 300\ncheckpoint_interval = 0.2\nseed = 11"
     scene = '{ model = "ishigami", delay = 0.005 }'
     method = 'kind = "monte-carlo"\nsamples = 600\nrule = "lhs"'
@@ -54,7 +55,8 @@ def test_killed_study_resumes_to_the_uninterrupted_result(write_study, workers):
     runs, attrs = read_runs(result)
     assert attrs["complete"] == 0
     finished = int((runs["status"].values == "ok").sum())
-    assert 100 <= finished < 600
+    # Killed inside the first batches of 300: what finished reached the file anyway.
+    assert 100 <= finished < 300
 
     resumed = _uqflow("run", str(killed), "--resume", "--quiet", "--no-figures")
     out, err = resumed.communicate(timeout=300)
