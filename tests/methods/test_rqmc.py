@@ -315,3 +315,27 @@ def test_convergence_figure_draws_the_rqmc_band(quickstart):
     for c, lo, hi in zip(stats["trace_samples"].values, mean - half, mean + half):
         edge = band[band[:, 0] == c, 1]
         assert lo in edge and hi in edge, c
+
+
+def test_error_of_the_mean_table_in_the_docs():
+    """docs/inputs.md's table for choosing R: t quantile and t c4(R) R^(alpha - 1/2), to the
+    digits shown (3 significant: half a unit of the last digit), and the quoted spreads."""
+    from scipy.special import gammaln
+
+    text = (ROOT / "docs" / "inputs.md").read_text()
+    rows = [line.split("|")[1:-1] for line in text.splitlines()
+            if line.startswith("| ") and line.split("|")[1].strip().isdigit()]
+    assert [int(r[0]) for r in rows] == [4, 8, 16, 32]
+    for cells in rows:
+        r = int(cells[0])
+        t = sps.t.ppf(0.975, r - 1)
+        c4 = math.sqrt(2 / (r - 1)) * math.exp(gammaln(r / 2) - gammaln((r - 1) / 2))
+        expected = [t] + [t * c4 * r ** (alpha - 0.5) for alpha in (0.5, 1.0, 1.5)]
+        for shown, value in zip(cells[1:], expected):
+            digits = shown.strip()
+            unit = 10.0 ** (math.floor(math.log10(abs(value))) - 2)   # 3 significant digits
+            assert abs(float(digits) - value) <= 0.5 * unit, (r, digits, value)
+    assert "41 % at R = 4, 27 % at R = 8" in text
+    assert round(100 / math.sqrt(2 * 3)) == 41 and round(100 / math.sqrt(2 * 7)) == 27
+    assert "within 16 % of the best possible" in text and round(100 * (2.28 / 1.96 - 1)) == 16
+    assert "1.6× the R = 4 width" in text and round(18.3 / 11.7, 1) == 1.6
