@@ -340,3 +340,23 @@ def test_cli_report_on_a_missing_file_is_one_line_and_exit_2(tmp_path, capsys):
     lines = captured.err.strip().splitlines()
     assert lines == [f"uqflow: error: {missing}: no such result file"]
     assert not report.figure_folder(missing).exists()
+
+
+def test_the_documented_quickstart_table_is_what_uqflow_prints(tmp_path):
+    """docs/results.md shows the table of studies/quickstart.toml: every line but the times
+    on the cost line must be the one uqflow prints."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    doc = (root / "docs" / "results.md").read_text()
+    section = doc[doc.index("## `uqflow report RESULT`: the table"):]
+    shown = section.split("```\n")[1].splitlines()
+    study = load_study(root / "studies" / "quickstart.toml")
+    out = run_study(study, workers=0, show_progress=False, output=tmp_path / "q.nc")
+    printed = report.summary_table(report.open_result(out.path)).splitlines()
+    times = re.compile(r"solver wall time [0-9.]+ s, elapsed [0-9.]+ s")
+    for line in shown:
+        if line == "...":
+            break
+        assert times.sub("TIMES", line) in [times.sub("TIMES", p) for p in printed], line
+    assert len([line for line in shown if line.startswith("y ")]) == 1
