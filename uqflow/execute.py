@@ -281,15 +281,20 @@ def run_study(study: Study, *, workers: int | None = None, scheduler: str | None
         bar = progress_mod.Progress(runs.sizes["realization"], resumed, enabled=show_progress)
         execution = _Execution(study, runs, design, attrs, checkpoint, bar)
         stop_reason = "enough" if execution.stopper.advance() else None
-        if stop_reason is None and pending.size:
-            if in_process:
-                stop_reason = _run_in_process(execution, pending)
-            else:
-                stop_reason = _run_on_dask(execution, client, pending,
-                                           workers if scheduler is None else 2,
-                                           ex.checkpoint_interval / 2)
-                if checkpoint.dirty and not stop_reason:
-                    checkpoint.write(runs)  # closing a cluster takes seconds: save first
+        try:
+            if stop_reason is None and pending.size:
+                if in_process:
+                    stop_reason = _run_in_process(execution, pending)
+                else:
+                    stop_reason = _run_on_dask(execution, client, pending,
+                                               workers if scheduler is None else 2,
+                                               ex.checkpoint_interval / 2)
+        except KeyboardInterrupt:
+            if checkpoint.dirty:
+                checkpoint.write(runs)  # Ctrl-C keeps everything finished so far
+            raise
+        if checkpoint.dirty and not in_process:
+            checkpoint.write(runs)  # closing a cluster takes seconds: save first
         bar.close()
 
     if stop_reason and stop_reason.startswith("failed:"):

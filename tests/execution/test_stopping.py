@@ -2,10 +2,6 @@
 the stopping count and the statistics are bitwise the same whatever the batch size, the
 worker count, the completion order or a kill and resume (issue 8, point 2)."""
 
-import os
-import signal
-import time
-
 import numpy as np
 import pytest
 import xarray as xr
@@ -15,7 +11,7 @@ from uqflow.execute import run_study
 from uqflow.store import read_runs
 from uqflow.study import load_study
 
-from ._common import comparable, uqflow_cli
+from ._common import comparable, run_and_kill, uqflow_cli
 
 # The case of the issue: 500, 496 and 531 runs for workers 0, 2 and a kill + resume before.
 TARGET = 'kind = "monte-carlo"\nsamples = 1000\nrule = "random"\ntarget_rel_stderr = 0.05'
@@ -98,16 +94,7 @@ def test_the_issue_case_is_identical_for_workers_0_and_2_and_after_a_kill(write_
     killed = _ishigami(write_study, "killed", "workers = 2\ncheckpoint_interval = 0.2",
                        delay=0.005)
     result = killed.parent / "out" / "killed.nc"
-    proc = uqflow_cli("run", killed, "--quiet", start_new_session=True)
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and proc.poll() is None:
-        if result.exists() and (read_runs(result)[0]["status"].values == "ok").sum() >= 150:
-            break
-        time.sleep(0.05)
-    assert proc.poll() is None, f"the study ended before it could be killed: {proc.stderr.read()}"
-    os.killpg(proc.pid, signal.SIGKILL)  # the whole group: CLI and its dask workers
-    proc.wait()
-    runs, attrs = read_runs(result)
+    runs, attrs = run_and_kill(killed, result, at_least=150)
     assert attrs["complete"] == 0
     assert 150 <= (runs["status"].values == "ok").sum() < 1000
     cmd = uqflow_cli("run", killed, "--resume", "--quiet", "--no-figures")
