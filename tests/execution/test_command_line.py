@@ -82,3 +82,11 @@ def test_a_bug_is_one_line_with_the_debug_hint_and_exit_3(write_study, capsys, m
     monkeypatch.setenv("UQFLOW_DEBUG", "1")
     with pytest.raises(ZeroDivisionError):
         main(["run", str(study), "--quiet"])
+
+
+def test_a_scheduler_in_the_study_is_named_by_its_key(write_study, tmp_path, capsys):
+    study = write_study(method=SMALL, execution='scheduler = "tcp://127.0.0.1:notaport"')
+    code, _, err = _cli(capsys, "run", study, "--quiet")
+    assert code == 2 and err.count("\n") == 0
+    assert err.startswith(f"uqflow: error: {study}: execution.scheduler: ")
+    assert not (tmp_path / "out").exists()
