@@ -14,11 +14,11 @@ import numpy as np
 import pydantic
 import pytest
 
-from solvers.analytic import AnalyticSolver
 from uqflow.inputs import InputSpace, RandomInput
 from uqflow.methods import get_method
 from uqflow.methods.monte_carlo import MonteCarlo
-from uqflow.realization import evaluate_design
+
+from mc_cases import ishigami_space, run_mc, uniform
 
 RULES = ["random", "lhs", "sobol", "halton"]
 N_CONFORMANCE = 4096
@@ -31,25 +31,9 @@ def summation_error(y):
     return len(y) * EPS * np.mean(np.abs(y))
 
 
-def uniform(name, lo, hi):
-    return RandomInput.from_spec({"name": name, "distribution": "uniform", "lower": lo,
-                                  "upper": hi})
-
-
 def normal(name, mean, std, units=""):
     return RandomInput.from_spec({"name": name, "distribution": "normal", "mean": mean,
                                   "std": std, "units": units})
-
-
-def ishigami_space():
-    return InputSpace([uniform(f"x{i}", -math.pi, math.pi) for i in (1, 2, 3)])
-
-
-def run_mc(scene, space, seed=0, **options):
-    method = MonteCarlo(**options)
-    design = method.plan(space, None, np.random.SeedSequence(seed))
-    runs = evaluate_design(AnalyticSolver.from_scene(scene), design)
-    return method, design, runs, method.analyze(design, runs)
 
 
 def stat(stats, name, out="y"):

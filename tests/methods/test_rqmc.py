@@ -26,25 +26,14 @@ from uqflow.execute import run_study
 from uqflow.inputs import InputSpace, RandomInput
 from uqflow.methods.monte_carlo import MonteCarlo
 from uqflow.realization import evaluate_design
+
+from mc_cases import ishigami_space, run_mc
 from uqflow.sampling import unit_hypercube
 from uqflow.study import load_study
 
 ROOT = Path(__file__).resolve().parents[2]
 ISHIGAMI = {"model": "ishigami", "a": 7.0, "b": 0.1}
 EXACT_MEAN = 3.5        # a / 2 (tests/data/uq_test_values.toml)
-
-
-def ishigami_space():
-    return InputSpace([RandomInput.from_spec({"name": f"x{i}", "distribution": "uniform",
-                                              "lower": -math.pi, "upper": math.pi})
-                       for i in (1, 2, 3)])
-
-
-def run_mc(scene, space, seed=0, **options):
-    method = MonteCarlo(**options)
-    design = method.plan(space, None, np.random.SeedSequence(seed))
-    runs = evaluate_design(AnalyticSolver.from_scene(scene), design)
-    return method, design, runs, method.analyze(design, runs)
 
 
 def stat(stats, name, out="y"):
@@ -339,3 +328,15 @@ def test_error_of_the_mean_table_in_the_docs():
     assert round(100 / math.sqrt(2 * 3)) == 41 and round(100 / math.sqrt(2 * 7)) == 27
     assert "within 16 % of the best possible" in text and round(100 * (2.28 / 1.96 - 1)) == 16
     assert "1.6× the R = 4 width" in text and round(18.3 / 11.7, 1) == 1.6
+
+
+def test_kl_weibull_stays_independent_draws():
+    """kl-weibull samples its scalars and germs at random: i.i.d. errors, 9 % stop ladder."""
+    from uqflow.methods.kl_weibull import KLWeibull
+
+    method = KLWeibull(realizations=100, target_rel_stderr=0.1, min_samples=10)
+    assert method.options.rule == "random" and not hasattr(method.options, "replicates")
+    points = method.stop_points(100)
+    assert points[0] == 10 and points[-1] == 100
+    # ceil(10 2^(k/8)): each within 2^(1/8) = 1.09 of the last, plus the ceiling's 1
+    assert np.all(points[1:] <= points[:-1] * 2 ** (1 / 8) + 1)
