@@ -2,10 +2,12 @@
 
 Writes docs/figures/gamut_bar_monotonic.png (deterministic M1/M2 curves against
 Ramberg–Osgood, with stochastic grids) and docs/figures/gamut_bar_cyclic.png (M1 hysteresis
-loops and the log–log fit of n′, K′), and prints the numbers quoted in the docs: patch test,
-deviation from Ramberg–Osgood, failure strains, n′ and K′ against seed Table 1, timings.
+loops and the log–log fit of n′, K′), prints the benchmark figures quoted in the docs
+(stochastic grids, timings), and writes the deterministic validation tables of
+docs/gamut_bar.md between its "gamut-bar-validation" markers (``validation_markdown``; the
+test tests/backends/gamut_bar/test_doc_numbers.py recomputes them and compares).
 
-    python benchmarks/gamut_bar_figures.py [--stochastic 5]
+    python benchmarks/gamut_bar_figures.py [--stochastic 5] [--no-docs]
 """
 
 from __future__ import annotations
@@ -28,6 +30,8 @@ from solvers.gamut_bar import GamutBarSolver  # noqa: E402
 from solvers.gamut_bar.materials import MATERIALS, ro_stress  # noqa: E402
 
 FIGURES = Path(__file__).resolve().parent.parent / "docs" / "figures"
+DOC = FIGURES.parent / "gamut_bar.md"
+BEGIN, END = "<!-- begin gamut-bar-validation -->", "<!-- end gamut-bar-validation -->"
 SEED_TABLE1 = {"M1": (0.06244, 791.6e6), "M2": (0.04762, 1105.4e6)}   # deterministic column
 CASES = [("M1", {}), ("M2", {}), ("M2", {"n_ro": 21.0})]
 
@@ -38,6 +42,71 @@ def label(name, over):
 
 def ro_curve(m, strain):
     return np.array([ro_stress(e, m["E"], m["sigma_y"], m["n_ro"], m["K_ro"]) for e in strain])
+
+
+def _run_scene(scene):
+    return GamutBarSolver.from_scene(scene).run({})
+
+
+def deterministic_numbers(name, over, run=_run_scene):
+    """Validation numbers of the homogeneous bar on the uniform grid, monotonic and cyclic
+    (no timings: they are what the docs state and the tests recompute). ``run(scene)`` runs a
+    scene (the tests pass their cached runner)."""
+    m = dict(MATERIALS[name], **over)
+    mono = run({"material": name, **over})
+    e, s = mono["strain"].values, mono["stress"].values
+    sel = e >= 0.002
+    cyc = run({"material": name, "loading": "cyclic", **over})
+    ro_n = 1.0 / m["n_ro"]
+    ro_K = m["sigma_y"] / m["K_ro"] ** ro_n
+    seed = SEED_TABLE1[name] if not over else SEED_TABLE1["M2"]
+    return {"case": label(name, over),
+            "ro_deviation": float(np.abs(s[sel] / ro_curve(m, e[sel]) - 1).max()),
+            "failure_strain": mono["failure_strain"].item(),
+            "failure_stress": mono["failure_stress"].item(),
+            "steps": int(mono.attrs["steps"]),
+            "n_prime": cyc["n_prime"].item(), "K_prime": cyc["K_prime"].item(),
+            "ro_n": ro_n, "ro_K": ro_K, "seed_n": seed[0], "seed_K": seed[1],
+            "cyclic_steps": int(cyc.attrs["steps"]), "cyclic_points": cyc.sizes["step"]}
+
+
+def validation_markdown(rows) -> str:
+    """The two tables of docs/gamut_bar.md's validation section, from deterministic_numbers."""
+    out = [BEGIN,
+           "Written by `python benchmarks/gamut_bar_figures.py` (uniform grid, 500 local bonds, "
+           "default loading); `tests/backends/gamut_bar/test_doc_numbers.py` recomputes every "
+           "number here and compares it to the last digit shown.",
+           "",
+           "| case | max \|σ/σ_RO − 1\| (ε ≥ 0.002) | ε at failure | σ at failure [MPa] "
+           "| load steps to failure |",
+           "|---|---:|---:|---:|---:|"]
+    for r in rows:
+        out.append(f"| {r['case']} | {100 * r['ro_deviation']:.2f} % | "
+                   f"{r['failure_strain']:.4f} | {r['failure_stress'] / 1e6:.1f} | "
+                   f"{r['steps']} |")
+    out += ["",
+            "| case | n′ | K′ [MPa] | RO 1/n_ro | RO σ_y/K_ro^(1/n_ro) [MPa] | n′/RO − 1 "
+            "| K′/RO − 1 | seed deterministic n′, K′ [MPa] | n′/seed − 1 | K′/seed − 1 "
+            "| load steps | recorded states |",
+            "|---|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|"]
+    for r in rows:
+        out.append(f"| {r['case']} | {r['n_prime']:.5f} | {r['K_prime'] / 1e6:.1f} | "
+                   f"{r['ro_n']:.5f} | {r['ro_K'] / 1e6:.1f} | "
+                   f"{100 * (r['n_prime'] / r['ro_n'] - 1):+.2f} % | "
+                   f"{100 * (r['K_prime'] / r['ro_K'] - 1):+.2f} % | "
+                   f"{r['seed_n']}, {r['seed_K'] / 1e6:.1f} | "
+                   f"{100 * (r['n_prime'] / r['seed_n'] - 1):+.1f} % | "
+                   f"{100 * (r['K_prime'] / r['seed_K'] - 1):+.1f} % | "
+                   f"{r['cyclic_steps']} | {r['cyclic_points']} |")
+    out.append(END)
+    return "\n".join(out)
+
+
+def write_doc(rows) -> None:
+    text = DOC.read_text(encoding="utf-8")
+    head, rest = text.split(BEGIN, 1)
+    _, tail = rest.split(END, 1)
+    DOC.write_text(head + validation_markdown(rows) + tail, encoding="utf-8")
 
 
 def timed(solver, *args, **kwargs):
@@ -156,8 +225,12 @@ def cyclic():
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--stochastic", type=int, default=5, help="stochastic grids per material")
+    ap.add_argument("--no-docs", action="store_true", help="do not rewrite docs/gamut_bar.md")
     args = ap.parse_args(argv)
     FIGURES.mkdir(parents=True, exist_ok=True)
+    if not args.no_docs:
+        write_doc([deterministic_numbers(name, over) for name, over in CASES])
+        print(f"validation tables written into {DOC}")
     print("monotonic (uniform grid, deterministic; stochastic grids: seeds 0..%d)"
           % (args.stochastic - 1))
     print("| case | slope/E − 1 | max dev. from RO | ε at failure | σ at failure [MPa] | "
