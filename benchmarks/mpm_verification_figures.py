@@ -2,10 +2,13 @@
 
 Runs the problems of tests/backends/mpm/test_verification.py through that module's own scene
 loaders and measurements (the scenes are studies/scenes/verify_*.toml), prints every number the
-doc quotes and writes docs/figures/mpm_verify_{bar,disks,plate_impact,tnt}.png. A few seconds
-once numba's cache is warm:
+doc quotes and writes docs/figures/mpm_verify_{bar,disks,plate_impact,tnt,detonation}.png.
+About a minute once numba's cache is warm:
 
-    python benchmarks/mpm_verification_figures.py
+    python benchmarks/mpm_verification_figures.py                  # everything
+    python benchmarks/mpm_verification_figures.py detonation       # one problem (names below)
+    python benchmarks/mpm_verification_figures.py --refine         # + the 0.125 mm runs
+    python benchmarks/mpm_verification_figures.py --perturbations  # + the ±10 % JWL table
 """
 
 from __future__ import annotations
@@ -163,7 +166,7 @@ def tnt():
     peak = ds.pressure.sel(probe="b").values.max()
     peak_a = ds.pressure.sel(probe="a").values.max()
     print(f"tnt: D = {D:.0f} m/s ({100 * (D / V.D_TNT - 1):+.2f} %), peak at b {peak / 1e9:.2f} "
-          f"GPa ({100 * (peak / V.P_CJ - 1):+.1f} %; at a {peak_a / 1e9:.2f} GPa), "
+          f"GPa ({100 * (peak / V.P_CJ_PUBLISHED - 1):+.1f} %; at a {peak_a / 1e9:.2f} GPa), "
           f"energy drift {100 * (e[-1] / e[0] - 1):+.3f} %")
     t = ds.time.values * 1e6
     fig, ax = plt.subplots(figsize=(7, 3.2))
@@ -171,7 +174,7 @@ def tnt():
         ax.plot(t, ds.pressure.sel(probe=name).values / 1e9, f"C{k}",
                 label=f"probe {name}, x = {x} m")
         ax.axvline(x / V.D_TNT * 1e6, color=f"C{k}", ls=":", lw=0.8)
-    ax.axhline(V.P_CJ / 1e9, color="k", ls="--", lw=0.8, label="$P_{CJ}$ = 21 GPa")
+    ax.axhline(V.P_CJ_PUBLISHED / 1e9, color="k", ls="--", lw=0.8, label="$P_{CJ}$ = 21 GPa")
     ax.set_xlabel("time (µs)  (dotted: arrival at D = 6930 m/s)")
     ax.set_ylabel("pressure (GPa)")
     ax.legend(fontsize=7)
@@ -181,13 +184,104 @@ def tnt():
     plt.close(fig)
 
 
-def main():
+def _percent(errors):
+    return ", ".join(f"{k} {100 * v:+.2f} %" for k, v in errors.items())
+
+
+def detonation(refine=False, perturbations=False):
+    """The checks the physics decides (CJ state, Taylor wave, γ = 3 wall impulse), the
+    refinement numbers their tolerances come from, and the figure."""
+    from tests.backends.mpm.detonation_exact import polytropic_gamma, polytropic_taylor_pressure
+    r = V.tnt_checks()
+    wave = r["fine"]["wave"]
+    cj = wave.cj
+    print(f"detonation: CJ point V {cj.V:.4f}, D {cj.D:.1f} m/s, p {cj.p / 1e9:.3f} GPa, "
+          f"rho {cj.rho:.1f}, u {cj.u:.1f}, c {cj.c:.1f} m/s; wall p_w {wave.wall_pressure / 1e9:.3f}"
+          f" GPa, c_w {wave.wall_edge:.1f} m/s")
+    for name in ("coarse", "fine"):
+        print(f"  dx {r[name]['dx'] * 1e3:g} mm: {_percent(r[name]['errors'])}")
+    print(f"  fit bias on the exact solution: {_percent(r['fit_bias'])}")
+    print(f"  checked (CJ at 0.25 mm, fan Richardson): {_percent(r['errors'])}")
+    if refine:
+        f = V.tnt_profile(0.125e-3)
+        print(f"  dx 0.125 mm: {_percent(f['errors'])}")
+        print("  Richardson 0.25/0.125 mm: " + ", ".join(
+            f"fan_{p} {100 * (2 * f['errors'][f'fan_{p}'] - r['fine']['errors'][f'fan_{p}']):+.2f} %"
+            for p in V.FAN_PARTS))
+    g3 = V.gamma3_wall_checks()
+    print(f"gamma3 wall impulse: largest error t_d..3 t_d {100 * g3['error']:.2f} %, at 3 t_d "
+          f"{100 * (g3['measured'][-1] / g3['exact'][-1] - 1):+.2f} %")
+    if perturbations:
+        from solvers.mpm.materials import library
+        from uqflow.errors import SolverError
+        for name in ("eos.A", "eos.B", "eos.R1", "eos.R2", "eos.omega", "eos.E0"):
+            for factor in (0.9, 1.1):
+                try:
+                    e = V.tnt_checks({name: factor * library.TNT[name]})["errors"]
+                    shown = {k: v for k, v in e.items() if "ratio" not in k}
+                    print(f"  {name} x {factor}: fails {V.failed_checks(e) or 'nothing'}; "
+                          f"{_percent(shown)}")
+                except SolverError as exc:
+                    print(f"  {name} x {factor}: run stopped ({exc})")
+        gas = V.load_scene("verify_gamma3_wall_impulse")["materials"]["gas"]
+        for name in ("eos.omega", "eos.E0"):
+            for factor in (0.9, 1.1):
+                err = V.gamma3_wall_checks(over={name: factor * gas[name]})["error"]
+                print(f"  gamma3 {name} x {factor}: largest error {100 * err:.2f} %")
+
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(10, 3.6))
+    xi = np.linspace(0.0, cj.D, 600)
+    for name, style in (("coarse", "C1."), ("fine", "C0.")):
+        m = r[name]
+        ax.plot(m["xi"], m["p"] / 1e9, style, ms=1.5, label=f"MPM, dx = {m['dx'] * 1e3:g} mm")
+    ax.plot(xi, wave.at(xi)[0] / 1e9, "k-", lw=1.2, label="Taylor wave, JWL isentrope")
+    g = polytropic_gamma(V.TNT_EOS.rho0, cj.D, cj.p)
+    ax.plot(xi, polytropic_taylor_pressure(xi, V.TNT_EOS.rho0, cj.D, g) / 1e9, "k:", lw=1,
+            label=f"polytropic, γ = {g:.2f}")
+    ax.plot([cj.D], [cj.p / 1e9], "k^", label="CJ point (tangency)")
+    ax.set_xlim(0, 7500)
+    ax.set_xlabel("ξ = x / t (m/s), last three samples to 10 µs")
+    ax.set_ylabel("pressure (GPa)")
+    ax.legend(fontsize=7)
+    ax.set_title("TNT detonated at a rigid wall (verify_tnt_taylor_wave.toml)", fontsize=9)
+    t_d = 0.04 / V.D_TNT
+    bx.plot(g3["t"] / t_d, g3["measured"] / 1e3, "C0.", ms=3, label="MPM, dx = 0.5 mm")
+    t = np.linspace(0.0, 3 * t_d, 200)
+    from tests.backends.mpm.detonation_exact import gamma3_wall_momentum
+    bx.plot(t / t_d, [gamma3_wall_momentum(1630.0, V.D_TNT, 0.04, tk) / 1e3 for tk in t], "k-",
+            lw=1, label="closed form (γ = 3)")
+    bx.axhline(8 / 27 * 1630.0 * V.D_TNT * 0.04 / 1e3, color="k", ls="--", lw=0.8,
+               label="8/27 ρ0 D ℓ (t → ∞)")
+    bx.set_xlabel("t / t_d  (t_d = ℓ / D)")
+    bx.set_ylabel("wall impulse (kN s/m²)")
+    bx.legend(fontsize=7)
+    bx.set_title("γ = 3 slab, ℓ = 40 mm (verify_gamma3_wall_impulse.toml)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(FIGURES / "mpm_verify_detonation.png", dpi=DPI)
+    plt.close(fig)
+
+
+PROBLEMS = {"bar": bar, "disks": disks, "plate": plate, "plate_resolution": plate_resolution,
+            "tnt": tnt, "detonation": detonation}
+
+
+def main(argv):
     FIGURES.mkdir(parents=True, exist_ok=True)
+    flags = {a for a in argv if a.startswith("--")}
+    names = [a for a in argv if not a.startswith("--")] or list(PROBLEMS)
+    unknown = [n for n in names if n not in PROBLEMS] + sorted(
+        flags - {"--refine", "--perturbations"})
+    if unknown:
+        sys.exit(f"unknown problem or flag: {', '.join(unknown)} (problems: "
+                 f"{', '.join(PROBLEMS)}; flags: --refine, --perturbations)")
     t0 = time.perf_counter()
-    for f in (bar, disks, plate, plate_resolution, tnt):
-        f()
+    for name in names:
+        if name == "detonation":
+            detonation(refine="--refine" in flags, perturbations="--perturbations" in flags)
+        else:
+            PROBLEMS[name]()
     print(f"total {time.perf_counter() - t0:.1f} s")
 
 
 if __name__ == "__main__":
-    main()
+    main(sys.argv[1:])

@@ -34,6 +34,7 @@ def test_shapes_partition_of_unity_and_linear_reproduction(kind):
         d = np.array([d0, d1, d2])
         nodes = base + np.arange(3)
         assert np.all(w >= -1e-15)
+        # bound: three O(1) weights from a few flops each, ≈ 10 eps = 2e-15 (50× margin below)
         assert w.sum() == pytest.approx(1.0, abs=1e-13)
         assert d.sum() == pytest.approx(0.0, abs=1e-12)
         assert (w * nodes).sum() == pytest.approx(xi, abs=1e-12)   # Σ N x_i = x
@@ -243,7 +244,8 @@ def test_outputs_template_and_run_match():
     assert np.isfinite(ds.pressure.values).all()
     assert ds.velocity_x.values[0, 0] == 1.0
     assert ds.attrs["steps"] > 0
-    np.testing.assert_allclose(ds.momentum_x.values, ds.momentum_x.values[0], rtol=1e-12)
+    # bound: 144 particles × 28 steps, each transfer exact up to ~eps per term: ≈ 4e3 eps = 9e-13 → 1e-11
+    np.testing.assert_allclose(ds.momentum_x.values, ds.momentum_x.values[0], rtol=1e-11)
     assert np.isnan(sol.outputs().pressure.values).all()   # template untouched by a run
 
 
@@ -284,7 +286,8 @@ def test_p2g_conserves_mass_momentum_and_force_balance(nthreads):
         skipped = K.p2g(x, y, vx, vy, m, S, kind, 0.25, g.ox, g.oy, 1 / dx, 0.0, -9.81,
                         K.grid_buffers(nthreads, *shp), gm, gpx, gpy, gfx, gfy)
         assert skipped == 0
-        assert gm.sum() == pytest.approx(m.sum(), rel=1e-13)
+        # bound: sums of 500 particles × 9 weights, each ≤ eps relative: ≈ 5e3 eps worst case, ≈ 70 eps typical; 1e-12 with the moments' cancellation
+        assert gm.sum() == pytest.approx(m.sum(), rel=1e-12)
         assert gpx.sum() == pytest.approx((m * vx).sum(), rel=1e-12, abs=1e-12)
         assert gpy.sum() == pytest.approx((m * vy).sum(), rel=1e-12, abs=1e-12)
         # internal forces sum to zero (Σ ∇N = 0); only gravity remains
@@ -374,6 +377,7 @@ def test_threads_agree():
     r2 = MPMSolver.from_scene(dict(s, threads=2)).run({})
     assert r2.attrs["threads"] in (1, 2)
     for v in ("velocity_x", "S11", "total_energy"):
+        # bound: the 2-thread P2G sums in another order (≈ eps per node per step); over the run's steps that stays ≪ 1e-9
         np.testing.assert_allclose(r1[v].values, r2[v].values, rtol=1e-9, atol=1e-12)
 
 
@@ -397,6 +401,7 @@ def test_contact_explosion_small():
     rel = ds.explosive_release.values
     tnt = sol.parts.material == sol.labels.index("tnt")
     assert rel[0] == 0.0 and np.all(np.diff(rel) >= 0.0)
+    # bound: the same n-term sum of E0·V0 in another order, ≤ n eps with n ≈ 100 TNT particles: 2e-14
     assert rel[-1] == pytest.approx(7.0e9 * sol.parts.vol0[tnt].sum(), rel=1e-12)
     assert 0.0 < rel[ds.time.values.searchsorted(3e-6)] < 0.5 * rel[-1]
     p = ds.pressure.sel(probe="H").values
@@ -507,6 +512,7 @@ def test_single_particle_falls_freely():
     ds = sol.run({})
     t = ds.time.values
     vy = ds.velocity_y.sel(probe="p").values
+    # bound: v = Σ g dt over ≤ 1000 steps, one rounding each: ≤ 1000 eps ≈ 2e-13 of g t
     np.testing.assert_allclose(vy, -9.81 * t, rtol=1e-12, atol=1e-15)
     assert np.all(ds.position_x.sel(probe="p").values == ds.position_x.values[0, 0])
     # Σ ∇N_i = 0 to round-off: strains ~1e-18 against E = 1e6 Pa (measured |p| < 2e-12 Pa)
@@ -546,12 +552,19 @@ def _quadrant_pulse_energy_left(right_top, size, cells=40):
     return energy_in_unit_square() / e0
 
 
-def test_absorbing_sides_match_the_unbounded_domain_in_2d():
-    """Oblique incidence: the energy left in the unit square with absorbing sides is within 5 %
-    (of the initial energy) of the unbounded answer (measured at 40 cells: 71.8 % vs 69.4 %,
-    free sides keep 101.2 %; at 60 cells 51.7 % vs 49.7 % and 100.5 %)."""
-    unbounded = _quadrant_pulse_energy_left("free", 2.0)
-    absorbing = _quadrant_pulse_energy_left("absorbing", 1.0)
-    free = _quadrant_pulse_energy_left("free", 1.0)
-    assert abs(absorbing - unbounded) < 0.05
+# the energy the absorbing sides keep beyond the unbounded answer (points of the initial
+# energy) is reflection, which falls with resolution: 2.4 points at 40 cells, 2.0 at 60; the
+# bound at 40 cells is the measured value with a margin, the 40-cell value bounds 60 cells
+@pytest.mark.parametrize("cells, bound", [
+    (40, 0.05),
+    pytest.param(60, 0.025, marks=pytest.mark.slow),
+])
+def test_absorbing_sides_match_the_unbounded_domain_in_2d(cells, bound):
+    """Oblique incidence: the energy left in the unit square with absorbing sides is within
+    ``bound`` (of the initial energy) of the unbounded answer (measured at 40 cells: 71.8 %
+    vs 69.4 %, free sides keep 101.2 %; at 60 cells 51.7 % vs 49.7 % and 100.5 %)."""
+    unbounded = _quadrant_pulse_energy_left("free", 2.0, cells)
+    absorbing = _quadrant_pulse_energy_left("absorbing", 1.0, cells)
+    free = _quadrant_pulse_energy_left("free", 1.0, cells)
+    assert 0.0 < absorbing - unbounded < bound      # keeps more, never less: reflection
     assert free > 0.95

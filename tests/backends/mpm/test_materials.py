@@ -105,6 +105,7 @@ def test_johnson_cook_flow_stress_matches_numpy_at_1000_states():
     A, B, n, C, m, ep, rs, Ts = random_jc_states(rng, 1000)
     ref = jc_numpy(A, B, n, C, m, ep, rs, Ts)
     got = np.array([jc.johnson_cook_flow_stress(*args) for args in zip(A, B, n, C, m, ep, rs, Ts)])
+    # bound: pow, log, exp and a few products, each ≤ 1 ulp, against numpy's: ≈ 10 eps = 2e-15
     assert np.allclose(got, ref, rtol=1e-13, atol=0.0)
     # the limits, explicitly
     a = dict(A=792e6, B=510e6, n=0.26, C=0.014, m=1.03)
@@ -171,6 +172,7 @@ def test_radial_return_perfect_plasticity_increment():
             assert code == st.OK
             if C == 0.0:
                 assert sy == A
+                # bound: seq_t − A cancels with condition seq_t/(seq_t − A) ≤ 101 (seq_t ≥ 1.01 A) on ~10 eps of rounding: 2e-13
                 assert dep == pytest.approx((seq_t - A) / (3 * G), rel=1e-12)
             else:   # rate-hardened: still Δεp = (σeq* − σy)/(3G) with σy = A(1 + C ln ε̇*)
                 assert sy == pytest.approx(A * (1 + C * math.log(max(dep / dt, 1.0))), rel=1e-13)
@@ -276,6 +278,7 @@ def jc_return_check(args, devs, sy0, G, dt, eps0, ep):
         ref = jc_numpy(A[j], B[j], n[j], C[j], m[j], ep[j] + dep[j], dep[j] / (dt[j] * eps0[j]),
                        Ts[j])
         assert abs(sy - ref) <= 1e-13 * sy, j
+        # bound: one scale factor sy/seq_t applied to s_zz, 3 roundings ≈ 7e-16; abs for s_zz ≈ 0
         assert nzz == pytest.approx(s[3] * sy / seq_t, rel=1e-13, abs=1e-9 * sy)
     return dep
 
@@ -426,6 +429,7 @@ def test_mie_gruneisen_pressure_both_branches(module):
         E = rng.uniform(-1e8, 2e9)
         p, code = mie_gruneisen_pressure(*eos, rho, E)
         assert code == st.OK
+        # bound: the same polynomial in μ in another order, ~20 flops ≈ 4e-15 relative; abs 1e-3 Pa near p = 0
         assert p == pytest.approx(mg_direct(*eos, rho, E), rel=1e-12, abs=1e-3)
     for E in (0.0, 3.7e8):        # μ = 0: both branches give γ0 E, continuously
         p0, _ = mie_gruneisen_pressure(*eos, rho0, E)
@@ -536,6 +540,7 @@ def test_hugoniot_along_the_rayleigh_line_with_strength():
     s = st.deviatoric(S)[0]
     sy = S[0, st.SY]
     assert S[0, st.EPS_P] > 0.02
+    # bound: 200 steps of return mapping, each consistent to 1e-13 (consistency test above): ≈ 2e-11
     assert s == pytest.approx([-2 * sy / 3, sy / 3, 0.0, sy / 3], rel=1e-9, abs=1e-3)
     assert S[0, st.T] > 294.0 and S[0, st.PLASTIC_WORK] > 0.0
 
@@ -598,6 +603,7 @@ def test_jwl_burn_fraction_and_lighting_time():
     t_end = tl + 0.4 * w / D
     assert step(jwl, prm, S, dt=dt, time=t_end - dt, x=x, y=y) == st.OK
     assert S[0, st.BURN] == pytest.approx(0.4, rel=1e-9) and S[0, st.C] == D
+    # bound: the same JWL formula scaled by F, with F from (t − t_l) D / w to ≈ 10 eps: 2e-15
     assert S[0, st.P] == pytest.approx(0.4 * jwl.jwl_pressure(*prm[2:7], 1630.0 / S[0, st.RHO],
                                                               S[0, st.E]), rel=1e-12)
     # never decreases (an earlier time does not un-burn)
@@ -641,7 +647,8 @@ def test_elastic_pure_spin_preserves_invariants():
     for _ in range(n):
         assert step(elastic, prm, S, Lxy=w, Lyx=-w, dt=dt) == st.OK
     sig = np.array([[S[0, st.SXX], S[0, st.SXY]], [S[0, st.SXY], S[0, st.SYY]]])
-    assert np.linalg.eigvalsh(sig) == pytest.approx(np.linalg.eigvalsh(sig0), rel=1e-12)
+    # bound: 1000 rotation steps, each exact up to ≈ 10 eps: ≤ 1e4 eps = 2e-12 → 1e-11
+    assert np.linalg.eigvalsh(sig) == pytest.approx(np.linalg.eigvalsh(sig0), rel=1e-11)
     assert S[0, st.SZZ] == pytest.approx(-5e7, rel=1e-12)
     assert S[0, st.RHO] == 7830.0 and S[0, st.E] == pytest.approx(0.0, abs=1e-6)
     th = w * dt * n                                     # Jaumann: σ(t) = R σ0 Rᵀ, R = exp(W t)
@@ -655,10 +662,12 @@ def test_elastic_small_uniaxial_strain():
     lam, G = Y * nu / ((1 + nu) * (1 - 2 * nu)), Y / (2 * (1 + nu))
     eps, dt = -1e-5, 1e-7
     assert step(elastic, prm, S, Lxx=eps / dt, dt=dt) == st.OK
+    # bound: one step of σ = λ tr D I + 2G D, a few flops on each term: ≈ 10 eps = 2e-15
     assert S[0, st.SXX] == pytest.approx((lam + 2 * G) * eps, rel=1e-12)
     assert S[0, st.SYY] == pytest.approx(lam * eps, rel=1e-12)
     assert S[0, st.SZZ] == pytest.approx(lam * eps, rel=1e-12)
     assert S[0, st.E] == pytest.approx(0.5 * (lam + 2 * G) * eps**2, rel=1e-4)
+    # bound: the same expression from the same parameters, a few roundings: ≈ 5 eps
     assert S[0, st.C] == pytest.approx(math.sqrt((lam + 2 * G) / S[0, st.RHO]), rel=1e-12)
 
 

@@ -96,6 +96,7 @@ def test_files_at_the_snapshot_times(tmp_path):
     doc = series(run_dir)
     assert doc["file-series-version"] == "1.0"
     assert [f["name"] for f in doc["files"]] == names
+    # bound: k · output_interval in doubles, ≈ eps × 0.002 = 4e-19 s
     assert [f["time"] for f in doc["files"]] == pytest.approx([0.0, 0.001, 0.002], abs=1e-15)
     info = json.loads((run_dir / "run.json").read_text())
     assert info["tag"] == "nominal" and info["parameters"] == {}
@@ -117,6 +118,7 @@ def test_interval_within_round_off_and_k0_included(tmp_path):
     assert sol.cfg.snapshots.every == 3
     sol.run()
     doc = series(tmp_path / "nominal")
+    # bound: k · output_interval in doubles, ≈ eps × 0.0015 = 3e-19 s
     assert [f["time"] for f in doc["files"]] == pytest.approx([0.0, 0.0015], abs=1e-15)
 
 
@@ -138,10 +140,11 @@ def test_file_contents_match_the_run(tmp_path):
     np.testing.assert_array_equal(verts[:, 1], np.arange(p.x.size))
     np.testing.assert_array_equal(f0["material"], p.material)
     np.testing.assert_array_equal(f0["body"], p.body)
+    # bound: fields are stored as float32, rounding ≤ 2^-24 = 6e-8 relative
     np.testing.assert_allclose(f0["velocity"][:, 0], p.vx, rtol=1e-7)
     np.testing.assert_allclose(f0["velocity"][:, 1], p.vy, rtol=1e-7)
     assert np.all(f0["velocity"][:, 2] == 0.0)
-    np.testing.assert_allclose(f0["density"], 1000.0, rtol=1e-7)
+    np.testing.assert_allclose(f0["density"], 1000.0, rtol=1e-7)   # float32: ≤ 6e-8
     # end time: the probe particles against the probe series (same state, same instant)
     _, pts, _, f1 = read_vtk(run_dir / "particles_00001.vtk")
     i = sol.probe_index
