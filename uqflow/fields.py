@@ -19,11 +19,12 @@ from __future__ import annotations
 
 import math
 import re
+import unicodedata
 from collections.abc import Mapping
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 from scipy import optimize, special
 
 __all__ = ["GermSpec", "FieldSpec", "KLBasis", "RandomField", "FieldSample", "germ_seed"]
@@ -38,6 +39,15 @@ _BLOCK_ENTRIES = 1 << 22
 # ``RandomField`` caches mode values of up to this many entries per point set.
 _CACHE_ENTRIES = 1 << 23
 _CACHE_SLOTS = 4
+# Upper bounds, so that what validates can run (docs/study-files.md, "Limits"). The mode
+# values at the solver's points are points × modes float64: 320,000 MPM particles × 1,000
+# modes = 2.4 GiB.
+MAX_KL_MODES = 1000
+# The 2-D Nyström matrix is (5 × quadrature_points)² float64 and its eigendecomposition
+# O(n³): 2,000 points give 10,000 nodes, a 0.75 GiB matrix and minutes of LAPACK.
+MAX_QUADRATURE_POINTS = 2000
+# Near this Weibull shape of the germs Γ(1 + 2/shape) nears the float64 limit (Γ(171) ~ 7e306).
+MIN_GERM_SHAPE = 0.012
 # Clipped values are put this fraction of |mean| inside the admissible interval.
 CLIP_MARGIN = 1e-3
 
@@ -51,19 +61,29 @@ class GermSpec(BaseModel):
     ``gaussian``: ξ ~ N(0, 1) (``scale``/``shape`` are ignored).
     """
 
-    model_config = ConfigDict(extra="forbid")
+    # Strict like every study table: no booleans or strings for numbers, no NaN/infinity.
+    model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False)
 
     kind: Literal["gaussian", "symmetric-weibull"] = "symmetric-weibull"
     scale: float = Field(1.0, gt=0, allow_inf_nan=False,
                          description="Weibull scale of |ξ| (symmetric-weibull only)")
-    shape: float = Field(2.0, gt=0, allow_inf_nan=False,
+    # Γ(1 + 2/shape), the germs' second moment, overflows a float64 below shape 2/170.
+    shape: float = Field(2.0, ge=MIN_GERM_SHAPE, allow_inf_nan=False,
                          description="Weibull shape of |ξ| (symmetric-weibull only)")
+
+    @model_validator(mode="after")
+    def _finite_second_moment(self):
+        if not math.isfinite(self.second_moment()):
+            raise ValueError(f"the germs' second moment scale² Γ(1 + 2/shape) overflows a "
+                             f"float64 (scale {self.scale:g}, shape {self.shape:g})")
+        return self
 
     def second_moment(self) -> float:
         """E[ξ²]: 1 for gaussian, scale² Γ(1 + 2/shape) for symmetric-weibull."""
         if self.kind == "gaussian":
             return 1.0
-        return self.scale**2 * math.gamma(1.0 + 2.0 / self.shape)
+        # scale * scale, not scale**2: a float power raises OverflowError, a product is inf.
+        return self.scale * self.scale * math.gamma(1.0 + 2.0 / self.shape)
 
     def draw(self, size, rng: np.random.Generator) -> np.ndarray:
         """``size`` independent germs from ``rng``.
@@ -81,14 +101,15 @@ class GermSpec(BaseModel):
 class FieldSpec(BaseModel):
     """One ``[[fields]]`` table: a correlated random perturbation of solver parameters."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False)
 
     name: str = Field(min_length=1)
     parameters: list[str] | None = Field(
         None, description="solver parameters the field drives (default: [name])")
     kernel: Literal["exponential", "squared_exponential"] = "exponential"
     correlation_length: float = Field(gt=0, allow_inf_nan=False)
-    modes: int | None = Field(None, ge=1, description="number of KL modes kept")
+    modes: int | None = Field(None, ge=1, le=MAX_KL_MODES,
+                              description="number of KL modes kept")
     captured_variance: float | None = Field(
         None, gt=0, le=1, description="keep the fewest modes capturing this variance share")
     germ: GermSpec = Field(default_factory=GermSpec)
@@ -96,8 +117,18 @@ class FieldSpec(BaseModel):
                                   description="amplitude = 1/divisor (seed eq. 26: 10)")
     cv: float | None = Field(None, ge=0, allow_inf_nan=False,
                              description="amplitude = cv / sqrt(E[germ^2])")
-    quadrature_points: int = Field(400, ge=8, description="Nyström grid size")
+    quadrature_points: int = Field(400, ge=8, le=MAX_QUADRATURE_POINTS,
+                                   description="Nyström grid size")
     store_values: bool = False
+
+    @field_validator("name")
+    @classmethod
+    def _visible_name(cls, name):
+        # The name reaches netCDF variable names and one-line messages.
+        if not name.strip() or any(unicodedata.category(c) == "Cc" for c in name):
+            raise ValueError(f"must be a visible name (not blank, no control characters), "
+                             f"got {name!r}")
+        return name
 
     @model_validator(mode="after")
     def _resolve_defaults(self):

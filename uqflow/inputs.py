@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import warnings
 from dataclasses import dataclass, field
 
 import chaospy
@@ -151,13 +152,37 @@ def make_distribution(kind: str, params: dict, key: str = "input"):
             if mean == 0 and cv > 0:
                 raise StudyError("cv needs a nonzero mean (give std instead)", key=f"{key}.cv")
             std = cv * abs(mean)
+            if not math.isfinite(std):
+                raise StudyError(f"cv × |mean| = std overflows a float64 (cv {cv:g}, mean "
+                                 f"{mean:g})", key=f"{key}.cv")
         else:
             raise StudyError("a mean needs a spread: give std or cv", key=f"{key}.std")
     elif "std" in params or "cv" in params:
         raise StudyError("std/cv need a mean", key=f"{key}.mean")
 
+    try:
+        # Overflow in numpy and scipy warns and gives inf/NaN, which the checks below refuse
+        # in one line; a warning printed as well would make the error two.
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore", RuntimeWarning)
+            dist, moments = _build(kind, params, key, mean if moment_form else None,
+                                   std if moment_form else None)
+            _check_representable(dist, moments, params, key)
+    except OverflowError:
+        # Python floats raise where numpy would return inf: the moments are beyond float64.
+        raise StudyError("its moments overflow a float64; rescale the parameter (e.g. to "
+                         "other units)", key=_largest_key(params, key)) from None
+    except ZeroDivisionError:
+        raise StudyError("the spread is too small for float64 next to the other parameters "
+                         "(its square underflows); use std = 0 for a constant",
+                         key=_spread_key(params, key) if moment_form
+                         else _smallest_key(params, key)) from None
+    return dist, moments
+
+
+def _build(kind, params, key, mean, std):
     builder = _BUILDERS[kind]
-    if moment_form:
+    if mean is not None:
         # Native shape parameters next to mean+std/cv would be silently ignored: refuse them.
         # Only the support bounds (lower/upper) go with the moment form.
         mixed = sorted(set(params) & (_NATIVE[kind] - _SUPPORT[kind]))
@@ -170,6 +195,42 @@ def make_distribution(kind: str, params: dict, key: str = "input"):
             return _point(mean)
         return builder.from_moments(mean, std, params, key)
     return builder.from_native(params, key)
+
+
+# Sampling maps the unit hypercube clipped to [UNIT_CLIP, 1 - UNIT_CLIP] through the inverse
+# CDF: the values there are the most extreme a design can hold, so they must be finite.
+UNIT_CLIP = 1e-15
+
+
+def _check_representable(dist, moments, params, key) -> None:
+    """Refuse a distribution whose four moments or sampled extremes are not finite floats.
+
+    Every method reads the moments (Taylor the third and fourth, the design the kurtosis), and
+    a design point at the clipped tails must be a number the solver can take.
+    """
+    if not all(math.isfinite(m) for m in moments):
+        raise StudyError("its first four moments are not all finite float64 numbers (the "
+                         "fourth grows as std^4: keep std below about 1e77, in other units "
+                         "if need be)",
+                         key=_largest_key(params, key))
+    if moments[1] > 0:
+        with np.errstate(all="ignore"):
+            tails = np.asarray(dist.inv(np.array([UNIT_CLIP, 1 - UNIT_CLIP])), dtype=float)
+        if not np.all(np.isfinite(tails)):
+            raise StudyError(f"its {UNIT_CLIP:g} and {1 - UNIT_CLIP:.15g} quantiles (the "
+                             f"extremes sampling can draw) are not finite float64 numbers",
+                             key=_largest_key(params, key))
+
+
+def _largest_key(params, key) -> str:
+    """The parameter of largest magnitude: the one to blame for an overflow."""
+    name = max(params, key=lambda k: abs(float(params[k])))
+    return f"{key}.{name}"
+
+
+def _smallest_key(params, key) -> str:
+    name = min(params, key=lambda k: abs(float(params[k])))
+    return f"{key}.{name}"
 
 
 def _spread_key(params, key):
@@ -444,8 +505,13 @@ class _TruncNormal:
 
         # gtol too: near the uniform limit the std hardly changes with sigma, and the default
         # gtol stopped there with a 3e-8 residual (and a false "no truncated normal" error).
-        sol = optimize.least_squares(residual, [0.0, 0.0], xtol=1e-15, ftol=1e-15, gtol=1e-15)
-        if not sol.success or max(abs(r) for r in sol.fun) > 1e-10:
+        try:
+            sol = optimize.least_squares(residual, [0.0, 0.0], xtol=1e-15, ftol=1e-15,
+                                         gtol=1e-15)
+        except ValueError:
+            # Residuals not finite at the start: the std dwarfs the bounds (or the reverse).
+            sol = None
+        if sol is None or not sol.success or max(abs(r) for r in sol.fun) > 1e-10:
             raise StudyError(f"no truncated normal on [{lo:g}, {hi:g}] has mean {mean:g} and "
                              f"std {std:g}", key=_spread_key(params, key))
         return _TruncNormal._make(mean + std * sol.x[0], std * math.exp(sol.x[1]), lo, hi, key)
@@ -547,11 +613,11 @@ class InputSpace:
 
     def from_unit_hypercube(self, u: np.ndarray) -> np.ndarray:
         """Map points ``u`` of shape (n_points, n_inputs) in (0, 1)^n to parameter values."""
-        u = np.clip(np.asarray(u, dtype=float), 1e-15, 1 - 1e-15)
+        u = np.clip(np.asarray(u, dtype=float), UNIT_CLIP, 1 - UNIT_CLIP)
         if self.is_correlated:
             z = stats.norm.ppf(u) @ self._cholesky.T
             # A correlated z can reach where cdf rounds to exactly 1 (or 0): an infinite input.
-            u = np.clip(stats.norm.cdf(z), 1e-15, 1 - 1e-15)
+            u = np.clip(stats.norm.cdf(z), UNIT_CLIP, 1 - UNIT_CLIP)
         return np.column_stack([inp.inverse_cdf(u[:, k]) for k, inp in enumerate(self.inputs)]) \
             if len(self) else np.zeros((u.shape[0], 0))
 

@@ -12,23 +12,29 @@ from __future__ import annotations
 
 import difflib
 import hashlib
+import re
 import tomllib
+import unicodedata
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, get_args
 
 import numpy as np
-from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, ValidationError,
-                      field_validator)
+from pydantic import (AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field,
+                      ValidationError, field_validator)
 
 from uqflow.errors import SceneError, StudyError
 from uqflow.inputs import DISTRIBUTIONS, InputSpace, RandomInput
 from uqflow.methods import PropagationMethod, get_method
+from uqflow.methods.base import MAX_REALIZATIONS
 from uqflow.solver import Solver, get_solver
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=False)
+    # Strict: an integer key takes a TOML integer only (not 2.0 or "2"), a number an integer
+    # or a float, and nothing takes NaN or infinity.
+    model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False)
 
 
 def _not_bool(value):
@@ -38,13 +44,57 @@ def _not_bool(value):
     return value
 
 
+def _integer(value):
+    # Strict mode already refuses 2.0 for an integer; say how to write it.
+    if isinstance(value, float) and value.is_integer():
+        raise ValueError(f"must be an integer: write {value:.0f}, not {value!r}")
+    return _not_bool(value)
+
+
+def _visible(value: str) -> str:
+    # A name reaches file names, netCDF names and one-line messages: no blank names and no
+    # control characters (a NUL byte cannot even be part of a path).
+    if not value.strip():
+        raise ValueError("must not be empty or blank")
+    if any(unicodedata.category(c) == "Cc" for c in value):
+        raise ValueError(f"must not contain control characters, got {value!r}")
+    return value
+
+
+Text = Annotated[str, AfterValidator(_visible)]
 Float = Annotated[float, BeforeValidator(_not_bool)]
 Number = Annotated[float | None, BeforeValidator(_not_bool)]
-Int = Annotated[int, BeforeValidator(_not_bool)]
+Int = Annotated[int, BeforeValidator(_integer)]
+
+# Local dask workers are processes of ~270 MiB each (the interpreter with numpy, xarray,
+# dask and numba loaded, BENCHMARKS.md): 512 of them fill the largest single nodes.
+MAX_WORKERS = 512
+# The seed is stored as a netCDF attribute, whose widest integer type is unsigned 64-bit.
+MAX_SEED = 2**64 - 1
+_HOST = r"(?:[A-Za-z0-9_](?:[A-Za-z0-9_.-]*[A-Za-z0-9_])?|\[[0-9A-Fa-f:.]+\])"
+_PORT = r"(?:6553[0-5]|655[0-2]\d|65[0-4]\d{2}|6[0-4]\d{3}|[1-5]\d{4}|[1-9]\d{0,3})"
+_SCHEDULER_FORMS = (
+    re.compile(rf"(?:tcp|tls|ucx|ws|wss)://{_HOST}:{_PORT}"),
+    re.compile(r"inproc://\S+"),
+    re.compile(rf"{_HOST}:{_PORT}"),
+)
+
+
+def scheduler_address_problem(address: str) -> str | None:
+    """Why ``address`` is not a dask scheduler address, or None if its form is one.
+
+    Forms: ``tcp://host:port`` (also ``tls``, ``ucx``, ``ws``, ``wss``), ``inproc://...`` or
+    ``host:port``; host a name, an IPv4 address or a bracketed IPv6 address, port 1..65535.
+    Whether a scheduler answers there is the executor's question, at run time.
+    """
+    if any(form.fullmatch(address) for form in _SCHEDULER_FORMS):
+        return None
+    return (f"'{address}' is not a scheduler address (tcp://host:port, tls://host:port, "
+            f"ucx://host:port, inproc://..., or host:port with a port in 1..65535)")
 
 
 class InputSpec(_Strict):
-    name: str = Field(min_length=1)
+    name: Text
     distribution: str
     mean: Number = None
     std: Number = None
@@ -71,22 +121,31 @@ class InputSpec(_Strict):
 
 
 class CorrelationSpec(_Strict):
-    inputs: list[str] = Field(min_length=2)
+    inputs: list[Text] = Field(min_length=2)
     matrix: list[list[Float]]
 
 
 class ExecutionSpec(_Strict):
-    workers: Int = Field(2, ge=0, description="dask worker processes; 0 runs in this process")
+    workers: Int = Field(2, ge=0, le=MAX_WORKERS,
+                         description="dask worker processes; 0 runs in this process")
     scheduler: str | None = Field(None, description="address of an existing dask scheduler")
-    seed: Int = Field(0, ge=0)
-    batch: Annotated[int | None, BeforeValidator(_not_bool)] = Field(
-        None, ge=1, description="realizations per dask task")
+    seed: Int = Field(0, ge=0, le=MAX_SEED)
+    batch: Annotated[int | None, BeforeValidator(_integer)] = Field(
+        None, ge=1, le=MAX_REALIZATIONS, description="realizations per dask task")
+
+    @field_validator("scheduler")
+    @classmethod
+    def _scheduler_form(cls, v):
+        problem = None if v is None else scheduler_address_problem(v)
+        if problem:
+            raise ValueError(problem)
+        return v
     max_failure_fraction: Float = Field(0.1, ge=0, le=1)
     checkpoint_interval: Float = Field(2.0, ge=0, description="seconds between result writes")
 
 
 class OutputSpec(_Strict):
-    path: str | None = Field(None, min_length=1)
+    path: Text | None = None
     figures: bool = Field(True, strict=True, description="write PNG figures beside the result")
 
 
@@ -96,11 +155,11 @@ class MethodSpec(BaseModel):
 
 
 class StudySpec(_Strict):
-    name: str = Field(min_length=1)
+    name: Text
     description: str = ""
     solver: str
     scene: dict[str, Any] | str
-    outputs: list[str] | None = None
+    outputs: list[Text] | None = None
     inputs: list[InputSpec] = Field(default_factory=list)
     correlation: CorrelationSpec | None = None
     fields: list[dict[str, Any]] = Field(default_factory=list)
@@ -116,7 +175,7 @@ class StudySpec(_Strict):
                              f"scene file, got {_shown(v)}")
         if isinstance(v, str) and not v.strip():
             raise ValueError("the path of a scene file must not be empty")
-        return v
+        return _visible(v) if isinstance(v, str) else v
 
 
 @dataclass
@@ -320,7 +379,11 @@ def load_study(path: str | Path) -> Study:
     except ValidationError as exc:
         raise validation_error(exc, label, data=raw, model=StudySpec) from None
     try:
-        return _resolve(spec, path, text, label)
+        # numpy's overflow warnings would print beside the one-line error (or the "ok"); every
+        # value that matters is checked for finiteness instead.
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore", RuntimeWarning)
+            return _resolve(spec, path, text, label)
     except SceneError as exc:
         raise exc.located(label) from None
     except StudyError as exc:
@@ -373,6 +436,9 @@ def _resolve(spec: StudySpec, path: Path, text: str, label: str) -> Study:
     template = solver.outputs()
     outputs = list(template.data_vars) if spec.outputs is None else list(spec.outputs)
     for i, name in enumerate(outputs):
+        if name in outputs[:i]:
+            raise StudyError(f"'{name}' is listed twice (also outputs[{outputs.index(name)}])",
+                             key=f"outputs[{i}]")
         if name not in template.data_vars:
             raise StudyError(f"the solver has no output '{name}' "
                              f"(it has {', '.join(template.data_vars)})", key=f"outputs[{i}]")
@@ -435,6 +501,11 @@ def _random_fields(spec: StudySpec, solver: Solver, label: str) -> list:
             driven[target] = fspec.name
         try:
             fields.append(RandomField(fspec, points))
+        except ArithmeticError:
+            # The KL eigenproblem in float64 (e.g. exp(-L/b) with b ~ 1e300 times the domain).
+            raise StudyError(f"the KL basis cannot be built in float64 with correlation_length "
+                             f"{fspec.correlation_length:g} m on this domain",
+                             key=f"fields[{i}].correlation_length") from None
         except (ValueError, StudyError) as exc:
             raise StudyError(str(getattr(exc, "reason", exc)), key=f"fields[{i}]") from None
     return fields

@@ -19,6 +19,12 @@ from uqflow.errors import SceneError, SolverError
 from uqflow.solver import Solver, register_solver
 
 
+# Upper bounds, so that what validates can run (docs/study-files.md, "Limits").
+MAX_TIMES = 10**6        # output values per realization of exponential_decay (8 MB each)
+MAX_BAR_POINTS = 10**7   # integration points of random_E_bar (a field's modes live on them)
+MAX_DELAY = 3600.0       # s of sleep per realization: an hour stands in for any solver
+
+
 def _is_number(v):
     return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
 
@@ -160,8 +166,9 @@ class ExponentialDecay:
                 raise SceneError(f"unknown key '{sorted(unknown)[0]}' (takes start, stop, num)",
                                  key="scene.t")
             num = t.get("num", 21)
-            if not isinstance(num, int) or isinstance(num, bool) or num < 1:
-                raise SceneError(f"must be an integer >= 1, got {num!r}", key="scene.t.num")
+            if not isinstance(num, int) or isinstance(num, bool) or not 1 <= num <= MAX_TIMES:
+                raise SceneError(f"must be an integer in 1..{MAX_TIMES:,}, got {num!r}",
+                                 key="scene.t.num")
             ends = []
             for k, default in (("start", 0.0), ("stop", 10.0)):
                 v = t.get(k, default)
@@ -189,8 +196,9 @@ class RandomEBar:
         self.area = _number(scene, "area", 1.0e-4, positive=True)
         self.length = _number(scene, "length", 0.1, positive=True)
         n = scene.get("points", 100)
-        if not isinstance(n, int) or isinstance(n, bool) or n < 1:
-            raise SceneError(f"must be an integer >= 1, got {n!r}", key="scene.points")
+        if not isinstance(n, int) or isinstance(n, bool) or not 1 <= n <= MAX_BAR_POINTS:
+            raise SceneError(f"must be an integer in 1..{MAX_BAR_POINTS:,}, got {n!r}",
+                             key="scene.points")
         self.dx = self.length / n
         self.x = (np.arange(n) + 0.5) * self.dx
         self.parameters = {"bar.E": 200.0e9}
@@ -276,6 +284,8 @@ class AnalyticSolver(Solver):
                 raise SceneError(f"unknown key for model '{name}' "
                                  f"(takes {', '.join(sorted(allowed))})", key=f"scene.{key}")
         delay = _number(scene, "delay", 0.0, nonnegative=True)
+        if delay > MAX_DELAY:
+            raise SceneError(f"must be <= {MAX_DELAY:g} s, got {delay!r}", key="scene.delay")
         return cls(name, model_cls(scene), delay)
 
     def describe(self) -> str:

@@ -38,6 +38,19 @@ UNITS = {"bar.E": "Pa", "bar.R": "", "bar.w": "", "bar.rho": "kg m-3", "bar.sigm
          "bar.sigma_f": "Pa", "bar.eps_f": "", "bar.n_ro": "", "bar.K_ro": "",
          "bar.area": "m2", "bar.length": "m"}      # "" where dimensionless (Solver contract)
 FIELDS = ("bar.E", "bar.R", "bar.w", "bar.rho")   # bar.w at nonlocal-bond midpoints
+# Upper bounds of the counts, so that what validates can run (docs/study-files.md, "Limits").
+# Every load step solves the whole network (local + nonlocal bonds) by Newton: the seed's bar
+# has 500 local bonds and 23 families (12,000 bonds); a bond keeps a few tens of float64, so
+# 10^7 bonds are of the order of a GiB of state.
+MAX_LOCAL_BONDS = 10**6
+MAX_FAMILIES = 10**3         # nonlocal degrees 2..cutoff × sigma_stdev
+MAX_BONDS = 10**7            # local bonds × (1 + families)
+MAX_LOAD_STEPS = 10**6       # recorded load steps of one curve (monotonic or cyclic)
+MAX_CYCLES = 10**3           # amplitudes of a cyclic test
+MAX_CYCLE_REPEATS = 10**3
+MIN_CYCLIC_INCREMENT = 1e-4  # 10^4 load steps per quarter cycle at most
+MAX_BISECTIONS = 100         # halvings of the failure-load bracket (float64 resolves ~53)
+MAX_GRID_SEED = 2**64 - 1    # numpy's generators take any; keep it a 64-bit number
 RTOL = 1e-9           # Newton: |residual| ≤ RTOL · max(|F|, previous |F|, floor)
 MAXIT = 100
 
@@ -64,12 +77,14 @@ def _num(scene, key, *, positive=False, lo=None, hi=None):
     return v
 
 
-def _int(scene, key, lo):
+def _int(scene, key, lo, hi):
     v = scene[key]
     if not isinstance(v, (int, np.integer)) or isinstance(v, bool):
         raise SceneError(f"must be an integer, got {v!r}", key=f"scene.{key}")
     if v < lo:
         raise SceneError(f"must be >= {lo}, got {v!r}", key=f"scene.{key}")
+    if v > hi:
+        raise SceneError(f"must be <= {hi:,}, got {v!r}", key=f"scene.{key}")
     return int(v)
 
 
@@ -94,12 +109,26 @@ def _material_problem(p):
     if p["eps_f"] < eps_y:
         return ("eps_f", f"failure strain {p['eps_f']:g} is below the yield strain "
                          f"sigma_y/E + K_ro = {eps_y:g}"), None
-    R = modulus_of_softness(p["E"], p["sigma_f"], p["eps_f"], p["sigma_y"], p["n_ro"],
-                            p["K_ro"])
+    try:
+        R = modulus_of_softness(p["E"], p["sigma_f"], p["eps_f"], p["sigma_y"], p["n_ro"],
+                                p["K_ro"])
+    except OverflowError:
+        return _overflow(p), None
     if not 0.0 < R < 1.0:
         return ("eps_f", f"modulus of softness R (eq. 17) = {R:.4g} is not in (0, 1): the "
                          f"properties do not describe a hardening, ductile material"), None
     return None, R
+
+
+def _overflow(p):
+    """(key, reason) for properties whose energies overflow float64 (a Python float power
+    raises): the Ramberg–Osgood term (sigma_f/sigma_y)^(n_ro + 1) if that is what overflows,
+    else the largest property."""
+    if (p["n_ro"] + 1.0) * math.log(p["sigma_f"] / p["sigma_y"]) > 700.0:
+        return ("n_ro", f"(sigma_f/sigma_y)^(n_ro + 1) overflows a float64 with n_ro = "
+                        f"{p['n_ro']:g}")
+    key = max(("E", "sigma_y", "sigma_f", "eps_f", "K_ro"), key=lambda k: abs(p[k]))
+    return (key, f"the material's strain energies overflow a float64 with {key} = {p[key]:g}")
 
 
 # ------------------------------------------------------------------------------------------
@@ -157,22 +186,31 @@ class GamutBarSolver(Solver):
         else:
             props["R"] = R_eq18
         cfg["R_given"] = "R" in scene
-        cfg["local_bonds"] = _int(s, "local_bonds", 2)
+        cfg["local_bonds"] = _int(s, "local_bonds", 2, MAX_LOCAL_BONDS)
         cfg["grid_factor"] = _num(s, "grid_factor", lo=0.0)
         cfg["min_spacing_fraction"] = _num(s, "min_spacing_fraction", positive=True, hi=0.99)
         if 1.0 + cfg["grid_factor"] <= cfg["min_spacing_fraction"]:
             raise SceneError("no spacing can be drawn above it (1 + grid_factor)",
                              key="scene.min_spacing_fraction")
-        cfg["grid_seed"] = _int(s, "grid_seed", 0)
+        cfg["grid_seed"] = _int(s, "grid_seed", 0, MAX_GRID_SEED)
         cfg["sigma_stdev"] = _num(s, "sigma_stdev", positive=True)
         cfg["cutoff"] = _num(s, "cutoff", positive=True)
         if cfg["cutoff"] * cfg["sigma_stdev"] < 2.0:
             raise SceneError(f"cutoff × sigma_stdev = {cfg['cutoff'] * cfg['sigma_stdev']:g} "
                              f"spacings: no nonlocal bond (degree ≥ 2) within it",
                              key="scene.cutoff")
-        cfg["curve_points"] = _int(s, "curve_points", 2)
-        cfg["cycles"] = _int(s, "cycles", 2)
-        cfg["cycle_repeats"] = _int(s, "cycle_repeats", 1)
+        families = cfg["cutoff"] * cfg["sigma_stdev"] - 1
+        if families > MAX_FAMILIES:
+            raise SceneError(f"cutoff × sigma_stdev = {families + 1:g} spacings make "
+                             f"{families:g} bond families; at most {MAX_FAMILIES:,}",
+                             key="scene.cutoff")
+        if cfg["local_bonds"] * (1 + families) > MAX_BONDS:
+            raise SceneError(f"{cfg['local_bonds']:,} local bonds × {1 + families:g} "
+                             f"(1 + families) = {cfg['local_bonds'] * (1 + families):.3g} "
+                             f"bonds; at most {MAX_BONDS:.0e}", key="scene.local_bonds")
+        cfg["curve_points"] = _int(s, "curve_points", 2, MAX_LOAD_STEPS)
+        cfg["cycles"] = _int(s, "cycles", 2, MAX_CYCLES)
+        cfg["cycle_repeats"] = _int(s, "cycle_repeats", 1, MAX_CYCLE_REPEATS)
         rng = s["amplitude_range"]
         if (not isinstance(rng, (list, tuple)) or len(rng) != 2
                 or not all(_is_number(v) and math.isfinite(v) and v > 0 for v in rng)):
@@ -181,8 +219,12 @@ class GamutBarSolver(Solver):
         cfg["amplitude_range"] = (float(rng[0]), float(rng[1]))
         if rng[0] >= rng[1]:
             raise SceneError("low must be below high", key="scene.amplitude_range")
-        top = ro_stress(props["eps_f"], props["E"], props["sigma_y"], props["n_ro"],
-                        props["K_ro"])
+        try:
+            top = ro_stress(props["eps_f"], props["E"], props["sigma_y"], props["n_ro"],
+                            props["K_ro"])
+        except OverflowError:
+            key, reason = _overflow(props)
+            raise SceneError(reason, key=f"scene.{key}") from None
         if rng[1] * props["sigma_y"] >= top:
             raise SceneError(f"the highest amplitude {rng[1] * props['sigma_y']:.4g} Pa is not "
                              f"below the stress at the failure strain ({top:.4g} Pa)",
@@ -192,10 +234,19 @@ class GamutBarSolver(Solver):
         if cfg["force_growth"] <= 1.0:
             raise SceneError(f"must be > 1, got {cfg['force_growth']!r}",
                              key="scene.force_growth")
-        cfg["cyclic_increment"] = _num(s, "cyclic_increment", positive=True, hi=0.5)
+        cfg["cyclic_increment"] = _num(s, "cyclic_increment", lo=MIN_CYCLIC_INCREMENT, hi=0.5)
         if abs(1.0 / cfg["cyclic_increment"] - round(1.0 / cfg["cyclic_increment"])) > 1e-9:
             raise SceneError("must be 1/integer (e.g. 0.01)", key="scene.cyclic_increment")
-        cfg["bisections"] = _int(s, "bisections", 1)
+        cfg["bisections"] = _int(s, "bisections", 1, MAX_BISECTIONS)
+        if cfg["loading"] == "cyclic":
+            # Each repeat of each amplitude is a loop of 2 × (2 / increment) steps.
+            loops = cfg["cycles"] * cfg["cycle_repeats"]
+            steps = loops * 4.0 / cfg["cyclic_increment"]
+            if steps > MAX_LOAD_STEPS:
+                raise SceneError(f"{loops:,} loops (cycles × cycle_repeats) of "
+                                 f"{4 / cfg['cyclic_increment']:.0f} steps are {steps:.3g} load "
+                                 f"steps; at most {MAX_LOAD_STEPS:.0e}",
+                                 key="scene.cyclic_increment")
         return cls(cfg, props)
 
     def _amplitudes(self, p):

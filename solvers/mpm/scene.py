@@ -63,6 +63,14 @@ DEFAULT_SNAPSHOT_FIELDS = ("pressure", "plastic_strain", "equivalent_stress", "d
 SNAPSHOT_MULTIPLE_RTOL = 1e-6   # interval / output_interval must be an integer within this
 EXTENT_SPEED_FACTOR = 1.25   # signal speed = factor × initial wave speed (shocks run faster)
 EXTENT_MARGIN_CELLS = 4      # cells added around the domain of dependence (stencil spread)
+# Upper bounds of the counts, so that what validates can run (docs/mpm.md, "Limits"):
+# a particle with its grid share takes about 300 bytes (320,000 particles: ~100 MiB), so
+# 2e7 lattice points are ~6 GiB and ~3 s per step at the measured 6e6 particle-updates/s.
+MAX_LATTICE_POINTS = 2e7
+MAX_STEPS = 10**9            # a cap on the step count; more than any run could take
+MAX_THREADS = 1024           # numba threads of one run
+MAX_PADDING = 64             # ghost cells per side (3 are needed by the widest stencil)
+MAX_EXTENT_MARGIN = 10**6    # cells added around the domain of dependence
 DEFAULTS = {"resolution": 1.0, "particles_per_cell": 2, "shape": "quadratic", "flip": 1.0,
             "cfl": 0.3, "gravity": [0.0, 0.0], "padding": 3, "extent": "full",
             "max_steps": 5_000_000, "threads": 1}
@@ -91,11 +99,13 @@ def _num(v, key, *, positive=False, lo=None, hi=None, nonnegative=False):
     return v
 
 
-def _int(v, key, lo):
+def _int(v, key, lo, hi):
     if not isinstance(v, (int, np.integer)) or isinstance(v, bool):
         raise _err(key, f"must be an integer, got {v!r}")
     if v < lo:
         raise _err(key, f"must be >= {lo}, got {v!r}")
+    if v > hi:
+        raise _err(key, f"must be <= {hi:,}, got {v!r}")
     return int(v)
 
 
@@ -239,11 +249,12 @@ def parse(scene) -> Config:
     cell = _num(s["cell_size"], "cell_size", positive=True)
     res = _num(s["resolution"], "resolution", positive=True)
     dx = cell / res
-    ppc = _int(s["particles_per_cell"], "particles_per_cell", 1)
-    if ppc > 8:
+    ppc = s["particles_per_cell"]
+    if isinstance(ppc, (int, np.integer)) and not isinstance(ppc, bool) and ppc > 8:
         raise _err("particles_per_cell", f"is per direction; at most 8, got {ppc}")
+    ppc = _int(ppc, "particles_per_cell", 1, 8)
     shape = s["shape"]
-    if shape not in KINDS:
+    if not isinstance(shape, str) or shape not in KINDS:
         raise _err("shape", f"must be one of {', '.join(KINDS)}, got {shape!r}")
     flip = _num(s["flip"], "flip", lo=0.0, hi=1.0)
     cfl = _num(s["cfl"], "cfl", positive=True, hi=1.0)
@@ -263,15 +274,15 @@ def parse(scene) -> Config:
     dt_min = None
     if "dt_min" in s:
         dt_min = _num(s["dt_min"], "dt_min", positive=True)
-    max_steps = _int(s["max_steps"], "max_steps", 1)
-    threads = _int(s["threads"], "threads", 0)
-    pad = _int(s["padding"], "padding", 2)
+    max_steps = _int(s["max_steps"], "max_steps", 1, MAX_STEPS)
+    threads = _int(s["threads"], "threads", 0, MAX_THREADS)
+    pad = _int(s["padding"], "padding", 2, MAX_PADDING)
     extent = s["extent"]
-    if extent not in ("full", "auto"):
+    if not isinstance(extent, str) or extent not in ("full", "auto"):
         raise _err("extent", f"must be \"full\" or \"auto\", got {extent!r}")
     margin = 0
     if "extent_margin" in s:
-        margin = _int(s["extent_margin"], "extent_margin", 0)
+        margin = _int(s["extent_margin"], "extent_margin", 0, MAX_EXTENT_MARGIN)
     else:
         margin = EXTENT_MARGIN_CELLS
 
@@ -284,7 +295,7 @@ def parse(scene) -> Config:
         b = _table(s["boundaries"], "boundaries")
         _keys(b, SIDES, "boundaries")
         for k, v in b.items():
-            if v not in SIDE_KINDS:
+            if not isinstance(v, str) or v not in SIDE_KINDS:
                 raise _err(f"boundaries.{k}", f"must be one of {', '.join(SIDE_KINDS)}, "
                                               f"got {v!r}")
             sides[k] = v
@@ -305,6 +316,14 @@ def parse(scene) -> Config:
             if hi[0] < lo[0] or hi[1] < lo[1]:
                 raise _err(f"{key}.max", "must not be below min")
             clamps.append((lo[0], lo[1], hi[0], hi[1]))
+    # Seeding lays a lattice of ppc × ppc points over every cell before keeping those in a
+    # body: bound it before anything is allocated (floats, so no integer overflows first).
+    lattice = ((x1 - x0) / dx + 1) * ((y1 - y0) / dx + 1) * float(ppc) ** 2
+    if lattice > MAX_LATTICE_POINTS:
+        raise _err("cell_size" if "resolution" not in scene else "resolution",
+                   f"the domain holds {lattice:.3g} lattice points (cells × "
+                   f"particles_per_cell²) at cell size {dx:g} m; at most "
+                   f"{MAX_LATTICE_POINTS:.0e} fit in memory (about 300 bytes each)")
     grid = Grid.cover(x0, x1, y0, y1, dx, pad, sides, clamps)
     if (any(v not in ("free", "absorbing") for v in sides.values())
             and min(grid.ncx, grid.ncy) < 2 * pad):
@@ -324,7 +343,7 @@ def parse(scene) -> Config:
         if "model" not in spec:
             raise _err(f"{key}.model", f"is required (one of {', '.join(sorted(lib))})")
         model = spec["model"]
-        if model not in lib:
+        if not isinstance(model, str) or model not in lib:
             raise _err(f"{key}.model", f"unknown material {model!r} (known: "
                                        f"{', '.join(sorted(lib))})")
         over = _flatten({k: v for k, v in spec.items() if k != "model"})
@@ -340,7 +359,7 @@ def parse(scene) -> Config:
         key = f"bodies[{k}]"
         b = _table(b, key)
         shape_b = b.get("shape")
-        if shape_b not in BODY_KEYS:
+        if not isinstance(shape_b, str) or shape_b not in BODY_KEYS:
             raise _err(f"{key}.shape", f"must be one of {', '.join(BODY_KEYS)}, got {shape_b!r}")
         _keys(b, ("name", "material", "shape", "velocity") + BODY_KEYS[shape_b], key)
         name = b.get("name", f"body{k}")
@@ -428,7 +447,7 @@ def parse(scene) -> Config:
             raise _err(f"{key}.point", "is required")
         pt = _pair(p["point"], f"{key}.point")
         body = p.get("body")
-        if body is not None and body not in names:
+        if body is not None and (not isinstance(body, str) or body not in names):
             raise _err(f"{key}.body", f"no body named {body!r} (bodies: {', '.join(names)})")
         probes.append(Probe(p["name"], pt, body))
 

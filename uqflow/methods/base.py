@@ -21,11 +21,12 @@ and ``warnings`` (one warning per line).
 from __future__ import annotations
 
 import abc
-from typing import ClassVar
+import types
+from typing import Annotated, Any, ClassVar, Literal, Union, get_args, get_origin
 
 import numpy as np
 import xarray as xr
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, field_validator
 
 from uqflow.errors import StudyError
 from uqflow.inputs import InputSpace
@@ -43,10 +44,68 @@ def get_method(name: str) -> type["PropagationMethod"]:
     return method_registry.get(name)
 
 
-class MethodOptions(BaseModel):
-    """Options of a method, validated from the study file's ``[method]`` table."""
+# Upper bounds of the counts a method option can ask for, so that what validates can run
+# (docs/study-files.md, "Limits"). A design holds realizations × inputs float64 values and the
+# runs one status, message and wall time per realization (~100 bytes with the strings):
+# 10^7 realizations are ~1 GiB before any output, and take hours even at 1 ms each.
+MAX_REALIZATIONS = 10**7
+# A bootstrap draws base samples × resamples int64 indices at once (SALib): 10^8 is 0.8 GiB.
+MAX_BOOTSTRAP_DRAWS = 10**8
+# An integer option that states no upper bound of its own gets this one (a count beyond it
+# is either more realizations than above or a loop no run would finish).
+MAX_COUNT = MAX_REALIZATIONS
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+
+class MethodOptions(BaseModel):
+    """Options of a method, validated from the study file's ``[method]`` table.
+
+    Validation is strict, for every subclass (third-party methods included): an ``int``
+    option takes a TOML integer only (not ``1000.0``, ``1e3`` or ``"1000"``), a ``float``
+    option an integer or a float, never a boolean or a string, and never NaN or infinity;
+    ``Literal`` options of numbers refuse booleans and fractions (``order = true``).
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _no_lookalike_numbers(cls, value, info):
+        # Literal[1, 2] compares by equality, so true and 1.0 would pass it as 1; strict mode
+        # does not cover Literal.
+        annotation = cls.model_fields[info.field_name].annotation
+        if isinstance(value, bool) and not _admits(annotation, bool):
+            what = "an integer" if _admits(annotation, int) else \
+                "a number" if _admits(annotation, float) else "one of the values listed"
+            raise ValueError(f"must be {what}, not a boolean, got {str(value).lower()}")
+        if isinstance(value, float) and not _admits(annotation, float) and \
+                _admits(annotation, int):
+            raise ValueError(f"must be an integer: write {value:.0f}, not {value!r}"
+                             if value.is_integer() else f"must be an integer, got {value!r}")
+        if isinstance(value, int) and not isinstance(value, bool) and value > MAX_COUNT and \
+                _admits(annotation, int) and not _has_upper_bound(cls.model_fields[
+                    info.field_name]):
+            raise ValueError(f"must be <= {MAX_COUNT:,} (the largest count uqflow runs; "
+                             f"docs/study-files.md, Limits), got {value:,}")
+        return value
+
+
+def _has_upper_bound(info) -> bool:
+    return any(getattr(m, "le", None) is not None or getattr(m, "lt", None) is not None
+               for m in info.metadata)
+
+
+def _admits(annotation, kind: type) -> bool:
+    """Whether a field annotated ``annotation`` is meant to take values of type ``kind``."""
+    if annotation is kind or annotation is Any:
+        return True
+    origin = get_origin(annotation)
+    if origin is Literal:
+        return any(type(v) is kind for v in get_args(annotation))
+    if origin is Annotated:
+        return _admits(get_args(annotation)[0], kind)
+    if origin in (Union, types.UnionType):
+        return any(_admits(a, kind) for a in get_args(annotation))
+    return False
 
 
 class PropagationMethod(abc.ABC):

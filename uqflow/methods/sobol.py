@@ -19,9 +19,9 @@ from SALib.analyze import sobol as salib_analyze
 from SALib.sample import sobol as salib_sample
 
 from uqflow.errors import StudyError
-from uqflow.methods.base import (MethodOptions, PropagationMethod, failure_warning,
-                                 finish_statistics, make_design, output_names,
-                                 register_method)
+from uqflow.methods.base import (MAX_BOOTSTRAP_DRAWS, MAX_REALIZATIONS, MethodOptions,
+                                 PropagationMethod, failure_warning, finish_statistics,
+                                 make_design, output_names, register_method)
 
 FIRST_LABELS = ["S1", "S1_conf", "ST", "ST_conf"]
 SECOND_LABELS = ["S2", "S2_conf"]
@@ -53,6 +53,16 @@ class Sobol(PropagationMethod):
                              "or use monte-carlo", key="method.kind")
         if len(space) == 0:
             raise StudyError("sobol indices need at least one uncertain input", key="inputs")
+        n = self.options.samples
+        block = 2 * len(space) + 2 if self.options.second_order else len(space) + 2
+        if n * block > MAX_REALIZATIONS:
+            raise StudyError(f"{n} base samples × {block} realizations each = {n * block:,}, "
+                             f"more than the {MAX_REALIZATIONS:,} a study may run",
+                             key="method.samples")
+        if n * self.options.resamples > MAX_BOOTSTRAP_DRAWS:
+            raise StudyError(f"the bootstrap would draw samples × resamples = "
+                             f"{n * self.options.resamples:,} indices at once, more than "
+                             f"{MAX_BOOTSTRAP_DRAWS:,} (0.8 GiB)", key="method.resamples")
 
     def plan(self, space, fields, seed):
         self.check(space, fields)
