@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import math
 import pickle
+import re
+from pathlib import Path
 
 import numpy as np
 import pydantic
@@ -582,3 +584,100 @@ def test_field_at_matches_modes_and_large_point_sets_skip_the_cache(monkeypatch)
     # cached modes against one extension per block: two summation orders of the same sum
     np.testing.assert_allclose(large, small, rtol=0,
                                atol=reassociation_bound(field.basis, g) * field.amplitude)
+
+
+# --------------------------------------------------------------------------- docs/fields.md
+FIELDS_DOC = Path(__file__).resolve().parent.parent / "docs" / "fields.md"
+SUPERSCRIPT = str.maketrans("⁻⁰¹²³⁴⁵⁶⁷⁸⁹", "-0123456789")
+
+
+def _shown(text: str) -> tuple[float, float]:
+    """A number as the doc prints it ("0.738811", "1.3e-04", "2.5·10⁻⁷") and one unit in its
+    last digit: two roundings of values that agree to within that unit can print so."""
+    text = text.strip().translate(SUPERSCRIPT).replace("·10", "e")
+    mantissa, _, exponent = text.partition("e")
+    decimals = len(mantissa.split(".")[1]) if "." in mantissa else 0
+    scale = 10.0 ** int(exponent) if exponent else 1.0
+    return float(mantissa) * scale, 10.0 ** -decimals * scale
+
+
+def _agrees(text: str, value: float) -> bool:
+    shown, unit = _shown(text)
+    return abs(shown - value) <= unit * (1 + 1e-9)
+
+
+def _plain_nystrom(b: float, a: float, n: int, modes: int = 6) -> np.ndarray:
+    """Gauss–Legendre Nyström without the singularity subtraction (the doc's comparison)."""
+    t, w = np.polynomial.legendre.leggauss(n)
+    x, w = a * t, a * w
+    sw = np.sqrt(w)
+    return np.linalg.eigvalsh(sw[:, None] * np.exp(-np.abs(x[:, None] - x) / b) * sw)[::-1][:modes]
+
+
+def _rel(approx, exact):
+    return np.abs(np.asarray(approx) / exact - 1)
+
+
+def test_accuracy_section_of_the_docs(reference):
+    text = FIELDS_DOC.read_text(encoding="utf-8")
+    section = text[text.index("## Accuracy"):]
+    tables = re.findall(r"\*\*a = ([0-9.]+), b = ([0-9.]+)\*\* \(`(\w+)`\)\n\n\|[^\n]*\n\|[^\n]*\n"
+                        r"((?:\|[^\n]*\n)+)", section)
+    assert len(tables) == 3
+    worst_rounding = 0.0
+    for a, b, key, body in tables:
+        a, b = float(a), float(b)
+        ref = np.array(reference["kl_exponential"][key])
+        exact = KLBasis.build("exponential", b, interval(a), modes=6).eigenvalues
+        nys = KLBasis.build("exponential", b, interval(a), modes=6, method="nystrom").eigenvalues
+        plain = _plain_nystrom(b, a, 400)
+        worst_rounding = max(worst_rounding, np.abs(exact - ref).max())
+        rows = [[c.strip() for c in line.split("|")[1:-1]] for line in body.splitlines()]
+        assert [int(r[0]) for r in rows] == [1, 2, 3, 4, 5, 6]
+        for j, (_, r_ref, r_exact, r_nys, r_rel, r_plain) in enumerate(rows):
+            assert float(r_ref) == ref[j], (key, j)
+            assert _agrees(r_exact, exact[j]) and _agrees(r_nys, nys[j]), (key, j)
+            rel = _rel(nys[j], exact[j])
+            assert rel < 1e-9 if r_rel == "< 1e-9" else _agrees(r_rel, rel), (key, j, rel)
+            assert _agrees(r_plain, _rel(plain[j], exact[j])), (key, j)
+    stated = re.search(r"≤ ([0-9.]+·10⁻[⁰¹²³⁴⁵⁶⁷⁸⁹]+) absolute", section).group(1)
+    assert _agrees(stated, worst_rounding)
+
+    convergence = re.search(r"\| N \| corrected Nyström \| plain Nyström \|\n\|[^\n]*\n"
+                            r"((?:\|[^\n]*\n)+)", section).group(1)
+    exact = KLBasis.build("exponential", 1.0, interval(0.5), modes=6).eigenvalues
+    for line in convergence.splitlines():
+        n, corrected, plain = [c.strip() for c in line.split("|")[1:-1]]
+        got = KLBasis.build("exponential", 1.0, interval(0.5), modes=6, method="nystrom",
+                            quadrature_points=int(n)).eigenvalues
+        assert _agrees(corrected, _rel(got, exact).max()), n
+        assert _agrees(plain, _rel(_plain_nystrom(1.0, 0.5, int(n)), exact).max()), n
+
+    nodes_err, between_err = re.search(r"largest error is ([0-9.]+·10⁻[⁰¹²³⁴⁵⁶⁷⁸⁹]+) at the nodes and "
+                                       r"([0-9.]+·10⁻[⁰¹²³⁴⁵⁶⁷⁸⁹]+) at 37", section).groups()
+    pts = np.array([1.0, 3.0])
+    exact_b, num = (KLBasis.build("exponential", 0.7, pts, modes=8, method=m)
+                    for m in ("analytic", "nystrom"))
+    x = np.linspace(1.0, 3.0, 37)
+    sign = np.sign(np.sum(exact_b.eigenfunctions(x) * num.eigenfunctions(x), axis=0))
+    xn = num.nodes[:, 0]
+    assert _agrees(nodes_err, np.abs(num.eigenfunctions(xn) * sign
+                                     - exact_b.eigenfunctions(xn)).max())
+    assert _agrees(between_err, np.abs(num.eigenfunctions(x) * sign
+                                       - exact_b.eigenfunctions(x)).max())
+    coarse, fine = (KLBasis.build("squared_exponential", 0.3, interval(0.5), modes=6,
+                                  method="nystrom", quadrature_points=q).eigenvalues
+                    for q in (16, 400))
+    assert "N = 16 agree with those with N = 400 to 1e-8 relative" in " ".join(section.split())
+    assert _rel(coarse, fine).max() < 1e-8
+
+    kept = re.search(r"\| b \| exponential: modes \(captured\) \|[^\n]*\n\|[^\n]*\n"
+                     r"((?:\|[^\n]*\n)+)", section).group(1)
+    for line in kept.splitlines():
+        b, *cells = [c.strip() for c in line.split("|")[1:-1]]
+        for kernel, cell in zip(("exponential", "squared_exponential"), cells):
+            basis = KLBasis.build(kernel, float(b), np.array([0.0, 1.0]), captured_variance=0.95)
+            modes, captured, *flag = re.match(r"(\d+) \(([0-9.]+)(, capped)?\)", cell).groups()
+            assert int(modes) == basis.n_modes, (b, kernel)
+            assert _agrees(captured, basis.captured_fraction), (b, kernel)
+            assert (flag[0] is not None) == basis.capped, (b, kernel)
