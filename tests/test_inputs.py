@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 
+import chaospy
 import numpy as np
 import pytest
 from scipy import optimize, special, stats
@@ -30,6 +31,7 @@ def _weibull_shape(cv):
     """Shape k with sqrt(G(1+2/k)/G(1+1/k)^2 - 1) = cv (moderate cv: plain gamma is exact)."""
     def f(k):
         return math.sqrt(special.gamma(1 + 2 / k) / special.gamma(1 + 1 / k) ** 2 - 1) - cv
+    # Solved to float64 resolution: brentq's own floor is 4 eps |k| (~1e-15 relative).
     return optimize.brentq(f, 0.5, 50.0, xtol=1e-15, rtol=1e-15)
 
 
@@ -145,18 +147,24 @@ def test_moments_match_scipy(case_id, kind, params):
     inp = _input(kind, params)
     mean, std, skew, kurt = _exact(REFERENCE[kind](params))
     assert inp.kind == kind and inp.units == "Pa"
+    # Bound: the moment-form solves stop at a residual of 1e-10 std (truncnormal, in
+    # uqflow/inputs.py), which the moments' O(10..100) condition in (mu, sigma) turns into
+    # <= 1e-8; closed forms and scipy agree to ~1e-14.
     assert inp.mean == pytest.approx(mean, rel=1e-8)
     assert inp.std == pytest.approx(std, rel=1e-8)
     assert inp.variance == pytest.approx(std**2, rel=1e-8)
+    # Same bound; abs 1e-10: a symmetric case's skewness of 0 carries the 1e-10 residual.
     assert inp.skewness == pytest.approx(skew, rel=1e-8, abs=1e-10)
     assert inp.kurtosis == pytest.approx(kurt, rel=1e-8)
+    # Same bound (1e-10 residual × O(100) condition), in units of std^3 and std^4.
     assert inp.third_central_moment == pytest.approx(skew * std**3, rel=1e-8, abs=1e-10 * std**3)
     assert inp.fourth_central_moment == pytest.approx(kurt * std**4, rel=1e-8)
-    assert inp.cv == pytest.approx(std / abs(mean), rel=1e-8)
+    assert inp.cv == pytest.approx(std / abs(mean), rel=1e-8)   # = std's and mean's bound
     if "mean" in params:  # the moment form reproduces what was asked for
+        # Bound: the solve's residual 1e-10 std, with std/|mean| <= 0.3 here.
         assert inp.mean == pytest.approx(params["mean"], rel=1e-10)
         asked = params.get("std", params.get("cv", 0) * abs(params["mean"]))
-        assert inp.std == pytest.approx(asked, rel=1e-9)
+        assert inp.std == pytest.approx(asked, rel=1e-9)   # residual 1e-10 of std, 10x margin
 
 
 @pytest.mark.parametrize("case_id, kind, params", CASES, ids=CASE_IDS)
@@ -164,6 +172,8 @@ def test_inverse_cdf_matches_scipy(case_id, kind, params):
     """The chaospy marginal that is sampled is the distribution whose moments are reported."""
     inp = _input(kind, params)
     u = np.array([1e-6, 0.01, 0.1, 0.3, 0.5, 0.7, 0.9, 0.99, 1 - 1e-6])
+    # Bound: parameters from a solve with residual 1e-10 std, moved along the quantile by
+    # |z| <= 4.8 std at these u, and chaospy's numerical inverses (to ~1e-10): << 1e-8 |x|.
     np.testing.assert_allclose(inp.inverse_cdf(u), REFERENCE[kind](params).ppf(u), rtol=1e-8)
 
 
@@ -201,10 +211,13 @@ TINY = [
 def test_tiny_cv(kind, params, skew, kurt):
     """C.V. 1e-8: exact mean/std, the limiting shape, finite samples with the right spread."""
     inp = _input(kind, params)
+    # Bound: the mean is what was asked, up to the solve's 1e-10 std = 2e-18 (below rounding).
     assert inp.mean == pytest.approx(params["mean"], rel=1e-12)
-    assert inp.std == pytest.approx(1e-8 * params["mean"], rel=1e-8)
+    assert inp.std == pytest.approx(1e-8 * params["mean"], rel=1e-8)   # residual 1e-10 of std
     if skew is None:
         skew = float(_ref_beta(params).stats(moments="s"))
+    # Bound: the limits differ from the shape at cv = 1e-8 by O(cv) (constants < 100);
+    # abs 1e-12 for symmetric cases, whose 0 is rounding of O(1) standardized moments.
     assert inp.skewness == pytest.approx(skew, rel=1e-6, abs=1e-12)
     assert inp.kurtosis == pytest.approx(kurt, rel=1e-6)
     x = _sample([inp], "sobol")[:, 0]
@@ -220,6 +233,8 @@ def test_moment_form_cv_0_3_equals_std_form():
         a = _input(kind, {"mean": 0.6 if kind == "beta" else 2.0, "cv": 0.3, **extra})
         b = _input(kind, {"mean": 0.6 if kind == "beta" else 2.0,
                           "std": 0.3 * (0.6 if kind == "beta" else 2.0), **extra})
+        # Bound: std = cv |mean| differs from the given std by at most an ulp, which the
+        # moment solves amplify by their O(100) condition: ~1e-14.
         assert a.moments == pytest.approx(b.moments, rel=1e-12), kind
 
 
@@ -249,6 +264,7 @@ def test_zero_std_is_a_constant(kind, params):
 
 def test_lognormal_native_zero_sigma_is_constant():
     inp = _input("lognormal", {"mu": 0.5, "sigma": 0.0})
+    # Bound: the same expression exp(mu), so equal up to the last ulp (2.2e-16).
     assert inp.mean == pytest.approx(math.exp(0.5), rel=1e-15) and inp.variance == 0.0
     assert np.all(inp.inverse_cdf(np.array([0.1, 0.9])) == inp.mean)
 
@@ -273,14 +289,19 @@ def test_extreme_magnitudes(case_id, kind, params, scale):
     if kind == "beta" and "lower" not in params:   # the default support [0, 1] scales too
         scaled_params.update(lower=0.0, upper=scale)
     inp = _input(kind, scaled_params)
+    # Bound: two solves, each to a residual of 1e-10 std (condition O(10..100) on the
+    # moments), plus one rounding of the scale: 1e-9 for the mean, 1e-8 for the std.
     assert inp.mean == pytest.approx(base.mean * scale, rel=1e-9)
     assert inp.std == pytest.approx(base.std * scale, rel=1e-8)
+    # Shape moments: the same residuals through the third and fourth powers of std.
     assert inp.skewness == pytest.approx(base.skewness, rel=1e-7, abs=1e-9)
     assert inp.kurtosis == pytest.approx(base.kurtosis, rel=1e-8)
     mean, std, skew, kurt = _exact(REFERENCE[kind](scaled_params))
+    # Bound as in test_moments_match_scipy (residual 1e-10 std × O(100) condition).
     assert inp.mean == pytest.approx(mean, rel=1e-8)
     assert inp.std == pytest.approx(std, rel=1e-8)
     u = np.array([0.001, 0.2, 0.5, 0.8, 0.999])
+    # Bound as in test_inverse_cdf_matches_scipy: solve residuals × |z| <= 3.1, << 1e-8.
     np.testing.assert_allclose(inp.inverse_cdf(u), base.inverse_cdf(u) * scale, rtol=1e-8)
     x = _sample([inp], "sobol", n=4096)[:, 0]
     assert abs(x.mean() - inp.mean) < 4 * inp.std / math.sqrt(x.size)
@@ -299,6 +320,9 @@ def test_weibull_small_cv_moments_are_accurate():
     assert inp.kurtosis == pytest.approx(5.4, rel=1e-5)
     inp = _input("weibull", {"shape": 200.0, "scale": 1.0})
     mean, std, skew, kurt = _exact(stats.weibull_min(200.0))
+    # Bound: the mean Γ(1 + 1/k) is a closed form (~1e-15 each side); scipy's std comes from
+    # E[X²] − E[X]², cancelling 1 − cv² with cv = 6.4e-3: 2.4e4 × eps ~ 5e-12 of var, so 1e-9
+    # on the std leaves the margin of scipy's own gamma evaluations.
     assert inp.mean == pytest.approx(mean, rel=1e-12)
     assert inp.std == pytest.approx(std, rel=1e-9)
     assert inp.skewness == pytest.approx(skew, rel=1e-5)
@@ -366,6 +390,7 @@ def test_bad_parameters_raise_study_error_naming_the_key(case_id, kind, params, 
 
 def test_numpy_scalars_are_numbers():
     inp = _input("lognormal", {"mean": np.float32(2.0), "cv": np.float64(0.3)})
+    # Bound: the lognormal's closed forms round at ~1e-15; a float32 2.0 is exactly 2.
     assert inp.mean == pytest.approx(2.0, rel=1e-12) and inp.cv == pytest.approx(0.3)
     inp = _input("uniform", {"lower": np.int64(1), "upper": np.int32(3)})
     assert inp.mean == 2.0
@@ -441,9 +466,12 @@ def test_uncorrelated_space_maps_columns_independently():
     assert space["b"] is b
     u = np.array([[0.1, 0.2], [0.5, 0.5], [0.9, 0.75]])
     x = space.from_unit_hypercube(u)
+    # Bound: the same inverse CDF on the same u (no copula when uncorrelated): identical, up
+    # to an ulp; the uniform's lower + (upper - lower) u rounds once, < 1e-14 relative.
     np.testing.assert_allclose(x[:, 0], a.inverse_cdf(u[:, 0]), rtol=1e-15)
     np.testing.assert_allclose(x[:, 1], [0.8, 2.0, 3.0], rtol=1e-14)
     summary = space.summary()
+    # Bound: closed-form moments (lognormal from its moment form, uniform exact), ~1e-15.
     np.testing.assert_allclose(summary["input_mean"], [2.0, 2.0], rtol=1e-12)
     np.testing.assert_allclose(summary["input_cv"], [0.3, 4 / math.sqrt(12) / 2], rtol=1e-12)
 
@@ -500,3 +528,48 @@ def test_copula_tail_stays_finite():
     x = space.from_unit_hypercube(u)
     assert np.all(np.isfinite(x))
     assert x[0, 0] > 7 and x[0, 1] > 7 and x[1, 0] < -7 and x[1, 1] < -7
+
+
+# --------------------------------------------------------------------------------------------
+# float64 limits (issue 8): overflow is a one-line error naming the key, never a traceback
+# --------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("kind, params, key", [
+    ("normal", {"mean": 1.0, "std": 1e78}, "std"),            # std^4 = 1e312 (docs: ~1e77)
+    ("normal", {"mean": 1.0, "std": 1e308}, "std"),           # the issue's OverflowError
+    ("normal", {"mean": 1e300, "cv": 1e300}, "cv"),           # std = cv |mean| = inf
+    ("lognormal", {"mu": 0.0, "sigma": 30.0}, "sigma"),       # exp(sigma^2) overflows
+    ("lognormal", {"mu": 700.0, "sigma": 1.0}, "mu"),         # exp(4 mu) in the 4th moment
+    ("lognormal", {"mean": 1e300, "cv": 0.1}, "mean"),
+    ("weibull", {"shape": 2.0, "scale": 1e300}, "scale"),
+    ("weibull", {"shape": 0.01, "scale": 1.0}, "shape"),      # Γ(1 + 4/shape) overflows
+    ("uniform", {"lower": -1e308, "upper": 1e308}, "lower"),  # upper - lower = inf
+    ("beta", {"alpha": 1e300, "beta": 1e300}, "alpha"),
+    ("beta", {"mean": 0.5, "std": 1e-300}, "std"),            # std^2 underflows to 0
+    ("truncnormal", {"mean": 0.0, "std": 1e300, "lower": -1.0, "upper": 1.0}, "std"),
+    ("truncnormal", {"mu": 0.0, "sigma": 1e300}, "sigma"),
+])
+def test_parameters_beyond_float64_are_one_line_errors(kind, params, key):
+    with pytest.raises(StudyError) as err:
+        _input(kind, params, name="steel.E")
+    assert err.value.key == f"inputs.steel.E.{key}", str(err.value)
+    assert "\n" not in str(err.value)
+
+
+def test_std_up_to_1e76_is_representable():
+    """docs/inputs.md: a normal's std must stay below about 1e77 (std^4 < 1.8e308)."""
+    inp = _input("normal", {"mean": 1.0, "std": 1e76})
+    assert math.isfinite(inp.fourth_central_moment)
+    with pytest.raises(StudyError, match="overflow"):
+        _input("normal", {"mean": 1.0, "std": 1e78})
+
+
+def test_infinite_sampling_extremes_are_refused():
+    """The tails sampling can reach (UNIT_CLIP, documented as 1e-15) must be finite."""
+    from uqflow.inputs import UNIT_CLIP, _check_representable
+    assert UNIT_CLIP == 1e-15
+    with pytest.raises(StudyError, match="quantiles") as err:
+        # Finite moments stated, tails that are not: the guard reads the tails themselves.
+        _check_representable(chaospy.Normal(0.0, 1e308), (0.0, 1.0, 0.0, 3.0),
+                             {"mean": 0.0, "std": 1e308}, "inputs[0]")
+    assert err.value.key == "inputs[0].std"
