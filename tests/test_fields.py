@@ -425,7 +425,7 @@ def test_clipping_keeps_values_physical():
                      germ=GermSpec(scale=1.0, shape=0.8))
     field = RandomField(spec, pts)
     rng = np.random.default_rng(2)
-    total = 0
+    total = crossing = 0
     for _ in range(20):
         germs = spec.germ.draw(field.n_modes, rng)
         raw = 5.0 * (1 + field.amplitude * field.perturbation(germs, pts))
@@ -435,7 +435,9 @@ def test_clipping_keeps_values_physical():
         np.testing.assert_array_equal(values[raw <= 0], 5.0e-3)
         np.testing.assert_array_equal(values[raw > 0], raw[raw > 0])
         total += n
-    assert total > 0                               # this field does cross zero unclipped
+        crossing += n > 0
+    # docs/fields.md: divisor 2 with shape 0.8 "crosses zero in most realizations"
+    assert crossing > 10
     # Upper bounds the same way.
     germs = spec.germ.draw(field.n_modes, rng)
     values, n = field.realize(5.0, germs, pts, lower=0.0, upper=6.0)
@@ -681,3 +683,14 @@ def test_accuracy_section_of_the_docs(reference):
             assert int(modes) == basis.n_modes, (b, kernel)
             assert _agrees(captured, basis.captured_fraction), (b, kernel)
             assert (flag[0] is not None) == basis.capped, (b, kernel)
+
+
+def test_modes_for_95_percent_follow_the_doc_estimate():
+    """docs/fields.md: the exponential kernel needs roughly 12.7·|D|/(π b) modes for 95 %
+    (from λ_j ≈ 2c/ω_j², ω_j ≈ jπ/|D|: the tail beyond M is 2|D|/(π² b M) of the total
+    variance |D|, 5 % at M = 40|D|/(π² b) = 12.7·|D|/(π b))."""
+    assert "12.7 · |D| / (π b)" in FIELDS_DOC.read_text(encoding="utf-8")
+    for b in (0.02, 0.05, 0.1):
+        modes = KLBasis.build("exponential", b, np.array([0.0, 1.0]),
+                              captured_variance=0.95).n_modes
+        assert abs(modes / (12.7 / (math.pi * b)) - 1) < 0.1, (b, modes)
