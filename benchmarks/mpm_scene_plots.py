@@ -191,6 +191,8 @@ def main(argv=None):
         if args.only and key != args.only:
             continue
         scene = tomllib.load(open(study, "rb"))["scene"]
+        if isinstance(scene, str):       # the studies name their scene file
+            scene = tomllib.load(open(study.parent / scene, "rb"))
         scene["resolution"] = args.resolution
         snaps_s = [t * 1e-6 for t in args.snap_us]
         solver, ds, snaps, parts, labels, run, wall = run_scene(scene, snaps_s)
