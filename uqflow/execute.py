@@ -30,7 +30,7 @@ from uqflow.errors import ResultFileError, StudyError, UqflowError
 from uqflow.realization import (STATUS_FAILED, STATUS_PENDING, add_field_value_variables,
                                 batch_arguments, empty_runs, run_batch, store_batch)
 from uqflow.store import check_writable, now, read_runs, versions, write_result
-from uqflow.study import Study
+from uqflow.study import Study, scheduler_address_problem
 
 _RUN_COLUMNS = {"status", "message", "wall_time", "clipped_points"}
 #: how long a client waits for a dask scheduler before saying it cannot reach it
@@ -252,6 +252,8 @@ def run_study(study: Study, *, workers: int | None = None, scheduler: str | None
     workers = ex.workers if workers is None else workers
     source = {"key": "--scheduler"} if scheduler is not None else \
         {"file": str(study.path), "key": "execution.scheduler"}
+    if scheduler is not None and (problem := scheduler_address_problem(scheduler)):
+        raise StudyError(problem, **source)
     scheduler = scheduler if scheduler is not None else ex.scheduler
     if output is not None:
         path, where = Path(output).resolve(), {"key": "--output"}

@@ -50,10 +50,11 @@ def _free_port():
 
 
 @pytest.mark.parametrize("address, says", [
-    ("tcp://127.0.0.1:notaport", "invalid literal"),
-    ("nothing-like-an-address", "missing port number"),
-    ("carrier-pigeon://127.0.0.1:8786", "unknown address scheme"),
-    (None, "Timed out trying to connect"),
+    ("tcp://127.0.0.1:notaport", "is not a scheduler address"),
+    ("nothing-like-an-address", "is not a scheduler address"),
+    ("carrier-pigeon://127.0.0.1:8786", "is not a scheduler address"),
+    ("tcp://127.0.0.1:99999", "is not a scheduler address"),
+    (None, "cannot reach dask scheduler"),
 ])
 def test_an_unusable_scheduler_is_one_line_and_exit_2(write_study, tmp_path, capsys,
                                                       monkeypatch, address, says):
@@ -63,8 +64,7 @@ def test_an_unusable_scheduler_is_one_line_and_exit_2(write_study, tmp_path, cap
     code, _, err = _cli(capsys, "run", study, "--scheduler", address, "--quiet")
     assert code == 2
     assert err.count("\n") == 0
-    assert err.startswith(f"uqflow: error: --scheduler: cannot reach dask scheduler "
-                          f"'{address}': ") and says in err
+    assert err.startswith("uqflow: error: --scheduler: ") and says in err and address in err
     assert not (tmp_path / "out").exists()  # refused before anything was written
 
 
