@@ -24,10 +24,10 @@ from uqflow.errors import StudyError
 from uqflow.execute import run_study
 from uqflow.inputs import InputSpace, RandomInput
 from uqflow.methods.monte_carlo import MonteCarlo
-
-from mc_cases import ishigami_space, run_mc
 from uqflow.sampling import unit_hypercube
 from uqflow.study import load_study
+
+from mc_cases import ishigami_space, run_mc
 
 ROOT = Path(__file__).resolve().parents[2]
 ISHIGAMI = {"model": "ishigami", "a": 7.0, "b": 0.1}
