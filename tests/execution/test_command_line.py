@@ -90,3 +90,22 @@ def test_a_scheduler_in_the_study_is_named_by_its_key(write_study, tmp_path, cap
     assert code == 2 and err.count("\n") == 0
     assert err.startswith(f"uqflow: error: {study}: execution.scheduler: ")
     assert not (tmp_path / "out").exists()
+
+
+def test_a_dask_task_that_dies_stops_the_study_with_exit_1(write_study, tmp_path, capsys,
+                                                           monkeypatch):
+    from dask.distributed import LocalCluster
+
+    def unbuildable(solver_class, scene):  # a worker without the solver's package, say
+        raise ImportError("No module named 'solvers'")
+
+    # Threads in this process, so the patched worker function is the one the tasks call.
+    monkeypatch.setattr("uqflow.execute._worker_solver", unbuildable)
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                      dashboard_address=":0") as cluster:
+        study = write_study(method=SMALL)
+        code, _, err = _cli(capsys, "run", study, "--scheduler", cluster.scheduler_address,
+                            "--quiet")
+    assert code == 1 and err.count("\n") == 0
+    assert "a dask task failed (ImportError: No module named 'solvers')" in err
+    assert uqflow.open_result(tmp_path / "out" / "s.nc").attrs["complete"] == 0
