@@ -559,3 +559,15 @@ def test_union_members_never_show_up_as_keys():
             assert err.key == key, (data, given, str(err))
             assert str(err).startswith(f"f.toml: {key}: ")
             assert "\n" not in str(err) and "[type=" not in str(err)
+
+
+def test_largest_seed_round_trips_through_the_result_file(tmp_path, capsys, monkeypatch):
+    """The seed bound is what the file can hold: 2^64 - 1 is written (as netCDF uint64) and
+    read back exactly; one more is refused at validation (case seed-beyond-64-bits)."""
+    path = tmp_path / "study.toml"
+    path.write_text(BASE.replace("workers = 0", "workers = 0\nseed = 18446744073709551615"))
+    code, out, err = run_in_process(["run", str(path), "--quiet"], capsys, monkeypatch,
+                                    tmp_path)
+    assert code == 0, err
+    tree = open_result(tmp_path / "out" / "result.nc")
+    assert int(tree.attrs["seed"]) == 2**64 - 1
