@@ -620,6 +620,7 @@ def _rel(approx, exact):
     return np.abs(np.asarray(approx) / exact - 1)
 
 
+@pytest.mark.slow
 def test_accuracy_section_of_the_docs(reference):
     text = FIELDS_DOC.read_text(encoding="utf-8")
     section = text[text.index("## Accuracy"):]

@@ -188,3 +188,16 @@ def test_material_table_and_R_in_the_doc():
         R = modulus_of_softness(m["E"], m["sigma_f"], m["eps_f"], m["sigma_y"], m["n_ro"],
                                 m["K_ro"])
         assert abs(R - float(cells[-1])) <= 0.5 * _last_digit(cells[-1]), (name, R)
+
+
+def test_prose_constants_and_the_flat_hardening():
+    from solvers.gamut_bar.materials import ro_stress
+    from solvers.gamut_bar.solver import RTOL
+    text = " ".join(DOC.read_text("utf-8").split())
+    assert f"max |residual| ≤ {RTOL:.0e} ×".replace("e-0", "e-") in text
+    # "the stress rises only 5 % between ε = 0.05 and ε_f" (M1's Ramberg–Osgood curve)
+    stated = re.search(r"the stress rises only (\d+) % between ε = 0.05 and ε_f", text)
+    m = MATERIALS["M1"]
+    rise = ro_stress(m["eps_f"], m["E"], m["sigma_y"], m["n_ro"], m["K_ro"]) / \
+        ro_stress(0.05, m["E"], m["sigma_y"], m["n_ro"], m["K_ro"]) - 1
+    assert stated and abs(100 * rise - int(stated.group(1))) <= 0.5, rise
