@@ -26,7 +26,10 @@ def test_cyclic_m1_loops_are_stable_and_fit_the_seed():
     lp = loops(ds, sol)
     last, before = lp[:, -1], lp[:, -2]
     scale = np.abs(last).max(axis=1, keepdims=True)
-    assert np.abs(last - before).max() / scale.min() < 1e-6       # measured < 1e-9
+    # Masing loops repeat exactly; every state is converged to RTOL = 1e-9 of the force and
+    # the tangent never falls below the hardening share h·E (h = 0.005 for M1), so a
+    # repeated strain can differ by at most RTOL / h = 2e-7 of the amplitude
+    assert np.abs(last - before).max() / scale.min() < 1e-6
     # every loop closes: the stress amplitude is the level's, force controlled
     m = material("M1")
     amps = np.geomspace(m["sigma_y"], 1.1 * m["sigma_y"], 10)
