@@ -395,8 +395,8 @@ COARSE_DX, FINE_DX = 0.5e-3, 0.25e-3      # the refinement pair of the profile c
 CJ_TOL = 0.02
 # Taylor wave: the mean pressure error over each third of the fan falls at first order
 # (ratios 2.0–2.2 from 0.5 to 0.25 mm and 1.9–3.9 from 0.25 to 0.125 mm), so the
-# Richardson value 2 e(h) − e(2h) removes it; what is left, the next order, is ≤ 0.5 % in
-# both pairs (0.5/0.25 and 0.25/0.125 mm): tolerance twice that
+# Richardson value 2 e(h) − e(2h) removes it; what is left, the next order, is ≤ 0.53 % in
+# both pairs (0.5/0.25 and 0.25/0.125 mm): tolerance about twice that
 FAN_TOL = 0.01
 GAMMA3_TOL = 0.02    # wall momentum vs closed form: largest error 0.9 % (0.5 mm), 1.4 % (0.25)
 
