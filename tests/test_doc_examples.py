@@ -255,3 +255,35 @@ def test_every_method_has_its_options_documented_with_their_defaults():
         assert set(docs[kind]) == set(fields), (kind, sorted(docs[kind]), sorted(fields))
         for name, field in fields.items():
             assert docs[kind][name] == _shown_default(field), (kind, name)
+
+
+def test_fields_page_tables_match_the_code():
+    """docs/fields.md: the kl-weibull options table and the [[fields]] keys with their defaults."""
+    from uqflow.fields import FieldSpec, GermSpec
+    from uqflow.methods import get_method
+    text = (ROOT / "docs" / "fields.md").read_text(encoding="utf-8")
+    method_table = text[text.index("## The `kl-weibull` method"):]
+    rows = dict(ROW.findall(method_table.split("\n\n### ", 1)[0]))
+    fields = get_method("kl-weibull").Options.model_fields
+    assert set(rows) == set(fields)
+    for name, field in fields.items():
+        assert rows[name].strip().strip("`") == _shown_default(field), name
+
+    keys = text[text.index("## Keys of a `[[fields]]` table"):].split("\n\n", 2)[1]
+    documented = {}
+    for key_cell, default in re.findall(r"^\| ([^|]+) \| ([^|]+) \|", keys, re.M)[1:]:
+        names = re.findall(r"`([a-z_.]+)`", key_cell)
+        values = [v.strip().strip("`") for v in default.split(",")] \
+            if len(names) > 1 else [default.strip().strip("`")]
+        documented.update(zip(names, values))
+    spec = {**{k: v for k, v in FieldSpec.model_fields.items() if k != "germ"},
+            **{f"germ.{k}": v for k, v in GermSpec.model_fields.items()}}
+    assert set(documented) == set(spec)
+    for name, field in spec.items():
+        shown = documented[name]
+        if field.is_required():
+            assert shown == "required", name
+        elif field.default is None:           # derived defaults, written as words
+            assert shown == "—" or " if " in shown or shown == "[name]", (name, shown)
+        else:
+            assert shown.split(" if ")[0] == _shown_default(field), (name, shown)
