@@ -151,12 +151,18 @@ def _check_provenance(study: Study, attrs: dict, path: Path) -> None:
 def _prepare(study: Study, resume: bool, path: Path):
     """The runs to complete: fresh from the plan, or read back from the partial result at
     ``path``."""
+    fresh = _planned_runs(study)
     if resume and path.exists():
         runs, attrs = read_runs(path, verify=True)
         _check_provenance(study, attrs, path)
+        _check_stored_design(runs, fresh, study, path)
         attrs["resumed"] = now()
         attrs.setdefault("planned_realizations", runs.sizes["realization"])
         return runs, attrs
+    return fresh, _root_attrs(study, fresh.sizes["realization"])
+
+
+def _planned_runs(study: Study) -> xr.Dataset:
     seed = np.random.SeedSequence(study.spec.execution.seed)
     design = study.method.plan(study.space, study.fields or None, seed)
     runs = add_field_value_variables(empty_runs(design, study.solver.outputs()[study.outputs]),
@@ -165,7 +171,43 @@ def _prepare(study: Study, resume: bool, path: Path):
     runs["realization_seed"] = ("realization", np.array(
         [np.random.SeedSequence(study.spec.execution.seed, spawn_key=(int(i),))
          .generate_state(1)[0] for i in runs["realization"].values], dtype=np.uint32))
-    return runs, _root_attrs(study, runs.sizes["realization"])
+    return runs
+
+
+def _check_stored_design(stored: xr.Dataset, fresh: xr.Dataset, study: Study,
+                         path: Path) -> None:
+    """The partial result must hold this study's design (a prefix of it, if it stopped
+    early) and every variable a run writes: another uqflow version may plan differently."""
+    n = stored.sizes.get("realization", 0)
+    prefix = fresh.isel(realization=slice(0, n))
+    problem = None
+    if not 0 < n <= fresh.sizes["realization"]:
+        problem = f"{n} realizations where this study plans {fresh.sizes['realization']}"
+    else:
+        for name, var in prefix.variables.items():
+            if name not in stored.variables:
+                problem = f"it has no variable '{name}'"
+                break
+            mine = stored.variables[name]
+            if mine.dims != var.dims or mine.shape != var.shape:
+                problem = f"'{name}' has dims {mine.dims} {mine.shape}, not {var.dims} {var.shape}"
+                break
+            designed = name not in (*study.outputs, *_RUN_COLUMNS) and \
+                not str(name).startswith("field_")
+            if designed and not _same_values(mine.values, var.values):
+                problem = f"its '{name}' differ from this study's plan"
+                break
+    if problem:
+        raise StudyError(f"{path} does not hold this study's design ({problem}; another "
+                         f"uqflow version?); use --force to start again",
+                         file=str(study.path), key="output.path")
+
+
+def _same_values(a, b) -> bool:
+    a, b = np.asarray(a), np.asarray(b)
+    if a.dtype.kind in "fc" and b.dtype.kind in "fc":
+        return np.array_equal(a, b, equal_nan=True)
+    return a.shape == b.shape and bool(np.all(a.astype(str) == b.astype(str)))
 
 
 class _Stopper:

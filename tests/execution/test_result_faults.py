@@ -14,7 +14,7 @@ import xarray as xr
 
 import uqflow
 from uqflow.cli import main
-from uqflow.store import read_runs
+from uqflow.store import read_runs, runs_checksum
 
 from ._common import comparable
 
@@ -175,6 +175,16 @@ def _drop_the_checksum(result):
         nc.delncattr("runs_sha256")
 
 
+def _another_design(result):
+    """A consistent file (checksum recomputed) whose design is not this study's plan, as a
+    partial result of another uqflow version that planned differently would be."""
+    with netCDF4.Dataset(result, "r+") as nc:
+        nc["runs"]["inputs"][0, 0] = 0.125
+    runs, _ = read_runs(result)
+    with netCDF4.Dataset(result, "r+") as nc:
+        nc.setncattr("runs_sha256", runs_checksum(runs))
+
+
 def _truncate(result):
     data = result.read_bytes()
     result.write_bytes(data[:len(data) // 2])
@@ -184,6 +194,7 @@ RESUME_REFUSED = [
     ("a damaged value", _damage_a_value, "do not match their checksum"),
     ("no checksum", _drop_the_checksum, "has no checksum of its runs"),
     ("a truncated file", _truncate, "not a uqflow result file"),
+    ("another design", _another_design, "does not hold this study's design (its 'inputs'"),
 ]
 
 
