@@ -48,7 +48,7 @@ MUTANTS_PER_LEAF = int(os.environ.get("UQFLOW_FUZZ_MUTANTS", 1))
 def _mutants(value):
     """The malformed values one leaf is turned into (bounded by what TOML can write)."""
     out = [True, "2", math.nan, math.inf, -math.inf, 1e300, -1e300, 0, -1,
-           2**63 - 1, [value], {"value": value}, MISSING, DUPLICATED]
+           2**63 - 1, 10**400, [value], {"value": value}, MISSING, DUPLICATED]
     if isinstance(value, int) and not isinstance(value, bool):
         out += [float(value), value + 0.5]
     if isinstance(value, float):

@@ -133,7 +133,7 @@ def make_distribution(kind: str, params: dict, key: str = "input"):
                              f"(it takes {', '.join(sorted(allowed))})", key=f"{key}.{k}")
     for k, v in params.items():
         if not isinstance(v, numbers.Real) or isinstance(v, (bool, np.bool_)) \
-                or not math.isfinite(v):
+                or isinstance(v, int) and abs(v) >= 2**1024 or not math.isfinite(v):
             raise StudyError(f"must be a finite number, got {v!r}", key=f"{key}.{k}")
 
     moment_form = "mean" in params

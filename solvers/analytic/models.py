@@ -26,7 +26,10 @@ MAX_DELAY = 3600.0       # s of sleep per realization: an hour stands in for any
 
 
 def _is_number(v):
-    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+    # TOML integers are unbounded in Python; one beyond float64 (|v| >= 2^1024) is no number
+    # a solver can use.
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) \
+        and not (isinstance(v, int) and abs(v) >= 2**1024)
 
 
 def _number(scene, key, default, *, positive=False, nonnegative=False):

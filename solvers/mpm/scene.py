@@ -77,7 +77,10 @@ DEFAULTS = {"resolution": 1.0, "particles_per_cell": 2, "shape": "quadratic", "f
 
 
 def _is_number(v):
-    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+    # TOML integers are unbounded in Python; one beyond float64 (|v| >= 2^1024) is no number
+    # a solver can use.
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) \
+        and not (isinstance(v, int) and abs(v) >= 2**1024)
 
 
 def _err(key, reason):
