@@ -1,6 +1,7 @@
 """What validates runs; what cannot run does not validate (issue 8, point 9).
 
-Every shipped study (and the scene file it reads) is mutated one value at a time into a
+Every shipped study, the scene file it reads, and every other shipped scene file (inside a
+host study that runs it once) is mutated one value at a time into a
 boolean, a string, NaN/inf, a huge, negative or zero number, a float where an integer was, an
 array or a table where a scalar was, a missing key or a duplicated key. For each variant
 ``load_study`` either
@@ -33,8 +34,28 @@ from uqflow.errors import StudyError
 from uqflow.study import load_study
 
 REPO = Path(__file__).resolve().parents[1]
-SHIPPED = sorted((REPO / "studies").glob("*.toml")) + \
+SHIPPED_STUDIES = sorted((REPO / "studies").glob("*.toml")) + \
     sorted((REPO / "studies" / "gamut_bar").glob("*.toml"))
+SCENES = REPO / "studies" / "scenes"
+
+
+def _scenes_no_study_reads() -> list[Path]:
+    read = {(study.parent / scene).resolve() for study in SHIPPED_STUDIES
+            if isinstance(scene := tomllib.loads(study.read_text()).get("scene"), str)}
+    return [p for p in sorted(SCENES.glob("*.toml")) if p.resolve() not in read]
+
+
+# Scene files no shipped study reads (verification scenes) are mutated inside a host study
+# that runs them once, at their nominal values.
+SHIPPED = SHIPPED_STUDIES + _scenes_no_study_reads()
+
+
+def _base(study: Path) -> dict:
+    """The TOML document of a shipped study, or the host study of a lone scene file."""
+    if study.parent == SCENES:
+        return {"name": "host", "solver": "mpm", "scene": str(study),
+                "method": {"kind": "nominal"}, "execution": {"workers": 0}}
+    return tomllib.loads(study.read_text())
 
 # Sizes an accepted variant may plan with: small, so that a few hundred variants take seconds.
 SHRUNK = {"samples": 8, "realizations": 4, "resamples": 10, "min_samples": 4}
@@ -160,7 +181,7 @@ def _cases():
     """
     cases, seen_scenes, turn = [], set(), 0
     for study in SHIPPED:
-        doc = tomllib.loads(study.read_text())
+        doc = _base(study)
         targets = [("study", p) for p in _leaves(doc)]
         scene = doc.get("scene")
         if isinstance(scene, str):
@@ -200,7 +221,7 @@ def _materialize(study: Path, where: str, path, mutant, tmp: Path):
 def write_variant(study: Path, tmp: Path, study_edits=(), scene_edits=()):
     """The shrunk ``study`` with ``(path, value)`` edits, and its scene file with its own,
     written into ``tmp``; returns (study file, scene file or None)."""
-    doc = _shrunk(tomllib.loads(study.read_text()))
+    doc = _shrunk(_base(study))
     scene = doc.get("scene")
     scene_doc = None
     if isinstance(scene, str):
