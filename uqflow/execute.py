@@ -454,9 +454,9 @@ def _run_on_dask(execution: _Execution, client, pending: np.ndarray, workers: in
                     result = future.result()
                 except Exception as exc:  # the task itself, not a realization, failed
                     execution.checkpoint.write(runs)
-                    raise UqflowError(f"{study.path}: a dask task failed "
-                                      f"({type(exc).__name__}: {' '.join(str(exc).split())}); "
-                                      f"the runs so far are in {execution.checkpoint.path}") from None
+                    why = f"{type(exc).__name__}: {' '.join(str(exc).split())}"
+                    raise UqflowError(f"{study.path}: a dask task failed ({why}); the runs "
+                                      f"so far are in {execution.checkpoint.path}") from None
                 reason = execution.record(indices, result)
                 if reason:
                     break

@@ -53,27 +53,37 @@ def test_a_finished_realization_is_on_disk_within_the_interval(write_study, monk
     assert len(finished) == 120
     for i, t in enumerate(finished):
         written = next(w for w, n, _ in writes if n > i)
-        # The bound: the interval, plus the realization running when it is spent; 50 ms
-        # covers the client's bookkeeping between a realization and the write (store, stop
-        # check, progress), microseconds per realization.
-        assert written - t <= interval + longest + 0.05, (i, written - t)
+        # The bound: the interval, plus the realization running when it is spent; 0.15 s
+        # covers the bookkeeping between a realization and the write (store, stop check,
+        # progress: microseconds per realization) and scheduling stalls on a shared machine.
+        # Before, the first realization waited for the whole batch: 1.2 s.
+        assert written - t <= interval + longest + 0.15, (i, written - t)
 
 
 @pytest.mark.slow
 def test_dask_tasks_hand_back_finished_realizations_mid_batch(write_study, monkeypatch):
+    import uqflow.execute
+
     interval = 0.4
-    # Two tasks of 60 realizations (1.2 s each), one per worker.
+    # Two tasks of 60 realizations (0.6 s each), one per worker.
     study = load_study(write_study(name="slow2", scene=SLOW, method=LHS, execution=(
         f"workers = 2\nbatch = 60\ncheckpoint_interval = {interval}")))
     writes = _record_writes(monkeypatch)
+    returned = []  # the wall times of each task's realizations, as the client got them
+    real_record = uqflow.execute._Execution.record
+
+    def recording(self, indices, result):
+        returned.append(np.asarray(result["wall_time"]))
+        return real_record(self, indices, result)
+
+    monkeypatch.setattr(uqflow.execute._Execution, "record", recording)
     out = run_study(study, show_progress=False)
     assert (out.runs["status"].values == "ok").all()
     counts = [n for _, n, checkpoint in writes if checkpoint]
     # Before, the file went from 0 to 120 at once; now it fills while the tasks run.
     assert len({n for n in counts if 0 < n < 120}) >= 2, counts
-    running = [t for t, n, checkpoint in writes if checkpoint and n > 0]
-    gaps = np.diff(running)
-    # Writes come at most every interval/2 apart, and while realizations keep finishing at
-    # least every interval plus one realization (10 ms); 0.5 s allows for dask's messages
-    # on a loaded machine.
-    assert gaps.max() <= interval + 0.01 + 0.5, gaps
+    assert len(returned) > 2
+    for walls in returned:
+        # A task stops after the first realization that ends past half the interval: all
+        # those before it ended within the budget (worker clock, whatever the load).
+        assert walls[:-1].sum() < interval / 2, walls
