@@ -7,14 +7,16 @@ array or a table where a scalar was, a missing key or a duplicated key. For each
 ``load_study`` either
 
 - accepts it, and then the method can build its design (``plan``), or
-- raises ONE line ``<file>: <key>: <reason>`` naming the file that holds the mutated value and
-  a key of the same table,
+- raises ONE line ``<file>: <key>: <reason>`` naming the file that holds the mutated value (or
+  the study, where it names the solver's parameters or outputs) and a key of the mutated
+  table or of one that depends on it (``DEPENDENTS``),
 
-and never anything else (no OverflowError, MemoryError, TypeError...). The shipped studies are
-first shrunk (few samples, few bootstrap resamples) so that an accepted variant plans in
-milliseconds; a mutation into a huge count must then be refused by the count's bound. A
-handful of variants also go through the real ``uqflow`` process: exit 2, one stderr line,
-nothing written.
+and never anything else (no OverflowError, MemoryError, TypeError, no RuntimeWarning). The
+shipped studies are first shrunk (few samples, few bootstrap resamples) so that an accepted
+variant plans in milliseconds; a mutation into a huge count must then be refused by the
+count's bound. ``UQFLOW_FUZZ_MUTANTS=8`` tries 8 mutants per value instead of 1 (about 13,000
+variants, a few minutes). The documented limits are checked one above each, and a handful of
+variants go through the real ``uqflow`` process: exit 2, one stderr line, nothing written.
 """
 
 from __future__ import annotations
