@@ -90,9 +90,9 @@ def test_the_issue_case_is_identical_for_workers_0_and_2_and_after_a_kill(write_
     _, err = cmd.communicate(timeout=300)
     assert cmd.returncode == 0, err
 
-    # 5 ms per realization so the study can be killed mid-way (it stops near 500).
+    # 10 ms per realization so the study can be killed mid-way (it stops near 500).
     killed = _ishigami(write_study, "killed", "workers = 2\ncheckpoint_interval = 0.2",
-                       delay=0.005)
+                       delay=0.01)
     result = killed.parent / "out" / "killed.nc"
     runs, attrs = run_and_kill(killed, result, at_least=150)
     assert attrs["complete"] == 0
