@@ -77,7 +77,7 @@ def validation_markdown(rows) -> str:
            "default loading); `tests/backends/gamut_bar/test_doc_numbers.py` recomputes every "
            "number here and compares it to the last digit shown.",
            "",
-           "| case | max \|σ/σ_RO − 1\| (ε ≥ 0.002) | ε at failure | σ at failure [MPa] "
+           r"| case | max \|σ/σ_RO − 1\| (ε ≥ 0.002) | ε at failure | σ at failure [MPa] "
            "| load steps to failure |",
            "|---|---:|---:|---:|---:|"]
     for r in rows:

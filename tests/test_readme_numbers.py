@@ -1,0 +1,72 @@
+"""The numbers README.md states that are not benchmark figures, asserted where they come from.
+
+Timings in the README ("a few seconds", "about 30 s per run") are benchmark figures with their
+commands in BENCHMARKS.md; everything else it states is checked here or by the test it names.
+"""
+
+import math
+import re
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from uqflow.study import ExecutionSpec, load_study
+
+ROOT = Path(__file__).resolve().parent.parent
+README = (ROOT / "README.md").read_text()
+STUDIES = ROOT / "studies"
+
+
+def _stated(pattern: str) -> re.Match:
+    found = re.search(pattern, README, flags=re.S)
+    assert found, f"README.md no longer says /{pattern}/: update this test with the text"
+    return found
+
+
+def test_ishigami_exact_moments_as_stated():
+    # Ishigami with a = 7, b = 0.1 on U(-pi, pi)^3: E = a/2, Var = a^2/8 + b pi^4/5
+    # + b^2 pi^8/18 + 1/2 (Sobol' & Levitan 1999); the README rounds to 4 decimals.
+    a, b = 7.0, 0.1
+    variance = a**2 / 8 + b * math.pi**4 / 5 + b**2 * math.pi**8 / 18 + 0.5
+    stated = _stated(r"mean ([0-9.]+) and variance ([0-9.]+)")
+    assert float(stated.group(1)) == a / 2
+    assert float(stated.group(2)) == pytest.approx(variance, abs=5e-5)  # 4 decimals shown
+
+
+def test_quickstart_is_what_the_readme_describes():
+    study = load_study(STUDIES / "quickstart.toml")
+    options = study.method.options
+    points = int(_stated(r"Ishigami function by Monte Carlo, (\d+) scrambled Sobol").group(1))
+    assert (options.samples, options.rule) == (points, "sobol")
+    replicates = int(_stated(r"spread of (\d+) independently scrambled").group(1))
+    dof = int(_stated(r"Student t with (\d+) degrees of freedom").group(1))
+    assert options.replicates == replicates and dof == replicates - 1
+    assert study.spec.execution.workers == 2
+
+
+def test_execution_defaults_as_stated():
+    defaults = ExecutionSpec()
+    interval = float(_stated(r"checkpoint_interval` \(default (\d+) s\)").group(1))
+    fraction = float(_stated(r"max_failure_fraction` \(default ([0-9.]+)\)").group(1))
+    assert defaults.checkpoint_interval == interval
+    assert defaults.max_failure_fraction == fraction
+
+
+def test_adaptive_study_target_as_stated():
+    percent = float(_stated(r"adaptive Monte Carlo that stops at ([0-9.]+) % standard").group(1))
+    study = tomllib.loads((STUDIES / "mc_random_E_bar.toml").read_text())
+    # percent / 100 rounds once: within eps (2.2e-16) of the study's decimal literal
+    assert study["method"]["target_rel_stderr"] == pytest.approx(percent / 100, rel=1e-15)
+
+
+@pytest.mark.parametrize("scene, pattern", [
+    ("mpm_contact_thin_small.toml", r"cropped scenes \(([0-9,]+) particles"),
+    ("mpm_contact_thin.toml", r"seed's size \(`\*_seed_size.toml`, ([0-9,]+) particles"),
+])
+def test_mpm_particle_counts_as_stated(scene, pattern):
+    from solvers.mpm import MPMSolver
+
+    stated = int(_stated(pattern).group(1).replace(",", ""))
+    solver = MPMSolver.from_scene(tomllib.loads((STUDIES / "scenes" / scene).read_text()))
+    assert solver.parts.x.size == stated
