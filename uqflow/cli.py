@@ -61,10 +61,11 @@ def _parser() -> argparse.ArgumentParser:
 def _run(args) -> int:
     from uqflow import report
     from uqflow.execute import run_study
-    from uqflow.study import load_study
+    from uqflow.study import MAX_WORKERS, load_study
 
-    if args.workers is not None and args.workers < 0:
-        raise StudyError("--workers must be >= 0")
+    if args.workers is not None and not 0 <= args.workers <= MAX_WORKERS:
+        raise StudyError(f"must be between 0 and {MAX_WORKERS} (docs/study-files.md, Limits), "
+                         f"got {args.workers}", key="--workers")
     study = load_study(args.study)
     with warnings.catch_warnings():
         # Methods also return their warnings in the result; print each once, below the table.

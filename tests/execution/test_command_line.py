@@ -109,3 +109,13 @@ def test_a_dask_task_that_dies_stops_the_study_with_exit_1(write_study, tmp_path
     assert code == 1 and err.count("\n") == 0
     assert "a dask task failed (ImportError: No module named 'solvers')" in err
     assert uqflow.open_result(tmp_path / "out" / "s.nc").attrs["complete"] == 0
+
+
+@pytest.mark.parametrize("workers", ["-1", "513"])
+def test_workers_out_of_range_on_the_command_line_is_one_line_and_exit_2(
+        write_study, tmp_path, capsys, workers):
+    study = write_study(method=SMALL, output='path = "out/s.nc"')
+    code, out, err = _cli(capsys, "run", study, "--workers", workers, "--quiet")
+    assert code == 2 and err.count("\n") == 0
+    assert err.startswith("uqflow: error: --workers: must be between 0 and 512")
+    assert not (tmp_path / "out").exists()
