@@ -2,12 +2,12 @@
 
 Runs the problems of tests/backends/mpm/test_verification.py through that module's own scene
 loaders and measurements (the scenes are studies/scenes/verify_*.toml), prints every number the
-doc quotes and writes docs/figures/mpm_verify_{bar,disks,plate_impact,tnt,detonation}.png.
+doc quotes and writes docs/figures/mpm_verify_{bar,disks,plate_impact,tnt,detonation,free_end}.png.
 About a minute once numba's cache is warm:
 
     python benchmarks/mpm_verification_figures.py                  # everything
     python benchmarks/mpm_verification_figures.py detonation       # one problem (names below)
-    python benchmarks/mpm_verification_figures.py --refine         # + the 0.125 mm runs
+    python benchmarks/mpm_verification_figures.py --refine         # + the 0.125 mm / 40 µs runs
     python benchmarks/mpm_verification_figures.py --perturbations  # + the ±10 % JWL table
 """
 
@@ -232,7 +232,7 @@ def detonation(refine=False, perturbations=False):
     if perturbations:
         from solvers.mpm.materials import library
         from uqflow.errors import SolverError
-        for name in ("eos.A", "eos.B", "eos.R1", "eos.R2", "eos.omega", "eos.E0"):
+        for name in V.PERTURBED_CONSTANTS:
             for factor in (0.9, 1.1):
                 try:
                     e = V.tnt_checks({name: factor * library.TNT[name]})["errors"]
@@ -272,8 +272,111 @@ def detonation(refine=False, perturbations=False):
     _save(fig, "mpm_verify_detonation.png")
 
 
+# ξ windows of the free end's fan where R2 ± 10 % moves the exact pressure by 2–5 %: what a
+# comparison against ξ = x/t would see (printed, not tested: FLIP noise is as large)
+FREE_END_XI_WINDOWS = ((-1500.0, -700.0), (-700.0, 0.0), (0.0, 700.0), (700.0, 1500.0))
+
+
+def _free_end_xi_errors(fan, profile):
+    """Mean relative p error and mean u error (m/s) of the particles in each ξ window."""
+    out = []
+    for lo, hi in FREE_END_XI_WINDOWS:
+        k = (profile["xi"] > lo) & (profile["xi"] < hi)
+        p, _, u = fan.at(profile["xi"][k])
+        out.append((100 * (np.sum(profile["p"][k]) / np.sum(p) - 1),
+                    float(np.mean(profile["u"][k] - u))))
+    return out
+
+
+def free_end(refine=False, perturbations=False):
+    """The free-end slab: the products against the CJ isentrope in two bands of V, the
+    refinement pairs (10/20 µs, and 20/40 µs with --refine), R2 ± 10 % in the exact fan, the
+    perturbation column of the doc's table, and the figure."""
+    from solvers.mpm.materials import library
+    from tests.backends.mpm.detonation_exact import JWL, free_end_fan
+    from uqflow.errors import SolverError
+    fan = V.TNT_FREE_END
+    shifted = {}
+    for factor in (0.9, 1.1):
+        prm = dict(library.TNT, **{"eos.R2": factor * library.TNT["eos.R2"]})
+        shifted[factor] = free_end_fan(JWL.from_parameters(prm))
+    for v in (1.5, 2.0, 3.0, 4.0):
+        print(f"free end: V {v}: p {fan.isentrope_pressure(v) / 1e9:.3f} GPa "
+              f"(R2 x 0.9 {shifted[0.9].isentrope_pressure(v) / 1e9:.3f}, x 1.1 "
+              f"{shifted[1.1].isentrope_pressure(v) / 1e9:.3f})")
+    for band, (lo, hi) in V.FREE_END_BANDS.items():
+        grid = np.linspace(lo, hi, 400)
+        ref = np.sum(fan.isentrope_pressure(grid))
+        print(f"  band {band}: R2 x 0.9 / x 1.1 move the isentrope "
+              + " / ".join(f"{100 * (np.sum(shifted[f].isentrope_pressure(grid)) / ref - 1):+.1f} %"
+                           for f in (0.9, 1.1)))
+    xi_shift = {}
+    for f in (0.9, 1.1):
+        cells = []
+        for lo, hi in FREE_END_XI_WINDOWS:
+            x = np.linspace(lo, hi, 200)
+            cells.append((100 * (np.sum(shifted[f].at(x)[0]) / np.sum(fan.at(x)[0]) - 1),
+                          float(np.mean(shifted[f].at(x)[2] - fan.at(x)[2]))))
+        xi_shift[f] = cells
+    print("  ξ windows " + ", ".join(f"{lo:g}..{hi:g}" for lo, hi in FREE_END_XI_WINDOWS)
+          + ": R2 x 0.9 p/u " + "; ".join(f"{a:+.1f} % {b:+.0f} m/s" for a, b in xi_shift[0.9])
+          + " | x 1.1 " + "; ".join(f"{a:+.1f} % {b:+.0f} m/s" for a, b in xi_shift[1.1]))
+    if refine:
+        r = V.free_end_checks(length=0.3, end_time=40e-6, times=(10e-6, 20e-6, 40e-6))
+    else:
+        r = V.free_end_checks()
+    for raw, prof in zip(r["raw"], r["profiles"]):
+        counts = {b: int(np.sum((prof["V"] > lo) & (prof["V"] < hi)))
+                  for b, (lo, hi) in V.FREE_END_BANDS.items()}
+        print(f"  t {prof['t'] * 1e6:.0f} µs (dx/t {0.5e-3 / prof['t']:.1f} m/s): "
+              f"{_percent(raw)}; particles per band {counts}")
+        print("    ξ windows, MPM p/u error: " + "; ".join(
+            f"{a:+.1f} % {b:+.0f} m/s" for a, b in _free_end_xi_errors(fan, prof)))
+    for k, pair in enumerate(r["pairs"]):
+        print(f"  pair {k}: Richardson " + ", ".join(
+            f"{band} {100 * value:+.2f} % (ratio {ratio:.2f})" for band, (value, ratio) in pair.items()))
+    if perturbations:
+        for name in V.PERTURBED_CONSTANTS:
+            for factor in (0.9, 1.1):
+                try:
+                    p = V.free_end_checks({name: factor * library.TNT[name]})
+                    print(f"  free end {name} x {factor}: fails "
+                          f"{V.failed_free_end_checks(p) or 'nothing'}; Richardson " + ", ".join(
+                              f"{band} {100 * value:+.2f} %" for band, (value, _) in p["pairs"][0].items()))
+                except SolverError as exc:
+                    print(f"  free end {name} x {factor}: run stopped ({exc})")
+
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(10, 3.6))
+    grid = np.geomspace(1.0, 6.0, 300)
+    nominal = fan.isentrope_pressure(grid)
+    for prof, style in zip(r["profiles"][:2], ("C1.", "C0.")):
+        on = prof["V"] > 1.0
+        ax.plot(prof["V"][on], 100 * (prof["p"][on] / fan.isentrope_pressure(prof["V"][on]) - 1),
+                style, ms=2.5,
+                label=f"MPM, t = {prof['t'] * 1e6:.0f} µs (dx/t = {0.5e-3 / prof['t']:.0f} m/s)")
+        bx.plot(prof["xi"], prof["p"] / 1e9, style, ms=1.5,
+                label=f"MPM, t = {prof['t'] * 1e6:.0f} µs")
+    for f, ls in ((0.9, "--"), (1.1, ":")):
+        ax.plot(grid, 100 * (shifted[f].isentrope_pressure(grid) / nominal - 1), "k" + ls,
+                lw=1, label=f"exact, R2 × {f}")
+    ax.axhline(0.0, color="k", lw=1.2, label="exact (CJ isentrope)")
+    for (lo, hi), shade in zip(V.FREE_END_BANDS.values(), ("0.92", "0.85")):
+        ax.axvspan(lo, hi, color=shade, zorder=0)
+    ax.set_xlim(1.0, 6.0)
+    ax.set_ylim(-10, 15)
+    _label(ax, "V = ρ0/ρ (the two checked bands shaded)", "p / p_isentrope(V) − 1 (%)",
+           "TNT detonated at a free end: p against the CJ isentrope")
+    xi = np.linspace(fan.xi[-1], fan.cj.D, 600)
+    bx.plot(xi, fan.at(xi)[0] / 1e9, "k-", lw=1.2, label="centred fan to vacuum")
+    bx.set_yscale("log")
+    bx.set_xlim(-3500, 7500)
+    bx.set_ylim(0.01, 30)
+    _label(bx, "ξ = x / t (m/s)", "pressure (GPa)", "the same runs against ξ (verify_tnt_free_end.toml)")
+    _save(fig, "mpm_verify_free_end.png")
+
+
 PROBLEMS = {"bar": bar, "disks": disks, "plate": plate, "plate_resolution": plate_resolution,
-            "tnt": tnt, "detonation": detonation}
+            "tnt": tnt, "detonation": detonation, "free_end": free_end}
 
 
 def main(argv):
@@ -287,8 +390,8 @@ def main(argv):
                  f"{', '.join(PROBLEMS)}; flags: --refine, --perturbations)")
     t0 = time.perf_counter()
     for name in names:
-        if name == "detonation":
-            detonation(refine="--refine" in flags, perturbations="--perturbations" in flags)
+        if name in ("detonation", "free_end"):
+            PROBLEMS[name](refine="--refine" in flags, perturbations="--perturbations" in flags)
         else:
             PROBLEMS[name]()
     print(f"total {time.perf_counter() - t0:.1f} s")

@@ -1,6 +1,7 @@
 """Exact solutions of a planar detonation in JWL products, computed with scipy from the
 material constants alone (no solver code): the Chapman–Jouguet point, the self-similar Taylor
-wave behind a CJ front started at a rigid wall, and, for polytropic products (JWL with
+wave behind a CJ front started at a rigid wall, the centred fan behind one started at a free
+end, and, for polytropic products (JWL with
 A = B = 0, γ = 1 + ω), the closed-form Taylor wave and the impulse a slab detonated at a
 rigid wall gives the wall (docs/mpm_verification.md, "Detonation").
 
@@ -133,32 +134,84 @@ class TaylorWave:
         return tuple(out)
 
 
-def taylor_wave(eos: JWL, points: int = 2001) -> TaylorWave:
-    """Integrate E(V) (dE/dV = −p) and the Riemann invariant w(V) = ∫_{V_CJ}^{V} c/V dV
-    (u = u_CJ − w) from the CJ point until u = 0."""
-    cj = cj_point(eos)
-
+def _isentrope_from_cj(eos: JWL, cj: CJPoint, V_end: float, stop=None):
+    """E(V) (dE/dV = −p) and the Riemann invariant w(V) = ∫_{V_CJ}^{V} c/V dV along the
+    isentrope through the CJ point, from V_CJ to V_end or to the terminal event ``stop``."""
     def rhs(V, y):
         E = y[0]
         return [-eos.pressure(V, E), eos.sound_speed(V, E) / V]
+
+    return solve_ivp(rhs, (cj.V, V_end), [cj.E, 0.0], events=stop, rtol=_ODE_RTOL,
+                     atol=[_ODE_RTOL * cj.E, _ODE_RTOL * cj.u], dense_output=True)
+
+
+def _isentrope_states(eos: JWL, cj: CJPoint, sol, V):
+    """p, c and u = u_CJ − w on the isentrope at the volumes V."""
+    E, w = sol.sol(V)
+    p = np.array([eos.pressure(v, e) for v, e in zip(V, E)])
+    c = np.array([eos.sound_speed(v, e) for v, e in zip(V, E)])
+    return p, c, cj.u - w
+
+
+def taylor_wave(eos: JWL, points: int = 2001) -> TaylorWave:
+    """Integrate E(V) and the Riemann invariant from the CJ point until u = 0."""
+    cj = cj_point(eos)
 
     def at_rest(V, y):
         return cj.u - y[1]
     at_rest.terminal = True
 
-    sol = solve_ivp(rhs, (cj.V, 20 * cj.V), [cj.E, 0.0], events=at_rest, rtol=_ODE_RTOL,
-                    atol=[_ODE_RTOL * cj.E, _ODE_RTOL * cj.u], dense_output=True)
+    sol = _isentrope_from_cj(eos, cj, 20 * cj.V, stop=at_rest)
     if sol.status != 1:
         raise RuntimeError("the isentrope from the CJ point never brings the products to rest")
-    V_rest = sol.t_events[0][0]
-    V = np.linspace(cj.V, V_rest, points)
-    E, w = sol.sol(V)
-    p = np.array([eos.pressure(v, e) for v, e in zip(V, E)])
-    c = np.array([eos.sound_speed(v, e) for v, e in zip(V, E)])
-    u = cj.u - w
-    xi = u + c
-    order = np.argsort(xi)
-    return TaylorWave(cj=cj, xi=xi[order], p=p[order], rho=eos.rho0 / V[order], u=u[order])
+    V = np.linspace(cj.V, sol.t_events[0][0], points)
+    p, c, u = _isentrope_states(eos, cj, sol, V)
+    order = np.argsort(u + c)
+    return TaylorWave(cj=cj, xi=(u + c)[order], p=p[order], rho=eos.rho0 / V[order],
+                      u=u[order])
+
+
+@dataclass(frozen=True)
+class FreeEndFan:
+    """The self-similar flow behind a CJ front that started at a free end (vacuum behind it)
+    at x = 0, t = 0: one centred simple wave from the front (ξ = D) to the vacuum, on the
+    isentrope through the CJ point — the Taylor wave continued below u = 0, the products
+    streaming backwards. Tabulated down to ``rho_floor`` ρ0 (the vacuum edge itself, ρ → 0,
+    lies further back and is not tabulated)."""
+    cj: CJPoint
+    V: np.ndarray         # increasing relative volume, V_CJ ... ρ0/ρ_floor
+    p: np.ndarray         # on the isentrope
+    u: np.ndarray         # u_CJ − ∫_{V_CJ}^{V} c/V dV
+    xi: np.ndarray        # u + c, decreasing with V
+
+    def isentrope_pressure(self, V):
+        """p on the isentrope through the CJ point at relative volume V (NaN off the table)."""
+        V = np.asarray(V, float)
+        p = np.interp(V, self.V, self.p)
+        return np.where((V < self.V[0]) | (V > self.V[-1]), np.nan, p)
+
+    def at(self, xi):
+        """(p, ρ, u) at ξ = x/t; NaN ahead of the front and behind the tabulated edge."""
+        xi = np.asarray(xi, float)
+        order = slice(None, None, -1)             # ξ increasing
+        out = [np.interp(xi, self.xi[order], q[order])
+               for q in (self.p, self.cj.rho * self.cj.V / self.V, self.u)]
+        off = (xi > self.cj.D) | (xi < self.xi[-1])
+        for q in out:
+            q[off] = np.nan
+        return tuple(out)
+
+
+def free_end_fan(eos: JWL, rho_floor: float = 0.05, points: int = 4001) -> FreeEndFan:
+    """Integrate E(V) and the Riemann invariant from the CJ point to V = 1/rho_floor."""
+    cj = cj_point(eos)
+    V_end = 1 / rho_floor
+    sol = _isentrope_from_cj(eos, cj, V_end)
+    if sol.status != 0:
+        raise RuntimeError(f"the isentrope from the CJ point stopped before V = {V_end}")
+    V = np.geomspace(cj.V, V_end, points)
+    p, c, u = _isentrope_states(eos, cj, sol, V)
+    return FreeEndFan(cj=cj, V=V, p=p, u=u, xi=u + c)
 
 
 # -- polytropic products: closed forms -------------------------------------------------------
