@@ -334,15 +334,17 @@ def free_end(refine=False, perturbations=False):
             f"{a:+.1f} % {b:+.0f} m/s" for a, b in _free_end_xi_errors(fan, prof)))
     for k, pair in enumerate(r["pairs"]):
         print(f"  pair {k}: Richardson " + ", ".join(
-            f"{band} {100 * value:+.2f} % (ratio {ratio:.2f})" for band, (value, ratio) in pair.items()))
+            f"{band} {100 * value:+.2f} % (ratio {ratio:.2f})"
+            for band, (value, ratio) in pair.items()))
     if perturbations:
         for name in V.PERTURBED_CONSTANTS:
             for factor in (0.9, 1.1):
                 try:
                     p = V.free_end_checks({name: factor * library.TNT[name]})
+                    values = ", ".join(f"{band} {100 * value:+.2f} %"
+                                       for band, (value, _) in p["pairs"][0].items())
                     print(f"  free end {name} x {factor}: fails "
-                          f"{V.failed_free_end_checks(p) or 'nothing'}; Richardson " + ", ".join(
-                              f"{band} {100 * value:+.2f} %" for band, (value, _) in p["pairs"][0].items()))
+                          f"{V.failed_free_end_checks(p) or 'nothing'}; Richardson {values}")
                 except SolverError as exc:
                     print(f"  free end {name} x {factor}: run stopped ({exc})")
 
@@ -371,7 +373,8 @@ def free_end(refine=False, perturbations=False):
     bx.set_yscale("log")
     bx.set_xlim(-3500, 7500)
     bx.set_ylim(0.01, 30)
-    _label(bx, "ξ = x / t (m/s)", "pressure (GPa)", "the same runs against ξ (verify_tnt_free_end.toml)")
+    _label(bx, "ξ = x / t (m/s)", "pressure (GPa)",
+           "the same runs against ξ (verify_tnt_free_end.toml)")
     _save(fig, "mpm_verify_free_end.png")
 
 
