@@ -23,7 +23,10 @@ in solvers/ is changed; the run is the same time loop `MPMSolver.run` uses.
 `--compare` reads results/smpm_{jc_thin,eos_thick}_plate{,_mc}.nc (written by `uqflow run`
 on the four studies) and prints the probes' mean and variance by Taylor and by Monte Carlo
 beside the seed's Tables 6-8 (tests/data/seed_tables.toml, converted from 1e-2 Mbar = 1 GPa
-and 1e-6 Mbar^2 = 1e-2 GPa^2), at the end time and averaged over the time series.
+and 1e-6 Mbar^2 = 1e-2 GPa^2), at the end time and averaged over the time series. It then
+measures the Taylor means against the Monte Carlo error bars the result file reports (for
+the scrambled Sobol' studies: randomized QMC, 8 replicates, 7 degrees of freedom), beside the
+i.i.d. formula s/sqrt(n) on the same points, and the replicates' error of the MC variance.
 """
 
 from __future__ import annotations
@@ -94,18 +97,86 @@ def run_scene(scene: dict, snap_times_s):
 
 _LOADED = {}
 
+#: Two-sided level of the Taylor-vs-MC agreement test: that of "within 3 standard errors" for a
+#: normal error (99.73 %). With R = 8 scrambled replicates the RQMC error has R - 1 = 7
+#: degrees of freedom, so the same level needs the Student t quantile (4.53), not 3.
+AGREEMENT_LEVEL = 0.9973
+
+
+def _load(path, group):
+    import xarray as xr
+    key = (str(path), group)
+    if key not in _LOADED:
+        with xr.open_dataset(path, group=group) as f:
+            _LOADED[key] = f.load()
+    return _LOADED[key]
+
 
 def _stats(path, out):
-    import xarray as xr
-    if path not in _LOADED:
-        with xr.open_dataset(path, group="statistics") as f:
-            _LOADED[path] = f.load()
-    ds = _LOADED[path]
+    ds = _load(path, "statistics")
     y = ds[out]
     return (y.sel(statistic="mean"), y.sel(statistic="variance"), ds)
 
 
-MC_RUNS = 64      # the Monte Carlo studies' sample count (studies/smpm_*_mc.toml)
+class MonteCarloErrors:
+    """The error bars of one Monte Carlo output, from the result file.
+
+    `stderr` is the standard error the study reported (`statistic = "stderr"`: for the
+    scrambled Sobol' studies the spread of the R replicate means / sqrt(R)), `dof` its degrees
+    of freedom. `iid` is the i.i.d. formula s/sqrt(n) on the same points, which uqflow used for
+    Sobol' points before randomized QMC. `variance_rel_error` is the relative standard error
+    of the MC variance, also from the replicates: the spread of the R within-replicate
+    variances / sqrt(R), divided by their mean."""
+
+    def __init__(self, path, out):
+        stats = _load(path, "statistics")
+        runs = _load(path, "runs")
+        self.kind = stats.attrs.get("stderr_kind", "iid")
+        self.dof = int(stats.attrs["degrees_of_freedom"])
+        self.replicates = int(stats.attrs.get("replicates", 0)) or None
+        self.stderr = stats[out].sel(statistic="stderr").values
+        ok = np.asarray(runs["status"].values == "ok")
+        y = runs[out].values[ok]
+        self.samples = y.shape[0]
+        self.iid = y.std(axis=0, ddof=1) / np.sqrt(self.samples)
+        self.variance_rel_error = np.full(self.stderr.shape, np.nan)
+        if self.replicates:
+            which = np.flatnonzero(ok) % self.replicates
+            within = np.stack([y[which == r].var(axis=0, ddof=1)
+                               for r in range(self.replicates) if np.sum(which == r) > 1])
+            with np.errstate(divide="ignore", invalid="ignore"):
+                self.variance_rel_error = (within.std(axis=0, ddof=1) / np.sqrt(len(within))
+                                           / within.mean(axis=0))
+
+    def quantile(self, level=AGREEMENT_LEVEL):
+        """The multiple of `stderr` that holds the exact mean with probability `level`."""
+        import scipy.stats as sps
+        return float(sps.t.ppf(0.5 + level / 2, self.dof))
+
+
+def _agreement(taylor_mean, mc_mean, err: MonteCarloErrors, unit=1e-9):
+    """How far the Taylor mean (time, probe) lies from the MC mean, in MC errors."""
+    gap = np.abs(taylor_mean.values - mc_mean.values)
+    spread = err.stderr > 0                  # before the load arrives every run is identical
+    k = err.quantile()
+    ratio = err.stderr[spread] / err.iid[spread]
+    print(f"    all {gap.size} (time, probe) points, {int(spread.sum())} with MC spread: "
+          f"median |Taylor - MC| mean {np.median(gap) * unit:.4f}, largest "
+          f"{gap.max() * unit:.4f}; median MC stderr {np.median(err.stderr[spread]) * unit:.4f} "
+          f"({err.kind}, {err.dof} dof), i.i.d. s/sqrt(n) {np.median(err.iid[spread]) * unit:.4f}"
+          f", ratio median {np.median(ratio):.2f} [{np.quantile(ratio, 0.1):.2f} .. "
+          f"{np.quantile(ratio, 0.9):.2f}] (10-90 %)")
+    print(f"    within {k:.2f} stderr (t{err.dof} at {100 * AGREEMENT_LEVEL:.2f} %): "
+          f"{100 * np.mean(gap[spread] <= k * err.stderr[spread]):.1f} %; within 3 stderr "
+          f"{100 * np.mean(gap[spread] <= 3 * err.stderr[spread]):.1f} %; within 3 i.i.d. "
+          f"s/sqrt(n) {100 * np.mean(gap[spread] <= 3 * err.iid[spread]):.1f} %; "
+          f"median |Taylor - MC| / stderr {np.median(gap[spread] / err.stderr[spread]):.2f}")
+    i, j = np.unravel_index(int(np.argmax(gap)), gap.shape)
+    outside = spread & (gap > k * err.stderr)
+    print(f"    largest |Taylor - MC| at {taylor_mean['time'].values[i] * 1e6:.1f} us, probe "
+          f"{taylor_mean['probe'].values[j]}: {gap[i, j] / err.stderr[i, j]:.1f} stderr; points "
+          f"outside {k:.2f} stderr at {len(np.unique(np.nonzero(outside)[0]))} of "
+          f"{gap.shape[0]} output times")
 
 
 def compare(cv=0.10, thin=None, thick=None):
@@ -117,8 +188,9 @@ def compare(cv=0.10, thin=None, thick=None):
     thin_t, thin_m = map(Path, thin or (res / "smpm_jc_thin_plate.nc",
                                          res / "smpm_jc_thin_plate_mc.nc"))
     if thin_t.exists() and thin_m.exists():
-        print(f"thin plate, JC C.V. {cv:g} (GPa, GPa^2): seed MC / seed SMPM | ours MC(64) / "
-              "Taylor, at 100 us; [time-mean over 0-100 us]")
+        n_mc = MonteCarloErrors(thin_m, "flow_stress").samples
+        print(f"thin plate, JC C.V. {cv:g} (GPa, GPa^2): seed MC / seed SMPM | ours "
+              f"MC({n_mc}) / Taylor, at 100 us; [time-mean over 0-100 us]")
         for out, rows in tables.items():
             mt, vt, dt_ = _stats(thin_t, out)
             mm, vm, _ = _stats(thin_m, out)
@@ -133,14 +205,35 @@ def compare(cv=0.10, thin=None, thick=None):
                       f"{a(mm):7.4f}/{a(mt):7.4f} [{b(mm):7.4f}/{b(mt):7.4f}]   var seed "
                       f"{svmc * 1e-2:.2e}/{svsm * 1e-2:.2e} | ours {a2(vm):.2e}/{a2(vt):.2e} "
                       f"[{b2(vm):.2e}/{b2(vt):.2e}]")
+        print("  Taylor against MC, with the MC error bars as reported (GPa):")
         for out in tables:
             mt, vt, _ = _stats(thin_t, out)
             mm, vm, _ = _stats(thin_m, out)
-            gap = np.abs(mt.values - mm.values)
-            se = np.sqrt(vm.values / MC_RUNS)        # i.i.d. standard error of the MC mean
-            print(f"  {out:11s} all {gap.size} (time, probe) points: median |Taylor - MC| mean "
-                  f"{np.median(gap) * 1e-9:.4f} GPa, within 3 MC standard errors "
-                  f"{100 * np.mean(gap <= 3 * se):.0f} %")
+            err = MonteCarloErrors(thin_m, out)
+            print(f"  {out}:")
+            _agreement(mt, mm, err)
+            std_t = np.sqrt(vt.values).mean(axis=0)
+            std_m = np.sqrt(vm.values).mean(axis=0)
+            print("    time-mean std per probe, Taylor / MC: " + ", ".join(
+                f"{p} {a * 1e-9:.4f}/{b * 1e-9:.4f} ({100 * (a / b - 1):+.0f} %)"
+                for p, a, b in zip(mt["probe"].values, std_t, std_m)))
+            print(f"    largest std over all points, Taylor / MC: "
+                  f"{np.sqrt(vt.values.max()) * 1e-9:.4f} / {np.sqrt(vm.values.max()) * 1e-9:.4f}"
+                  f"; median std over all points {np.median(np.sqrt(vt.values)) * 1e-9:.4f} / "
+                  f"{np.median(np.sqrt(vm.values)) * 1e-9:.4f}")
+            end = -1
+            print("    at 100 us per probe: MC stderr, (Taylor - MC) / stderr, Taylor var / MC "
+                  "var - 1, rel. stderr of the MC var (replicates): " + ", ".join(
+                      f"{p} {err.stderr[end, j] * 1e-9:.4f} "
+                      f"{(mt.values[end, j] - mm.values[end, j]) / err.stderr[end, j]:+.2f} "
+                      f"{100 * (vt.values[end, j] / vm.values[end, j] - 1):+.0f} % "
+                      f"{100 * err.variance_rel_error[end, j]:.0f} %"
+                      for j, p in enumerate(mt["probe"].values)))
+            spread = err.stderr > 0
+            print(f"    MC variance, rel. stderr from the replicates: median "
+                  f"{100 * np.nanmedian(err.variance_rel_error[spread]):.0f} % over the points "
+                  f"with spread (the i.i.d. sqrt(2/(n-1)) would be "
+                  f"{100 * np.sqrt(2 / (err.samples - 1)):.0f} %)")
         mt, vt, _ = _stats(thin_t, "plastic_strain")
         mm, vm, _ = _stats(thin_m, "plastic_strain")
         for probe in mt["probe"].values:
@@ -154,18 +247,23 @@ def compare(cv=0.10, thin=None, thick=None):
         print("thick plate, EOS (C.V. of the files): pressure p* (GPa); the seed gives only figures")
         mt, vt, dt_ = _stats(thick_t, "pressure")
         mm, vm, _ = _stats(thick_m, "pressure")
+        err = MonteCarloErrors(thick_m, "pressure")
         t = mt["time"].values * 1e6
-        for probe in mt["probe"].values:
+        for j, probe in enumerate(mt["probe"].values):
             m1 = mt.sel(probe=probe).values * 1e-9
             k = int(np.argmax(m1))
             s1 = np.sqrt(vt.sel(probe=probe).values) * 1e-9
             s2 = np.sqrt(vm.sel(probe=probe).values) * 1e-9
             m2 = mm.sel(probe=probe).values * 1e-9
+            se = err.stderr[:, j] * 1e-9
             print(f"  {probe}: peak mean Taylor {m1[k]:.3f} MC {m2[k]:.3f} at {t[k]:.1f} us; "
                   f"std there Taylor {s1[k]:.4f} MC {s2[k]:.4f}; max std over time Taylor "
                   f"{s1.max():.4f} MC {s2.max():.4f}; time-mean |mean diff| "
                   f"{np.mean(np.abs(m1 - m2)):.4f}, time-mean std Taylor {s1.mean():.4f} "
-                  f"MC {s2.mean():.4f}")
+                  f"MC {s2.mean():.4f}; MC stderr at the peak {se[k]:.5f} "
+                  f"(i.i.d. {err.iid[k, j] * 1e-9:.5f}), time-mean {se.mean():.5f} "
+                  f"(i.i.d. {err.iid[:, j].mean() * 1e-9:.5f})")
+        _agreement(mt, mm, err)
 
 
 def main(argv=None):
