@@ -259,7 +259,8 @@ def compare(cv=0.10, thin=None, thick=None):
             print(f"  {probe}: peak mean Taylor {m1[k]:.3f} MC {m2[k]:.3f} at {t[k]:.1f} us; "
                   f"std there Taylor {s1[k]:.4f} MC {s2[k]:.4f}; max std over time Taylor "
                   f"{s1.max():.4f} MC {s2.max():.4f}; time-mean |mean diff| "
-                  f"{np.mean(np.abs(m1 - m2)):.4f}, time-mean std Taylor {s1.mean():.4f} "
+                  f"{np.mean(np.abs(m1 - m2)) * 1e3:.3f} MPa, largest "
+                  f"{np.max(np.abs(m1 - m2)) * 1e3:.3f} MPa; time-mean std Taylor {s1.mean():.4f} "
                   f"MC {s2.mean():.4f}; MC stderr at the peak {se[k]:.5f} "
                   f"(i.i.d. {err.iid[k, j] * 1e-9:.5f}), time-mean {se.mean():.5f} "
                   f"(i.i.d. {err.iid[:, j].mean() * 1e-9:.5f})")
