@@ -1,0 +1,175 @@
+"""Analytic parameter sensitivities of the steel constitutive functions, at a frozen state.
+
+The seed's one-run Taylor method (000, eq. 22–35) differentiates the Mie–Grüneisen pressure
+with respect to (S1, S2, S3, γ0, a) and the Johnson–Cook flow stress with respect to
+(A, B, C, n, m) while the particle's state (μ, E; εp, ε̇*, T*) is held fixed. These are the
+derivatives of OUR formulas (``mie_gruneisen.py``, ``johnson_cook.py``): the tension branch
+for μ ≤ 0, the ε̇* ≥ 1 clamp, T* clipped to [0, 1] and Bεp^n = 0 at εp = 0. Where the printed
+seed formulas are wrong, and the limits kept here, see docs/mpm_materials.md
+§ "Constitutive sensitivities".
+
+Every function is vectorised: states are arrays, parameters scalars or arrays that broadcast
+against them. Results: value (N,), gradient (N, 5), Hessian (N, 5, 5), in the parameter order
+of ``MG_PARAMETERS`` / ``JC_PARAMETERS``. The value functions also accept complex parameters
+(the branch choices depend on the state only), so complex-step differentiation applies to them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .state import MG_DEN_MIN
+
+MG_PARAMETERS = ("eos.S1", "eos.S2", "eos.S3", "eos.gamma0", "eos.a")
+JC_PARAMETERS = ("jc.A", "jc.B", "jc.C", "jc.n", "jc.m")
+
+
+def _mg_denominator_terms(mu, S1, S2, S3):
+    """(den, ∂den/∂(S1, S2, S3)) of the compression branch; den is linear in S1, S2, S3."""
+    mp1 = mu + 1.0
+    dS = (-mu, -mu * mu / mp1, -mu * mu * mu / (mp1 * mp1))
+    den = 1.0 - (S1 - 1.0) * mu - S2 * mu * mu / mp1 - S3 * mu * mu * mu / (mp1 * mp1)
+    return den, dS
+
+
+def _mg_states(mu, E, S1, S2, S3):
+    """Broadcast state and S arrays; the compression mask; the denominator checked against the
+    material's guard (a state past it is one the material refused, so it has no derivative)."""
+    mu, E = np.broadcast_arrays(np.asarray(mu, dtype=float), np.asarray(E, dtype=float))
+    compressed = mu > 0.0
+    mu_c = np.where(compressed, mu, 0.0)       # the tension branch never sees den
+    den, dS = _mg_denominator_terms(mu_c, S1, S2, S3)
+    den = np.broadcast_to(den, mu.shape)
+    bad = compressed & ~(np.real(den) > MG_DEN_MIN)
+    if np.any(bad):
+        i = int(np.flatnonzero(bad.ravel())[0])
+        raise ValueError(f"Mie–Grüneisen sensitivities: {int(bad.sum())} compressed state(s) at "
+                         f"or past the denominator guard den ≤ {MG_DEN_MIN:g} (first: index {i}, "
+                         f"mu = {mu.ravel()[i]!r}); the material refuses these states")
+    return mu, E, compressed, mu_c, np.where(compressed, den, 1.0), dS
+
+
+def mie_gruneisen_pressure_value(mu, E, rho0, C, S1, S2, S3, gamma0, a):
+    """p*(μ, E), seed eq. (10) as in ``mie_gruneisen.py`` (tension branch for μ ≤ 0), for arrays
+    of states; the parameters may be complex (complex-step differentiation)."""
+    mu, E, compressed, mu_c, den, _ = _mg_states(mu, E, S1, S2, S3)
+    k = rho0 * C * C
+    num = 1.0 + (1.0 - 0.5 * gamma0) * mu_c - 0.5 * a * mu_c * mu_c
+    f = np.where(compressed, k * mu_c * num / (den * den), k * mu)
+    return f + (gamma0 + a * mu) * E
+
+
+def mie_gruneisen_sensitivities(mu, E, rho0, C, S1, S2, S3, gamma0, a):
+    """(p*, ∂p*/∂θ, ∂²p*/∂θ²) with θ = (S1, S2, S3, γ0, a), for arrays of states (μ, E).
+
+    Compression, p* = kμN/den² + (γ0 + aμ)E with k = ρ0C², N = 1 + (1 − γ0/2)μ − (a/2)μ²,
+    d_i = ∂den/∂S_i = −(μ, μ²/(μ+1), μ³/(μ+1)²) (den and N are linear in θ):
+      ∂p/∂S_i = −2kμN d_i/den³,  ∂p/∂γ0 = −kμ²/(2den²) + E,  ∂p/∂a = −kμ³/(2den²) + μE;
+      ∂²p/∂S_i∂S_j = 6kμN d_i d_j/den⁴,  ∂²p/∂γ0∂S_i = kμ² d_i/den³,
+      ∂²p/∂a∂S_i = kμ³ d_i/den³,  the (γ0, a) block 0.
+    Tension (μ ≤ 0, including μ = 0): p* = kμ + (γ0 + aμ)E; ∂p/∂γ0 = E, ∂p/∂a = μE, rest 0.
+    Raises ValueError for a compressed state at or past the material's denominator guard.
+    """
+    mu, E, compressed, mu_c, den, dS = _mg_states(mu, E, S1, S2, S3)
+    k = rho0 * C * C
+    num = 1.0 + (1.0 - 0.5 * gamma0) * mu_c - 0.5 * a * mu_c * mu_c
+    den2 = den * den
+    den3 = den2 * den
+    f = np.where(compressed, k * mu_c * num / den2, k * mu)
+    p = f + (gamma0 + a * mu) * E
+
+    shape = mu.shape
+    grad = np.zeros(shape + (5,))
+    hess = np.zeros(shape + (5, 5))
+    d = [np.broadcast_to(np.asarray(di, dtype=float), shape) for di in dS]   # 0 in tension
+    for i in range(3):
+        grad[..., i] = -2.0 * k * mu_c * num * d[i] / den3
+        for j in range(i, 3):
+            hess[..., i, j] = hess[..., j, i] = 6.0 * k * mu_c * num * d[i] * d[j] / (den2 * den2)
+        hess[..., i, 3] = hess[..., 3, i] = k * mu_c ** 2 * d[i] / den3
+        hess[..., i, 4] = hess[..., 4, i] = k * mu_c ** 3 * d[i] / den3
+    grad[..., 3] = -0.5 * k * mu_c ** 2 / den2 + E
+    grad[..., 4] = -0.5 * k * mu_c ** 3 / den2 + mu * E
+    return p, grad, hess
+
+
+def _jc_state_factors(eps_p, eps_rate_star, T_star):
+    """Broadcast states; ln εp where εp > 0, ln ε̇* of the clamped rate (0 for ε̇* ≤ 1),
+    ln T* on 0 < T* < 1 (a finite placeholder 0 elsewhere, where its factor is masked)."""
+    eps_p, rate, T_star = np.broadcast_arrays(np.asarray(eps_p, dtype=float),
+                                              np.asarray(eps_rate_star, dtype=float),
+                                              np.asarray(T_star, dtype=float))
+    hardened = eps_p > 0.0
+    log_eps = np.log(np.where(hardened, eps_p, 1.0))
+    log_rate = np.log(np.maximum(rate, 1.0))
+    softened = (T_star > 0.0) & (T_star < 1.0)
+    log_T = np.log(np.where(softened, T_star, 1.0))
+    melted = T_star >= 1.0
+    return eps_p, hardened, log_eps, log_rate, T_star, softened, log_T, melted
+
+
+def johnson_cook_flow_stress_value(A, B, C, n, m, eps_p, eps_rate_star, T_star):
+    """σy(εp, ε̇*, T*), seed eq. (11) with the clamps of ``johnson_cook_flow_stress``, for
+    arrays of states; the parameters may be complex (complex-step differentiation)."""
+    eps_p, hardened, _, log_rate, T_star, softened, _, melted = _jc_state_factors(
+        eps_p, eps_rate_star, T_star)
+    power_eps = np.where(hardened, np.power(np.where(hardened, eps_p, 1.0), n), 0.0)
+    power_T = np.power(np.where(softened, T_star, 1.0), m)
+    hardening = A + B * power_eps
+    rate_factor = 1.0 + C * log_rate
+    thermal = np.where(melted, 0.0, np.where(softened, 1.0 - power_T, 1.0))
+    return hardening * rate_factor * thermal
+
+
+def johnson_cook_sensitivities(A, B, C, n, m, eps_p, eps_rate_star, T_star):
+    """(σy, ∂σy/∂θ, ∂²σy/∂θ²) with θ = (A, B, C, n, m), for arrays of states (εp, ε̇*, T*).
+
+    With h = A + BP, P = εp^n, Lε = ln εp; r = 1 + CΛ, Λ = ln max(ε̇*, 1); t = 1 − Q,
+    Q = T*^m, LT = ln T*:
+      ∂σ/∂A = rt, ∂σ/∂B = Prt, ∂σ/∂C = hΛt, ∂σ/∂n = BPLε rt, ∂σ/∂m = −hrQLT;
+      second: (A,C) Λt, (A,m) −rQLT, (B,C) PΛt, (B,n) PLε rt, (B,m) −PrQLT,
+      (C,n) BPLεΛt, (C,m) −hΛQLT, (n,n) BPLε² rt, (n,m) −BPLε rQLT, (m,m) −hrQLT²; the rest 0.
+    Limits: P Lεᵏ = 0 at εp = 0 (σy = A there, for every n); Q LTᵏ = 0 at T* ≤ 0 (t = 1);
+    every derivative 0 for T* ≥ 1 (t = 0, σy = 0 whatever θ); Λ = 0 where the rate is clamped,
+    so every C-derivative vanishes there.
+    """
+    eps_p, hardened, log_eps, log_rate, T_star, softened, log_T, melted = _jc_state_factors(
+        eps_p, eps_rate_star, T_star)
+    P = np.where(hardened, np.power(np.where(hardened, eps_p, 1.0), n), 0.0)
+    Q = np.where(softened, np.power(np.where(softened, T_star, 1.0), m), 0.0)
+    h = A + B * P
+    r = 1.0 + C * log_rate
+    alive = ~melted
+    t = np.where(melted, 0.0, 1.0 - Q)
+    QL = np.where(alive, Q * log_T, 0.0)     # T*^m ln T*, 0 outside 0 < T* < 1
+    QL2 = QL * log_T
+    PL = P * log_eps                         # εp^n ln εp, 0 at εp = 0 (P = 0, log_eps = 0)
+    PL2 = PL * log_eps
+    Lam = log_rate
+
+    sigma = h * r * t
+    shape = sigma.shape
+    grad = np.zeros(shape + (5,))
+    grad[..., 0] = r * t
+    grad[..., 1] = P * r * t
+    grad[..., 2] = h * Lam * t
+    grad[..., 3] = B * PL * r * t
+    grad[..., 4] = -h * r * QL
+
+    hess = np.zeros(shape + (5, 5))
+    entries = {
+        (0, 2): Lam * t,
+        (0, 4): -r * QL,
+        (1, 2): P * Lam * t,
+        (1, 3): PL * r * t,
+        (1, 4): -P * r * QL,
+        (2, 3): B * PL * Lam * t,
+        (2, 4): -h * Lam * QL,
+        (3, 3): B * PL2 * r * t,
+        (3, 4): -B * PL * r * QL,
+        (4, 4): -h * r * QL2,
+    }
+    for (i, j), value in entries.items():
+        hess[..., i, j] = value
+        hess[..., j, i] = value
+    return sigma, grad, hess
