@@ -139,9 +139,8 @@ def johnson_cook_sensitivities(A, B, C, n, m, eps_p, eps_rate_star, T_star):
     Q = np.where(softened, np.power(np.where(softened, T_star, 1.0), m), 0.0)
     h = A + B * P
     r = 1.0 + C * log_rate
-    alive = ~melted
     t = np.where(melted, 0.0, 1.0 - Q)
-    QL = np.where(alive, Q * log_T, 0.0)     # T*^m ln T*, 0 outside 0 < T* < 1
+    QL = Q * log_T                           # T*^m ln T*, 0 outside 0 < T* < 1 (Q = 0 there)
     QL2 = QL * log_T
     PL = P * log_eps                         # εp^n ln εp, 0 at εp = 0 (P = 0, log_eps = 0)
     PL2 = PL * log_eps

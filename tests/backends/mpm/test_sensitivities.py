@@ -236,12 +236,15 @@ def test_mg_value_is_the_material_pressure_and_finite():
     p_ours = mie_gruneisen_pressure_value(mu_back, E, RHO0, BULK_C, *theta)
     material = np.array([mie_gruneisen_pressure(RHO0, BULK_C, S1[i], S2[i], S3[i], gamma0[i],
                                                 a[i], rho[i], E[i])[0] for i in range(N_STATES)])
-    # the same operations on the same μ; rounding of ~12 flops on the terms f and gE, which
-    # may cancel: 16 eps times the sum of their magnitudes
+    # the same operations in the same order on the same μ (den is computed identically, so its
+    # cancellation near the pole is shared); rounding of ~12 flops on the terms of f and gE,
+    # which may cancel: 16 eps times the sum of the terms' magnitudes
     k = RHO0 * BULK_C ** 2
-    term_scale = np.abs(k * mu_back) / np.minimum(
-        1.0, np.array([mg_denominator(S1[i], S2[i], S3[i], max(mu_back[i], 0.0))
-                       for i in range(N_STATES)])) ** 2 + np.abs((gamma0 + a * mu_back) * E)
+    mu_c = np.maximum(mu_back, 0.0)
+    den = np.array([mg_denominator(S1[i], S2[i], S3[i], mu_c[i]) for i in range(N_STATES)])
+    num_terms = 1.0 + np.abs(1.0 - 0.5 * gamma0) * mu_c + 0.5 * a * mu_c ** 2
+    term_scale = (k * np.abs(mu_back) * num_terms / den ** 2
+                  + np.abs(gamma0 * E) + np.abs(a * mu_back * E))
     assert (np.abs(p_ours - material) <= 16 * EPS * term_scale).all()
     assert np.isfinite(p).all() and np.isfinite(grad).all() and np.isfinite(hess).all()
     np.testing.assert_array_equal(hess, np.swapaxes(hess, -1, -2))
