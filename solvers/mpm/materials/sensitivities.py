@@ -95,7 +95,7 @@ def mie_gruneisen_sensitivities(mu, E, rho0, C, S1, S2, S3, gamma0, a):
 
 def _jc_state_factors(eps_p, eps_rate_star, T_star):
     """Broadcast states; ln εp where εp > 0, ln ε̇* of the clamped rate (0 for ε̇* ≤ 1),
-    ln T* on 0 < T* < 1 (a finite placeholder 0 elsewhere, where its factor is masked)."""
+    ln T* on 0 < T* < 1 (0 elsewhere, where the factor it multiplies is masked, so no NaN reaches a product)."""
     eps_p, rate, T_star = np.broadcast_arrays(np.asarray(eps_p, dtype=float),
                                               np.asarray(eps_rate_star, dtype=float),
                                               np.asarray(T_star, dtype=float))
