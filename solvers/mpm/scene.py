@@ -5,7 +5,8 @@ Scene keys (docs/mpm.md, "Scene"): ``domain``, ``cell_size``, ``resolution``,
 ``particles_per_cell``, ``shape``, ``flip``, ``cfl``, ``bulk_viscosity``, ``gravity``,
 ``end_time``, ``output_interval``, ``outputs``, ``dt_min``, ``padding``, ``extent``,
 ``materials``, ``bodies``, ``detonation``, ``boundaries``, ``clamps``, ``probes``,
-``snapshots`` (particle VTK files, ``snapshots.py``; docs/mpm_scenes.md).
+``snapshots`` (particle VTK files, ``snapshots.py``; docs/mpm_scenes.md), ``conventions``
+(``"uqflow"`` or ``"seed"``: docs/mpm.md, "Conventions").
 """
 
 from __future__ import annotations
@@ -24,7 +25,10 @@ from uqflow.errors import SceneError
 TOP_KEYS = ("domain", "cell_size", "resolution", "particles_per_cell", "shape", "flip", "cfl",
             "bulk_viscosity", "gravity", "end_time", "output_interval", "outputs", "dt_min",
             "padding", "extent", "materials", "bodies", "detonation", "boundaries", "clamps",
-            "probes", "max_steps", "threads", "extent_margin", "snapshots")
+            "probes", "max_steps", "threads", "extent_margin", "snapshots", "conventions")
+# "seed": the conventions under which seed 000's tables are reproduced (docs/mpm.md,
+# "Conventions"); the kernels read the rate and heating ones, the probes the von Mises one
+CONVENTIONS = ("uqflow", "seed")
 REQUIRED = ("domain", "cell_size", "bodies", "end_time")
 BODY_KEYS = {"rectangle": ("min", "max"), "polygon": ("vertices",),
              "circle": ("center", "radius")}
@@ -32,7 +36,8 @@ PROBE_QUANTITIES = {
     # name: (units, long name)
     "pressure": ("Pa", "EOS pressure p* (compression positive, without q)"),
     "flow_stress": ("Pa", "current flow stress sigma_y"),
-    "equivalent_stress": ("Pa", "von Mises stress sqrt(3/2 s:s) incl. s_zz"),
+    "equivalent_stress": ("Pa", "von Mises stress sqrt(3/2 s:s) incl. s_zz (without s_zz "
+                                "under conventions = \"seed\")"),
     "S11": ("Pa", "deviatoric stress s_xx"),
     "S22": ("Pa", "deviatoric stress s_yy"),
     "S12": ("Pa", "shear stress s_xy"),
@@ -73,7 +78,12 @@ MAX_PADDING = 64             # ghost cells per side (3 are needed by the widest 
 MAX_EXTENT_MARGIN = 10**6    # cells added around the domain of dependence
 DEFAULTS = {"resolution": 1.0, "particles_per_cell": 2, "shape": "quadratic", "flip": 1.0,
             "cfl": 0.3, "gravity": [0.0, 0.0], "padding": 3, "extent": "full",
-            "max_steps": 5_000_000, "threads": 1}
+            "max_steps": 5_000_000, "threads": 1, "conventions": "uqflow"}
+PROBE_KEYS = ("name", "point", "body", "radius")
+# An averaging probe's radius, in particle spacings (cell / particles_per_cell), at least:
+# below it the kernel-weighted centroid of the lattice points in the disk wanders with the
+# layout by more than 0.05 spacing (0.28 at one spacing; docs/mpm.md, "Probes").
+MIN_RADIUS_SPACINGS = 1.5
 
 
 def _is_number(v):
@@ -171,6 +181,7 @@ class Probe:
     name: str
     point: tuple
     body: str | None
+    radius: float | None = None    # m; None: the nearest particle (``probe_members``)
 
 
 @dataclass
@@ -215,6 +226,7 @@ class Config:
     extent: str = "full"
     extent_margin: int = EXTENT_MARGIN_CELLS
     snapshots: Snapshots | None = None     # particle VTK snapshots (snapshots.py); None: off
+    conventions: str = "uqflow"            # CONVENTIONS; "seed": seed 000's (docs/mpm.md)
 
     @property
     def times(self):
@@ -291,6 +303,10 @@ def parse(scene) -> Config:
 
     outs = _names(s.get("outputs", list(DEFAULT_OUTPUTS)), "outputs", PROBE_QUANTITIES,
                   "output")
+    conventions = s["conventions"]
+    if not isinstance(conventions, str) or conventions not in CONVENTIONS:
+        raise _err("conventions", f"must be one of {', '.join(map(repr, CONVENTIONS))}, "
+                                  f"got {conventions!r}")
 
     # boundaries ---------------------------------------------------------------------------
     sides = dict.fromkeys(SIDES, "free")
@@ -435,12 +451,12 @@ def parse(scene) -> Config:
     probes = []
     pl = s.get("probes", [])
     if not isinstance(pl, (list, tuple)):
-        raise _err("probes", "must be a list of tables {name, point, body}")
+        raise _err("probes", "must be a list of tables {name, point, body, radius}")
     pnames = set()
     for k, p in enumerate(pl):
         key = f"probes[{k}]"
         p = _table(p, key)
-        _keys(p, ("name", "point", "body"), key)
+        _keys(p, PROBE_KEYS, key)
         if "name" not in p or not isinstance(p["name"], str) or not p["name"]:
             raise _err(f"{key}.name", "is required (a non-empty string)")
         if p["name"] in pnames:
@@ -452,7 +468,16 @@ def parse(scene) -> Config:
         body = p.get("body")
         if body is not None and (not isinstance(body, str) or body not in names):
             raise _err(f"{key}.body", f"no body named {body!r} (bodies: {', '.join(names)})")
-        probes.append(Probe(p["name"], pt, body))
+        radius = None
+        if "radius" in p:
+            radius = _num(p["radius"], f"{key}.radius", positive=True)
+            spacing = dx / ppc
+            if radius < MIN_RADIUS_SPACINGS * spacing:
+                raise _err(f"{key}.radius", f"{radius:g} m is less than {MIN_RADIUS_SPACINGS:g} "
+                           f"particle spacings ({MIN_RADIUS_SPACINGS * spacing:g} m at cell "
+                           f"{dx:g} m, {ppc} particles per cell): the average would move with "
+                           f"the particle layout; drop radius for the nearest particle")
+        probes.append(Probe(p["name"], pt, body, radius))
 
     snaps = _snapshots(s["snapshots"], dt_out) if "snapshots" in s else None
 
@@ -460,7 +485,8 @@ def parse(scene) -> Config:
                   gravity=gravity, end_time=end, output_interval=dt_out, outputs=tuple(outs),
                   dt_min=dt_min, max_steps=max_steps, threads=threads, materials=materials, bodies=bodies,
                   probes=probes, detonation=det, cell_size=cell, resolution=res,
-                  extent=extent, extent_margin=margin, snapshots=snaps)
+                  extent=extent, extent_margin=margin, snapshots=snaps,
+                  conventions=conventions)
 
 
 def _snapshots(v, dt_out) -> Snapshots:
@@ -588,6 +614,45 @@ def place_probes(cfg: Config, parts: Particles) -> np.ndarray:
     return idx
 
 
+def probe_weights(distance, radius):
+    """Averaging weights of particles at initial ``distance`` < ``radius`` from a probe point,
+    normalised to sum 1: the kernel (1 − (r/R)²)³. Its value, slope and curvature vanish at
+    r = R, so a particle that refinement moves across the rim enters with a weight of order
+    (h/R)³ instead of a jump (a top-hat average keeps a layout error of 0.2–0.4 spacings in
+    its centroid); inside it is a polynomial in r², smooth at the point itself."""
+    q2 = (np.asarray(distance, dtype=float) / radius) ** 2
+    w = (1.0 - q2) ** 3
+    return w / w.sum()
+
+
+def probe_members(cfg: Config, parts: Particles, probe_index=None) -> list:
+    """``[(particle indices, weights)]``, one pair per probe, fixed at t = 0: a probe value is
+    Σ w · (the particle's value). A probe without ``radius`` is its nearest particle
+    (``place_probes``), ``(array([i]), array([1.0]))``. A probe with ``radius`` R averages the
+    particles of its body — the named one, else the nearest particle's — whose initial
+    distance to the point is below R, weighted by ``probe_weights``; particles of other
+    bodies never enter (a disk reaching past the plate averages steel only). The members are
+    a Lagrangian set: they move with the material and stay the same for the whole run."""
+    if probe_index is None:
+        probe_index = place_probes(cfg, parts)
+    out = []
+    for k, (p, i) in enumerate(zip(cfg.probes, probe_index)):
+        i = int(i)
+        if p.radius is None:
+            out.append((np.array([i], dtype=np.int64), np.array([1.0])))
+            continue
+        cand = np.flatnonzero(parts.body == parts.body[i])
+        dist = np.hypot(parts.x[cand] - p.point[0], parts.y[cand] - p.point[1])
+        inside = dist < p.radius
+        if not inside.any():
+            body = cfg.bodies[int(parts.body[i])].name
+            raise _err(f"probes[{k}].radius", f"no particle of body {body!r} lies within "
+                       f"{p.radius:g} m of ({p.point[0]:g}, {p.point[1]:g}) (the nearest is "
+                       f"{float(dist.min()):.3g} m away)")
+        out.append((cand[inside].astype(np.int64), probe_weights(dist[inside], p.radius)))
+    return out
+
+
 # ------------------------------------------------------------------------------------------
 # Domain of dependence (extent = "auto")
 # ------------------------------------------------------------------------------------------
@@ -619,7 +684,11 @@ def auto_extent(cfg: Config, parts: Particles, speed_of_material, probe_index):
     T = cfg.end_time
     tt = np.full((ncx, ncy), np.inf)
     heap = []
-    for p in probe_index:
+    # every particle a probe averages is a source of the domain of dependence
+    sources = np.union1d(np.asarray(probe_index, dtype=np.int64),
+                         np.concatenate([m[0] for m in probe_members(cfg, parts, probe_index)]
+                                        + [np.zeros(0, dtype=np.int64)]))
+    for p in sources:
         a, b = int(ci[p]), int(cj[p])
         tt[a, b] = 0.0
         heap.append((0.0, a, b))

@@ -16,7 +16,7 @@ from solvers.mpm.materials import state as ST
 from solvers.mpm.probes import ProbeRecorder
 from solvers.mpm.snapshots import SnapshotWriter
 from solvers.mpm.scene import ENERGY_OUTPUTS, PROBE_QUANTITIES, auto_extent, parse, \
-    place_probes, seed_particles
+    place_probes, probe_members, seed_particles
 from solvers.mpm.shapes import KINDS
 from uqflow.errors import SceneError, SolverError
 from uqflow.solver import Solver, register_solver
@@ -50,6 +50,7 @@ class MPMSolver(Solver):
                                  f"spacing, or covered by earlier bodies)",
                                  key=f"scene.bodies[{k}]")
         self.probe_index = place_probes(cfg, self.parts)
+        self.probe_members = probe_members(cfg, self.parts, self.probe_index)
         self.labels = list(cfg.materials)
         explosive = [lab for lab, m in cfg.materials.items() if "det_x" in m.module.PARAMETERS]
         if explosive and cfg.detonation is None:
@@ -244,7 +245,7 @@ class _Run:
         for k, (upd, ini) in enumerate(solver.loops):
             if ini(prms[k], self.S, solver.mat_index[k], self.err):
                 self._raise_first("initial state")
-        self.recorder = ProbeRecorder(cfg, solver.probe_index, solver.times.size)
+        self.recorder = ProbeRecorder(cfg, solver.probe_members, solver.times.size)
         self.snapshots = None     # a snapshots.SnapshotWriter, set by MPMSolver.run
 
     def _impedances(self):
