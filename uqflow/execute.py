@@ -28,7 +28,8 @@ import xarray as xr
 from uqflow import progress as progress_mod
 from uqflow.errors import ResultFileError, StudyError, UqflowError
 from uqflow.realization import (STATUS_FAILED, STATUS_PENDING, add_field_value_variables,
-                                batch_arguments, empty_runs, run_batch, store_batch)
+                                batch_arguments, empty_runs, is_sensitivity_variable,
+                                realization_prefix, run_batch, store_batch)
 from uqflow.store import check_writable, now, read_runs, versions, write_result
 from uqflow.study import Study, scheduler_address_problem
 
@@ -179,7 +180,7 @@ def _check_stored_design(stored: xr.Dataset, fresh: xr.Dataset, study: Study,
     """The partial result must hold this study's design (a prefix of it, if it stopped
     early) and every variable a run writes: another uqflow version may plan differently."""
     n = stored.sizes.get("realization", 0)
-    prefix = fresh.isel(realization=slice(0, n))
+    prefix = realization_prefix(fresh, n)
     problem = None
     if not 0 < n <= fresh.sizes["realization"]:
         problem = f"{n} realizations where this study plans {fresh.sizes['realization']}"
@@ -193,7 +194,7 @@ def _check_stored_design(stored: xr.Dataset, fresh: xr.Dataset, study: Study,
                 problem = f"'{name}' has dims {mine.dims} {mine.shape}, not {var.dims} {var.shape}"
                 break
             designed = name not in (*study.outputs, *_RUN_COLUMNS) and \
-                not str(name).startswith("field_")
+                not str(name).startswith("field_") and not is_sensitivity_variable(name)
             if designed and not _same_values(mine.values, var.values):
                 problem = f"its '{name}' differ from this study's plan"
                 break
@@ -201,6 +202,14 @@ def _check_stored_design(stored: xr.Dataset, fresh: xr.Dataset, study: Study,
         raise StudyError(f"{path} does not hold this study's design ({problem}; another "
                          f"uqflow version?); use --force to start again",
                          file=str(study.path), key="output.path")
+
+
+def _design_of(runs: xr.Dataset, study: Study) -> xr.Dataset:
+    """The design inside ``runs``: everything but what a run writes (outputs, their
+    derivatives, the run columns)."""
+    written = [*study.outputs, *_RUN_COLUMNS,
+               *(name for name in runs.data_vars if is_sensitivity_variable(name))]
+    return runs.drop_vars(written, errors="ignore")
 
 
 def _same_values(a, b) -> bool:
@@ -237,8 +246,8 @@ class _Stopper:
             if n > first_pending:
                 return False
             self.next += 1
-            if self.method.enough(self.design.isel(realization=slice(0, n)),
-                                  self.runs.isel(realization=slice(0, n))):
+            if self.method.enough(realization_prefix(self.design, n),
+                                  realization_prefix(self.runs, n)):
                 self.keep = n
         return self.keep is not None
 
@@ -307,7 +316,7 @@ def run_study(study: Study, *, workers: int | None = None, scheduler: str | None
     runs, attrs = _prepare(study, resume, path)
     pending = np.flatnonzero(runs["status"].values == STATUS_PENDING)
     resumed = int(runs.sizes["realization"] - pending.size)
-    design = runs.drop_vars([*study.outputs, *_RUN_COLUMNS], errors="ignore")
+    design = _design_of(runs, study)
     in_process = workers == 0 and scheduler is None
 
     with contextlib.ExitStack() as stack:
@@ -347,8 +356,8 @@ def run_study(study: Study, *, workers: int | None = None, scheduler: str | None
                           f"{path}")
     keep = execution.stopper.keep
     if keep is not None:
-        runs = runs.isel(realization=slice(0, keep))
-        design = design.isel(realization=slice(0, keep))
+        runs = realization_prefix(runs, keep)
+        design = realization_prefix(design, keep)
         attrs["stopped_early"] = f"target reached after {keep} realizations"
     statistics = study.method.analyze(design, runs)
     attrs.update(complete=1, finished=now(),

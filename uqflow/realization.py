@@ -2,6 +2,15 @@
 
 Kept free of dask so the same code runs in-process (``workers = 0``), on a local cluster
 and on a remote one, and so a method's tests can evaluate a design directly.
+
+Sensitivity runs: a design's boolean variable ``with_sensitivities`` (``SENSITIVITY_FLAG``,
+dim ``realization``) marks the realizations run with ``solver.run_with_sensitivities`` (local
+derivatives with respect to the design's parameters, see ``uqflow.solver``). Their derivatives
+live on a dim of their own, ``sensitivity_run`` (the flagged realizations in realization
+order, coordinate ``sensitivity_realization``): ``o__gradient`` (sensitivity_run, *dims,
+parameter) and ``o__hessian`` (sensitivity_run, *dims, parameter, parameter_j) for every
+output ``o``, NaN until that realization has run ok. Lacking the ``realization`` dim, they are
+never taken for outputs.
 """
 
 from __future__ import annotations
@@ -18,6 +27,81 @@ from uqflow.fields import FieldSample, field_value_variable, germ_variable
 
 STATUS_OK, STATUS_FAILED, STATUS_PENDING = "ok", "failed", "pending"
 
+SENSITIVITY_FLAG = "with_sensitivities"
+SENSITIVITY_DIM, SENSITIVITY_COORD = "sensitivity_run", "sensitivity_realization"
+GRADIENT_SUFFIX, HESSIAN_SUFFIX = "__gradient", "__hessian"
+
+
+def gradient_variable(output: str) -> str:
+    """Name of the local gradient of ``output`` (in a solver's dataset and in the runs)."""
+    return output + GRADIENT_SUFFIX
+
+
+def hessian_variable(output: str) -> str:
+    """Name of the local Hessian of ``output`` (in a solver's dataset and in the runs)."""
+    return output + HESSIAN_SUFFIX
+
+
+def is_sensitivity_variable(name) -> bool:
+    return str(name).endswith((GRADIENT_SUFFIX, HESSIAN_SUFFIX))
+
+
+def sensitivity_flags(design: xr.Dataset) -> np.ndarray:
+    """Which realizations of ``design`` run with sensitivities (all False without the flag)."""
+    if SENSITIVITY_FLAG not in design.variables:
+        return np.zeros(design.sizes["realization"], dtype=bool)
+    return np.asarray(design[SENSITIVITY_FLAG].values).astype(bool)
+
+
+def sensitivity_arrays(runs: xr.Dataset, output: str):
+    """(realization indices, gradient, hessian) of ``output``'s sensitivity runs, arrays of
+    shapes (m,), (m, *dims, n) and (m, *dims, n, n); NaN where a realization did not run ok."""
+    if SENSITIVITY_COORD not in runs.coords:
+        raise KeyError(f"the runs hold no sensitivity runs (no '{SENSITIVITY_FLAG}' in the "
+                       f"design)")
+    return (np.asarray(runs[SENSITIVITY_COORD].values, dtype=np.int64),
+            np.asarray(runs[gradient_variable(output)].values, dtype=float),
+            np.asarray(runs[hessian_variable(output)].values, dtype=float))
+
+
+def realization_prefix(runs: xr.Dataset, n: int) -> xr.Dataset:
+    """The first ``n`` realizations of ``runs`` (or of a design), with their sensitivity
+    runs only."""
+    prefix = runs.isel(realization=slice(0, n))
+    if SENSITIVITY_COORD in runs.coords:
+        keep = np.flatnonzero(runs[SENSITIVITY_COORD].values < n)
+        prefix = prefix.isel({SENSITIVITY_DIM: keep})
+    return prefix
+
+
+def _per_parameter(units: str, power: int) -> str:
+    per = "parameter unit" if power == 1 else "parameter unit^2"
+    return f"{units or 1} per {per}"
+
+
+def _add_sensitivity_variables(runs: xr.Dataset, template: xr.Dataset) -> xr.Dataset:
+    if SENSITIVITY_FLAG not in runs.variables:
+        return runs
+    flagged = np.flatnonzero(sensitivity_flags(runs))
+    parameters = [str(p) for p in runs["parameter"].values]
+    n, m = len(parameters), flagged.size
+    runs = runs.assign_coords({SENSITIVITY_COORD: (SENSITIVITY_DIM, flagged.astype(np.int64), {
+        "long_name": "realization run with local sensitivities"})})
+    if "parameter_j" not in runs.coords:
+        runs = runs.assign_coords(parameter_j=("parameter_j", parameters))
+    for name, var in template.data_vars.items():
+        units = var.attrs.get("units", "")
+        runs[gradient_variable(name)] = xr.Variable(
+            (SENSITIVITY_DIM, *var.dims, "parameter"), np.full((m, *var.shape, n), np.nan),
+            {"long_name": f"local derivative d{name}/dx_k at the realization's parameters "
+                          f"(frozen state)", "units": _per_parameter(units, 1)})
+        runs[hessian_variable(name)] = xr.Variable(
+            (SENSITIVITY_DIM, *var.dims, "parameter", "parameter_j"),
+            np.full((m, *var.shape, n, n), np.nan),
+            {"long_name": f"local second derivative d2{name}/dx_k dx_j at the realization's "
+                          f"parameters (frozen state)", "units": _per_parameter(units, 2)})
+    return runs
+
 
 def empty_runs(design: xr.Dataset, template: xr.Dataset) -> xr.Dataset:
     """The runs dataset before anything ran: NaN outputs, every realization pending."""
@@ -33,7 +117,7 @@ def empty_runs(design: xr.Dataset, template: xr.Dataset) -> xr.Dataset:
     if any(str(v).startswith("germ_") for v in design.data_vars):
         runs["clipped_points"] = ("realization", np.zeros(n, dtype=np.int64), {
             "long_name": "field values clipped into the parameter's physical range"})
-    return runs
+    return _add_sensitivity_variables(runs, template)
 
 
 def add_field_value_variables(runs: xr.Dataset, fields: list | None, solver) -> xr.Dataset:
@@ -51,28 +135,64 @@ def add_field_value_variables(runs: xr.Dataset, fields: list | None, solver) -> 
     return runs
 
 
-def takes_seed(solver) -> bool:
+def takes_seed(solver, method: str = "run") -> bool:
     try:
-        return "seed" in inspect.signature(solver.run).parameters
-    except (TypeError, ValueError):
+        return "seed" in inspect.signature(getattr(solver, method)).parameters
+    except (TypeError, ValueError, AttributeError):
         return False
 
 
-def run_one(solver, params: dict, fields, outputs: list[str], seed: int | None = None):
+def _derivatives(result: xr.Dataset, output: str, wrt: list[str], dims: tuple) -> dict:
+    """``output``'s gradient and Hessian from a solver's dataset, as arrays with the
+    parameter dims last, in ``wrt`` order (whatever order the solver used)."""
+    got = {}
+    for name, extra in ((gradient_variable(output), ("parameter",)),
+                        (hessian_variable(output), ("parameter", "parameter_j"))):
+        if name not in result.variables:
+            raise SolverError(f"run_with_sensitivities returned no '{name}'")
+        var = result[name]
+        if set(var.dims) != {*dims, *extra}:
+            raise SolverError(f"'{name}' has dims {var.dims}, not {(*dims, *extra)}")
+        for d in extra:
+            if d in var.coords and [str(c) for c in var[d].values] != list(wrt):
+                var = var.sel({d: list(wrt)})
+        got[name] = np.asarray(var.transpose(*dims, *extra).values, dtype=float)
+    return got
+
+
+def run_one(solver, params: dict, fields, outputs: list[str], seed: int | None = None,
+            wrt: list[str] | None = None):
     """One realization: (status, message, {output: array}, wall time).
 
-    A ``SolverError`` or any other exception, and any non-finite output, make the
-    realization failed with a one-line message; nothing propagates. ``seed`` goes to
-    ``solver.run`` when given: callers give it only to solvers that take one (``takes_seed``).
+    With ``wrt`` (parameter names) the realization runs ``solver.run_with_sensitivities``
+    and the dict also holds each output's gradient and Hessian with respect to ``wrt``
+    (``gradient_variable(o)``, ``hessian_variable(o)``).
+
+    A ``SolverError`` or any other exception, and any non-finite output or derivative, make
+    the realization failed with a one-line message; nothing propagates. ``seed`` goes to
+    the solver when given: callers give it only to solvers that take one (``takes_seed``).
     """
     start = time.perf_counter()
     try:
         kwargs = {"seed": seed} if seed is not None else {}
-        result = solver.run(params, fields, **kwargs) if fields else solver.run(params, **kwargs)
+        if wrt is not None:
+            if fields:
+                raise SolverError("a realization with sensitivities takes no random fields "
+                                  "(run_with_sensitivities has no fields argument)")
+            result = solver.run_with_sensitivities(params, wrt=list(wrt), outputs=list(outputs),
+                                                   **kwargs)
+        elif fields:
+            result = solver.run(params, fields, **kwargs)
+        else:
+            result = solver.run(params, **kwargs)
         values = {name: np.asarray(result[name].values, dtype=float) for name in outputs}
+        if wrt is not None:
+            for name in outputs:
+                values.update(_derivatives(result, name, wrt, result[name].dims))
         bad = [name for name, v in values.items() if not np.all(np.isfinite(v))]
         if bad:
-            status, message = STATUS_FAILED, f"non-finite output '{bad[0]}'"
+            what = "derivative" if is_sensitivity_variable(bad[0]) else "output"
+            status, message = STATUS_FAILED, f"non-finite {what} '{bad[0]}'"
         else:
             status, message = STATUS_OK, ""
     except SolverError as exc:
@@ -87,28 +207,35 @@ def run_one(solver, params: dict, fields, outputs: list[str], seed: int | None =
 
 def run_batch(solver, names: list[str], values: np.ndarray, outputs: list[str],
               fields: list | None = None, germs: dict | None = None,
-              seeds: np.ndarray | None = None, budget: float | None = None) -> dict:
+              seeds: np.ndarray | None = None, budget: float | None = None,
+              sensitivities: np.ndarray | None = None) -> dict:
     """Run realizations given as rows of ``values``; returns plain arrays (cheap to ship).
 
     ``fields`` are the study's RandomFields and ``germs`` their germs for these rows
     (``germ_variable(name)`` -> (rows, modes)); ``seeds`` the per-realization seeds, passed
-    to solvers whose ``run`` takes ``seed`` (e.g. for a random grid). With ``budget``
-    (seconds) the batch returns after the first realization that ends past it, so finished
-    realizations reach the caller (and its checkpoint) in bounded time: the result then
-    covers the first ``len(result["status"])`` rows, at least one.
+    to solvers whose ``run`` takes ``seed`` (e.g. for a random grid); ``sensitivities`` the
+    rows' ``with_sensitivities`` flags (those rows also return their derivatives with
+    respect to ``names``, under "sensitivities"). With ``budget`` (seconds) the batch
+    returns after the first realization that ends past it, so finished realizations reach
+    the caller (and its checkpoint) in bounded time: the result then covers the first
+    ``len(result["status"])`` rows, at least one.
     """
     start = time.perf_counter()
-    seeded = takes_seed(solver)          # once per batch: inspect is slow next to a run
+    # once per batch: inspect is slow next to a run
+    seeded = {False: takes_seed(solver), True: takes_seed(solver, "run_with_sensitivities")}
     statuses, messages, times, clipped, evaluated = [], [], [], [], []
     results = {name: [] for name in outputs}
+    derivatives = []
     for i, row in enumerate(values):
         params = dict(zip(names, (float(v) for v in row)))
         sample = None
         if fields:
             sample = FieldSample(fields, {f.name: germs[germ_variable(f.name)][i]
                                           for f in fields})
-        seed = int(seeds[i]) if seeds is not None and seeded else None
-        status, message, got, wall = run_one(solver, params, sample, outputs, seed)
+        flagged = sensitivities is not None and bool(sensitivities[i])
+        seed = int(seeds[i]) if seeds is not None and seeded[flagged] else None
+        status, message, got, wall = run_one(solver, params, sample, outputs, seed,
+                                             wrt=list(names) if flagged else None)
         clipped.append(sum(sample.clipped.values()) if sample is not None else 0)
         evaluated.append(sample.evaluated if sample is not None else {})
         statuses.append(status)
@@ -116,10 +243,13 @@ def run_batch(solver, names: list[str], values: np.ndarray, outputs: list[str],
         times.append(wall)
         for name in outputs:
             results[name].append(got.get(name))
+        derivatives.append({k: v for k, v in got.items() if is_sensitivity_variable(k)}
+                           if flagged else None)
         if budget is not None and time.perf_counter() - start >= budget:
             break
     return {"status": statuses, "message": messages, "wall_time": times, "outputs": results,
-            "clipped_points": clipped, "field_values": evaluated}
+            "clipped_points": clipped, "field_values": evaluated,
+            "sensitivities": derivatives}
 
 
 def batch_arguments(runs: xr.Dataset, indices: np.ndarray, fields: list | None) -> dict:
@@ -131,6 +261,8 @@ def batch_arguments(runs: xr.Dataset, indices: np.ndarray, fields: list | None) 
                          for f in fields}
     if "realization_seed" in runs:
         args["seeds"] = runs["realization_seed"].values[indices]
+    if SENSITIVITY_FLAG in runs.variables:
+        args["sensitivities"] = sensitivity_flags(runs)[indices]
     return args
 
 
@@ -138,6 +270,9 @@ def store_batch(runs: xr.Dataset, indices: np.ndarray, batch: dict) -> None:
     """Write a finished batch into ``runs`` in place (``indices`` may be longer than the
     batch's results when it stopped at its time budget: only the first ones are written)."""
     indices = indices[:len(batch["status"])]
+    position = {}
+    if SENSITIVITY_COORD in runs.coords:
+        position = {int(r): j for j, r in enumerate(runs[SENSITIVITY_COORD].values)}
     for k, idx in enumerate(indices):
         runs["status"].values[idx] = batch["status"][k]
         runs["message"].values[idx] = batch["message"][k]
@@ -149,9 +284,15 @@ def store_batch(runs: xr.Dataset, indices: np.ndarray, batch: dict) -> None:
             n = min(stored.size, values.size)  # random grids may move the point count
             stored[:] = np.nan
             stored[:n] = values[:n]
+        ok = batch["status"][k] == STATUS_OK
         for name, vals in batch["outputs"].items():
-            if vals[k] is not None and batch["status"][k] == STATUS_OK:
+            if vals[k] is not None and ok:
                 runs[name].values[idx] = vals[k]
+        derivatives = batch.get("sensitivities", [None] * len(indices))[k]
+        if derivatives and ok and int(idx) in position:
+            for name, value in derivatives.items():
+                if name in runs.variables:
+                    runs[name].values[position[int(idx)]] = value
 
 
 def evaluate_design(solver, design: xr.Dataset, outputs: list[str] | None = None,

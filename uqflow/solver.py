@@ -5,12 +5,20 @@ study may make uncertain (``nominal``, dotted names, SI units) and what it retur
 (``outputs``: a template dataset), and runs one realization (``run``). It knows nothing of
 studies, methods or dask. Solvers register with ``@register_solver("name")`` or through the
 entry-point group ``uqflow.solvers``.
+
+Optional capability, local sensitivities: a solver that can differentiate some outputs with
+respect to some parameters inside one run (analytically, holding the state it computed fixed:
+a "frozen-state" derivative, which leaves out the feedback of a parameter on the history
+that led to that state) lists them in ``local_sensitivities`` and returns them from
+``run_with_sensitivities``. Methods that need them (``taylor-local``; a control variate built
+on it) ask the executor for such runs through the design (``uqflow.realization``); the
+framework never imports a solver to find out.
 """
 
 from __future__ import annotations
 
 import abc
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import ClassVar
 
 import numpy as np
@@ -65,6 +73,25 @@ class Solver(abc.ABC):
     def field_points(self, name: str) -> np.ndarray:
         """Coordinates, shape (n_points, n_dims), where field ``name`` is evaluated."""
         raise SceneError(f"solver '{self.name}' has no random field '{name}'", key="fields")
+
+    def local_sensitivities(self) -> dict[str, tuple[str, ...]]:
+        """Outputs for which ``run_with_sensitivities`` returns analytic local derivatives, each
+        with the parameters (names as in ``nominal()``) it has derivatives for. Default {}: the
+        solver has no such capability. An output absent from the dict has no local
+        derivative."""
+        return {}
+
+    def run_with_sensitivities(self, params: Mapping[str, float], wrt: Sequence[str],
+                               outputs: Sequence[str]) -> xr.Dataset:
+        """``run(params)``'s dataset plus, for every name ``o`` in ``outputs`` (each a key of
+        ``local_sensitivities()``, and every name in ``wrt`` in its tuple): ``o + "__gradient"``
+        with dims (*o's dims, "parameter") and ``o + "__hessian"`` with dims (*o's dims,
+        "parameter", "parameter_j"); coordinates ``parameter`` = ``parameter_j`` = list(wrt).
+        Derivatives are at the realization's own parameter values, with the state the run
+        computed held fixed (``uqflow.realization.gradient_variable``/``hessian_variable``
+        give the names)."""
+        raise NotImplementedError(f"solver '{self.name}' has no local sensitivities "
+                                  f"(local_sensitivities() is empty)")
 
     def describe(self) -> str:
         return f"{self.name} solver"

@@ -1,8 +1,10 @@
 """Closed-form models with exact answers (``tests/data/uq_test_values.toml``).
 
 Each model is a small class: its parameters with nominal values, its scene options, its
-outputs and a vectorisable formula. ``AnalyticSolver`` wraps one of them in the Solver
-contract. A scene option ``delay`` (seconds) makes every run sleep that long: it stands in
+outputs and a vectorisable formula; a smooth one also has ``derivatives`` (exact gradient and
+Hessian, so for it the local sensitivities of the Solver contract are exact and
+``taylor-local`` can be checked against closed forms). ``AnalyticSolver`` wraps one of them in
+the Solver contract. A scene option ``delay`` (seconds) makes every run sleep that long: it stands in
 for an expensive solver in the overhead benchmark and the kill-and-resume test.
 """
 
@@ -91,6 +93,16 @@ class Ishigami:
         x1, x2, x3 = p["x1"], p["x2"], p["x3"]
         return {"y": math.sin(x1) + self.a * math.sin(x2) ** 2 + self.b * x3**4 * math.sin(x1)}
 
+    def derivatives(self, p):
+        x1, x2, x3 = p["x1"], p["x2"], p["x3"]
+        s1, c1 = math.sin(x1), math.cos(x1)
+        g = [c1 * (1 + self.b * x3**4), self.a * math.sin(2 * x2), 4 * self.b * x3**3 * s1]
+        h13 = 4 * self.b * x3**3 * c1
+        h = [[-s1 * (1 + self.b * x3**4), 0.0, h13],
+             [0.0, 2 * self.a * math.cos(2 * x2), 0.0],
+             [h13, 0.0, 12 * self.b * x3**2 * s1]]
+        return {"y": (np.array(g), np.array(h))}
+
 
 class SobolG:
     """Y = Π (|4 X_i − 2| + a_i) / (1 + a_i) (X_i ~ U(0, 1))."""
@@ -133,6 +145,11 @@ class Polynomial:
         x = np.array([p[f"x{i + 1}"] for i in range(self.c.size)])
         return {"y": float(self.c0 + self.c @ x + x @ self.q @ x)}
 
+    def derivatives(self, p):
+        x = np.array([p[f"x{i + 1}"] for i in range(self.c.size)])
+        symmetric = self.q + self.q.T
+        return {"y": (self.c + symmetric @ x, symmetric)}
+
 
 class PowerLaw:
     """Y = X^p; with X lognormal every moment is exact: E[X^r] = μ^r (1 + v²)^(r(r−1)/2)."""
@@ -154,6 +171,20 @@ class PowerLaw:
             return {"y": x**self.p}
         except OverflowError:
             raise SolverError(f"x = {x:g} to the power {self.p:g} overflows") from None
+
+    def derivatives(self, p):
+        x = np.float64(p["x"])
+
+        def term(coefficient, exponent):
+            # A vanishing coefficient is an exact 0, also where x^exponent is infinite; a
+            # Hessian that is infinite (x = 0, 1 < p < 2) stays so and fails the realization.
+            if coefficient == 0:
+                return 0.0
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                return float(coefficient * x**exponent)
+
+        return {"y": (np.array([term(self.p, self.p - 1)]),
+                      np.array([[term(self.p * (self.p - 1), self.p - 2)]]))}
 
 
 class ExponentialDecay:
@@ -187,6 +218,14 @@ class ExponentialDecay:
 
     def __call__(self, p, fields):
         return {"y": p["alpha"] * np.exp(-p["beta"] * self.t)}
+
+    def derivatives(self, p):
+        alpha, decay = p["alpha"], np.exp(-p["beta"] * self.t)
+        gradient = np.stack([decay, -alpha * self.t * decay], axis=-1)
+        mixed = -self.t * decay
+        hessian = np.stack([np.stack([np.zeros_like(decay), mixed], axis=-1),
+                            np.stack([mixed, alpha * self.t**2 * decay], axis=-1)], axis=-2)
+        return {"y": (gradient, hessian)}
 
 
 class RandomEBar:
@@ -249,6 +288,9 @@ class Faulty:
             raise SolverError(f"diverged: x = {x:.6g} exceeds {self.raise_above:g}")
         return {"y": math.nan if x < self.nan_below else x}
 
+    def derivatives(self, p):
+        return {"y": (np.ones(1), np.zeros((1, 1)))}
+
 
 MODELS = {
     "ishigami": Ishigami,
@@ -293,6 +335,36 @@ class AnalyticSolver(Solver):
 
     def describe(self) -> str:
         return f"analytic/{self.model_name}"
+
+    def local_sensitivities(self) -> dict[str, tuple[str, ...]]:
+        if not hasattr(self.model, "derivatives"):
+            return {}
+        return {out: tuple(self.model.parameters) for out in self.model.outputs}
+
+    def run_with_sensitivities(self, params, wrt, outputs) -> xr.Dataset:
+        ds = self.run(params)
+        available = self.local_sensitivities()
+        names = list(self.model.parameters)
+        unknown = [w for w in wrt if w not in names]
+        if unknown or any(o not in available for o in outputs):
+            what = f"parameter '{unknown[0]}'" if unknown else \
+                f"output '{next(o for o in outputs if o not in available)}'"
+            raise SolverError(f"model '{self.model_name}' has no local derivative for {what}")
+        p = dict(self.model.parameters)
+        p.update(params)
+        columns = [names.index(w) for w in wrt]
+        derivatives = self.model.derivatives(p)
+        coords = {"parameter": list(wrt), "parameter_j": list(wrt)}
+        for out in outputs:
+            dims = self._template[out].dims
+            gradient, hessian = (np.asarray(a, dtype=float) for a in derivatives[out])
+            ds[out + "__gradient"] = xr.DataArray(gradient[..., columns],
+                                                  dims=(*dims, "parameter"),
+                                                  coords={"parameter": list(wrt)})
+            ds[out + "__hessian"] = xr.DataArray(
+                hessian[..., columns, :][..., columns], dims=(*dims, "parameter",
+                                                              "parameter_j"), coords=coords)
+        return ds
 
     def nominal(self) -> dict[str, float]:
         return dict(self.model.parameters)

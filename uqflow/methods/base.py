@@ -182,7 +182,8 @@ def make_design(space: InputSpace, values: np.ndarray, **variables) -> xr.Datase
 
 def output_names(runs: xr.Dataset) -> list[str]:
     """The solver outputs stored in ``runs`` (everything with a ``realization`` dim but ours)."""
-    skip = {"inputs", "status", "message", "wall_time", "realization_seed", "clipped_points"}
+    skip = {"inputs", "status", "message", "wall_time", "realization_seed", "clipped_points",
+            "with_sensitivities"}
     return [v for v in runs.data_vars if v not in skip and "realization" in runs[v].dims
             and not v.startswith(("germ_", "field_"))]
 
