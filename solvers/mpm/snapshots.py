@@ -111,7 +111,8 @@ def particle_fields(names, run):
         elif name == "body":
             out.append((name, np.asarray(parts.body, dtype=np.int32)))
         else:
-            out.append((name, probe_values(name, run.S, run.vx, run.vy, run.x, run.y)))
+            out.append((name, probe_values(name, run.S, run.vx, run.vy, run.x, run.y,
+                                           run.cfg.conventions)))
     return out
 
 

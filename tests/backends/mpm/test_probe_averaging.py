@@ -1,0 +1,295 @@
+"""MPM probes that a study can compare across resolutions (``[[probes]] radius``: a weighted
+average over the probe body's particles, scene.probe_members / probes.ProbeRecorder) and the
+``conventions`` scene key (docs/mpm.md, "Probes" and "Conventions")."""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from solvers.mpm import MPMSolver
+from solvers.mpm.materials import state as ST
+from solvers.mpm.probes import ProbeRecorder, probe_values
+from solvers.mpm.scene import (MIN_RADIUS_SPACINGS, PROBE_QUANTITIES, parse, place_probes,
+                               probe_members, probe_weights, seed_particles)
+from uqflow.errors import SceneError
+
+SCENES = Path(__file__).resolve().parents[3] / "studies" / "scenes"
+EPS = np.finfo(float).eps
+RADIUS = 0.015     # m: 1.5 cells at resolution 0.5 of the small thin plate (docs' advice)
+
+
+def thin_small(resolution, radius=RADIUS):
+    with open(SCENES / "mpm_contact_thin_small.toml", "rb") as f:
+        s = tomllib.load(f)
+    s["resolution"] = resolution
+    for p in s["probes"]:
+        if radius is not None:
+            p["radius"] = radius
+    return s
+
+
+def members_of(scene):
+    cfg = parse(scene)
+    parts = seed_particles(cfg)
+    index = place_probes(cfg, parts)
+    return cfg, parts, index, probe_members(cfg, parts, index)
+
+
+def random_state(n, rng):
+    """State rows with every column random (and a few signed zeros and NaNs in the
+    deviatoric columns, which a bit-for-bit comparison must carry through)."""
+    S = rng.normal(size=(n, ST.N_STATE)) * 1e8
+    S[: n // 4, ST.SXY] = -0.0
+    S[n // 2, ST.T] = np.nan
+    return S
+
+
+def bits(a):
+    return np.asarray(a, dtype=np.float64).view(np.int64)
+
+
+# ------------------------------------------------------------------------------------------
+# the default probe: the nearest particle, bit for bit
+# ------------------------------------------------------------------------------------------
+
+def test_default_probe_is_the_nearest_particle_bit_for_bit():
+    scene = thin_small(0.5, radius=None)
+    scene["outputs"] = list(PROBE_QUANTITIES)
+    cfg, parts, index, members = members_of(scene)
+    for (i, w), j in zip(members, index):
+        assert i.tolist() == [j] and w.tolist() == [1.0]
+    rng = np.random.default_rng(1)
+    n = parts.x.size
+    S, vx, vy = random_state(n, rng), rng.normal(size=n), rng.normal(size=n)
+    got = ProbeRecorder(cfg, members, 1).probe_series_values(S, vx, vy, parts.x, parts.y)
+    for name in cfg.outputs:      # what the recorder took before radius existed
+        old = probe_values(name, S[index], vx[index], vy[index], parts.x[index],
+                           parts.y[index])
+        assert np.array_equal(bits(got[name]), bits(old)), name
+    # the recorder also takes the bare index array (one particle per probe)
+    same = ProbeRecorder(cfg, index, 1).probe_series_values(S, vx, vy, parts.x, parts.y)
+    assert all(np.array_equal(bits(same[k]), bits(got[k])) for k in got)
+
+
+# ------------------------------------------------------------------------------------------
+# the averaging probe's members and weights
+# ------------------------------------------------------------------------------------------
+
+def test_weights_sum_to_one_and_use_only_the_bodys_particles():
+    """H, G, K sit on the symmetry plane y = 0 and H's disk reaches 5 mm past the plate's
+    wet face into TNT and water: only plate particles are members, every plate particle
+    inside the radius is one, and the weights are positive and sum to 1."""
+    cfg, parts, index, members = members_of(thin_small(0.5))
+    plate = [b.name for b in cfg.bodies].index("plate")
+    for p, (i, w) in zip(cfg.probes, members):
+        dist = np.hypot(parts.x - p.point[0], parts.y - p.point[1])
+        near = np.flatnonzero(dist < RADIUS)
+        assert np.any(parts.body[near] != plate)            # the disk does reach past the plate
+        assert set(i.tolist()) == set(near[parts.body[near] == plate].tolist())
+        assert np.all(w > 0)
+        # bound: normalising n weights rounds each by eps; their sum is 1 to n·eps
+        assert abs(w.sum() - 1.0) <= i.size * EPS
+    # the disk of H: half of it is outside the domain (y < 0), a third outside the plate
+    assert members[0][0].size < np.pi * RADIUS ** 2 / 2 / parts.vol0[0]
+
+
+def test_uniform_field_is_returned_exactly():
+    cfg, parts, index, members = members_of(thin_small(0.5))
+    S = ST.new_state(parts.x.size)
+    S[:, ST.SY] = 792e6
+    S[:, ST.RHO] = 7830.0
+    cfg.outputs = ("flow_stress", "density")
+    got = ProbeRecorder(cfg, members, 1).probe_series_values(S, parts.x, parts.y, parts.x,
+                                                             parts.y)
+    n = max(i.size for i, _ in members)
+    # bound: Σ w c = c (Σ w) with Σ w = 1 to n eps, plus one rounding per product and sum
+    np.testing.assert_allclose(got["flow_stress"], 792e6, rtol=3 * n * EPS, atol=0)
+    np.testing.assert_allclose(got["density"], 7830.0, rtol=3 * n * EPS, atol=0)
+
+
+def test_linear_field_gives_its_value_at_the_weighted_centroid():
+    cfg, parts, index, members = members_of(thin_small(0.5))
+    a, b, c = 2.0e9, -3.0e10, 5.0e10          # Pa, Pa/m, Pa/m: p = a + b x + c y
+    S = ST.new_state(parts.x.size)
+    S[:, ST.P] = a + b * parts.x + c * parts.y
+    cfg.outputs = ("pressure", "position_x", "position_y")
+    got = ProbeRecorder(cfg, members, 1).probe_series_values(S, parts.x, parts.y, parts.x,
+                                                             parts.y)
+    cx = np.array([w @ parts.x[i] for i, w in members])
+    cy = np.array([w @ parts.y[i] for i, w in members])
+    n = max(i.size for i, _ in members)
+    # bound: two n-term sums of positive terms in different orders differ by 2 n eps
+    np.testing.assert_allclose(got["position_x"], cx, rtol=2 * n * EPS, atol=0)
+    np.testing.assert_allclose(got["position_y"], cy, rtol=2 * n * EPS, atol=0)
+    scale = abs(a) + abs(b) * np.abs(cx) + abs(c) * np.abs(cy)
+    # bound: the field's own rounding (3 flops) and the n-term weighted sum: (n + 3) eps
+    # times the magnitudes of the terms
+    assert np.all(np.abs(got["pressure"] - (a + b * cx + c * cy)) <= (n + 3) * EPS * scale)
+    # and the centroid is not the probe point on the plane y = 0 (a half disk): the value
+    # at the point is another number, which the series must not claim
+    assert np.all(cy[[0, 2, 3]] > 0.2 * RADIUS)
+
+
+def test_kernel_centroid_stays_on_the_point_whatever_the_layout():
+    """Interior points at 400 random offsets of a unit lattice: the weighted centroid of the
+    lattice points within 1.5 spacings lies within 0.05 spacing of the point (the docs'
+    minimum radius and its figure), where the nearest lattice point is up to 0.71 away."""
+    rng = np.random.default_rng(3)
+    g = np.arange(-4, 5) + 0.5
+    X, Y = (a.ravel() for a in np.meshgrid(g, g, indexing="ij"))
+    worst = 0.0
+    for px, py in rng.random((400, 2)):
+        d = np.hypot(X - px, Y - py)
+        inside = d < MIN_RADIUS_SPACINGS
+        w = probe_weights(d[inside], MIN_RADIUS_SPACINGS)
+        worst = max(worst, np.hypot(w @ X[inside] - px, w @ Y[inside] - py))
+    assert worst < 0.05
+
+
+def test_averaged_probe_moves_less_with_resolution_than_the_nearest_particle():
+    """The t = 0 positions of H, I, G, K at resolutions 0.5, 1, 2 (cells 10, 5, 2.5 mm):
+    the nearest particle jumps by a quarter of the coarse cell (1.25 mm) between
+    resolutions; the average over a fixed 15 mm disk converges to the centroid of the
+    weighted disk ∩ plate. Its change 0.5 → 1 stays below 0.05 coarse particle spacings
+    (the kernel's lattice error at this radius, 3 spacings, with the half-disk cut by the
+    symmetry plane: measured 0.024), and falls at least 3× from (0.5 → 1) to (1 → 2)
+    (second order, 4× measured). A top-hat average moves 0.63 mm (0.13 spacings)."""
+    pos = {}
+    for res in (0.5, 1.0, 2.0):
+        cfg, parts, index, members = members_of(thin_small(res))
+        near = np.c_[parts.x[index], parts.y[index]]
+        avg = np.array([[w @ parts.x[i], w @ parts.y[i]] for i, w in members])
+        pos[res] = near, avg
+    coarse_spacing = 0.01 / 2
+    near_jump = np.abs(pos[0.5][0] - pos[1.0][0]).max()
+    jump = np.abs(pos[0.5][1] - pos[1.0][1]).max()
+    finer_jump = np.abs(pos[1.0][1] - pos[2.0][1]).max()
+    assert near_jump >= 0.25 * coarse_spacing
+    assert jump < 0.05 * coarse_spacing
+    assert jump < 0.2 * near_jump
+    assert finer_jump < jump / 3
+
+
+def test_a_run_records_the_weighted_average():
+    """End to end at resolution 0.5 for 2 µs: the series at t = 0 are the weighted initial
+    values (flow stress: the uniform A of the plate; position: the weighted centroid), and
+    the members are the solver's."""
+    scene = thin_small(0.5)
+    scene.update(end_time=2e-6, output_interval=1e-6, outputs=["flow_stress", "position_x",
+                                                               "pressure"])
+    sol = MPMSolver.from_scene(scene)
+    ds = sol.run({})
+    cx = [w @ sol.parts.x[i] for i, w in sol.probe_members]
+    n = max(i.size for i, _ in sol.probe_members)
+    # bound: two n-term sums of positive terms in different orders differ by 2 n eps
+    np.testing.assert_allclose(ds.position_x.values[0], cx, rtol=2 * n * EPS, atol=0)
+    # bound: a uniform value through an n-term weighted sum, 3 n eps (as above)
+    np.testing.assert_allclose(ds.flow_stress.values[0], 792e6, rtol=3 * n * EPS, atol=0)
+    assert np.all(np.isfinite(ds.pressure.values))
+
+
+# ------------------------------------------------------------------------------------------
+# validation
+# ------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("radius, reason", [
+    (0.0, "must be > 0"), (-0.01, "must be > 0"), ("auto", "must be a finite number"),
+    (float("inf"), "must be a finite number"), (True, "must be a finite number"),
+    (0.007, "less than 1.5 particle spacings"),
+])
+def test_radius_errors_name_the_key(radius, reason):
+    scene = thin_small(0.5)
+    scene["probes"][1]["radius"] = radius
+    with pytest.raises(SceneError, match=r"scene\.probes\[1\]\.radius") as e:
+        MPMSolver.from_scene(scene)
+    assert reason in str(e.value) and "\n" not in str(e.value)
+
+
+def test_radius_without_a_member_names_the_key():
+    """A point 0.7 cells off the plate's dry face (x = 0.06 m) still finds its nearest
+    particle within a cell (what place_probes asks), but at 4 particles per cell no plate
+    particle is within 1.6 spacings of it."""
+    scene = thin_small(0.5)
+    scene["particles_per_cell"] = 4
+    scene["probes"][3].update(point=[0.067, 0.0], radius=0.004)
+    with pytest.raises(SceneError, match=r"scene\.probes\[3\]\.radius: no particle of body "
+                                         r"'plate'"):
+        MPMSolver.from_scene(scene)
+
+
+def test_extent_auto_keeps_every_member():
+    """Every averaged particle is a source of the domain of dependence: with a 0.1 m disk
+    (members up to y = 0.13 m at I) and a crop reduced to the sources' cells, the cropped
+    scene's probes average the same particles with the same weights as the full scene's
+    (a crop around the nearest particles alone, 7 cells of 10 mm, would cut the disks)."""
+    scene = thin_small(0.5, radius=0.1)
+    scene["extent_margin"] = 0
+    scene["end_time"] = scene["output_interval"] = 1e-7   # the crop: the sources' cells
+    full = MPMSolver.from_scene(scene)
+    cropped = MPMSolver.from_scene(dict(scene, extent="auto"))
+    assert cropped.extent_info["cells_saved"] > 0.9 * cropped.extent_info["full_cells"]
+    for (i, w), (j, v) in zip(full.probe_members, cropped.probe_members):
+        assert np.array_equal(full.parts.x[i], cropped.parts.x[j])
+        assert np.array_equal(full.parts.y[i], cropped.parts.y[j])
+        assert np.array_equal(w, v)
+
+
+# ------------------------------------------------------------------------------------------
+# conventions
+# ------------------------------------------------------------------------------------------
+
+def test_conventions_default_and_seed():
+    assert parse(thin_small(0.5)).conventions == "uqflow"
+    scene = thin_small(0.5)
+    scene["conventions"] = "seed"
+    assert parse(scene).conventions == "seed"
+
+
+@pytest.mark.parametrize("value", ["Seed", "lsdyna", 1, None, ["seed"]])
+def test_conventions_errors_name_the_key(value):
+    scene = thin_small(0.5)
+    scene["conventions"] = value
+    with pytest.raises(SceneError, match=r"^scene\.conventions: must be one of 'uqflow', "
+                                         r"'seed'") as e:
+        parse(scene)
+    assert "\n" not in str(e.value)
+
+
+def test_seed_von_mises_leaves_out_s_zz():
+    """A deviator with s_zz = −(s_xx + s_yy) ≠ 0: the uqflow von Mises stress counts it, the
+    seed's sqrt(3/2 (S11² + S22² + 2 S12²)) does not."""
+    s11, s22, s12, p = 300e6, -100e6, 50e6, 1e9
+    S = ST.new_state(1)
+    S[0, [ST.SXX, ST.SYY, ST.SXY, ST.SZZ]] = (s11 - p, s22 - p, s12, -(s11 + s22) - p)
+    zeros = np.zeros(1)
+    full = probe_values("equivalent_stress", S, zeros, zeros, zeros, zeros)[0]
+    seed = probe_values("equivalent_stress", S, zeros, zeros, zeros, zeros, "seed")[0]
+    # bound: a few flops on numbers of 1e9 — about 10 eps relative
+    assert full == pytest.approx(np.sqrt(1.5 * (s11**2 + s22**2 + (s11 + s22)**2
+                                                + 2 * s12**2)), rel=1e-14)
+    assert seed == pytest.approx(np.sqrt(1.5 * (s11**2 + s22**2 + 2 * s12**2)), rel=1e-14)
+    assert seed < full
+    cfg = parse(dict(thin_small(0.5), conventions="seed", outputs=["equivalent_stress"]))
+    rec = ProbeRecorder(cfg, [(np.array([0]), np.array([1.0]))], 1)
+    assert rec.probe_series_values(S, zeros, zeros, zeros, zeros)["equivalent_stress"][0] \
+        == seed
+
+
+def test_seed_conventions_reach_the_snapshots():
+    """A snapshot's equivalent stress follows the scene's conventions, like the probes'."""
+    from types import SimpleNamespace
+
+    from solvers.mpm.snapshots import particle_fields
+    S = random_state(5, np.random.default_rng(4))
+    zeros = np.zeros(5)
+    for conventions in ("uqflow", "seed"):
+        run = SimpleNamespace(S=S, vx=zeros, vy=zeros, x=zeros, y=zeros,
+                              cfg=SimpleNamespace(conventions=conventions),
+                              solver=SimpleNamespace(parts=None))
+        (name, values), = particle_fields(["equivalent_stress"], run)
+        assert np.array_equal(values, probe_values(name, S, zeros, zeros, zeros, zeros,
+                                                   conventions))
