@@ -174,6 +174,29 @@ def test_averaged_probe_moves_less_with_resolution_than_the_nearest_particle():
     assert finer_jump < jump / 3
 
 
+def test_averaged_stress_changes_less_with_resolution():
+    """The small thin plate at resolutions 1 and 2 (5 and 2.5 mm cells) for 12 µs, the
+    shock's passage through the plate: the rms over time of the difference between the two
+    resolutions' von Mises series, relative to its peak, is below 0.8 × the nearest
+    particle's at each of H, I, G, K with a 7.5 mm average (1.5 cells of the coarser;
+    measured 0.60–0.71 ×). What remains is the solution's own discretisation error (the
+    shock is spread over cells), which no probe removes (docs/mpm.md, "Probes")."""
+    out = {}
+    for res in (1.0, 2.0):
+        scene = thin_small(res, radius=None)
+        scene.update(end_time=12e-6, output_interval=0.5e-6, extent="auto",
+                     outputs=["equivalent_stress"])
+        scene["probes"] += [dict(p, name=p["name"] + "_avg", radius=0.0075)
+                            for p in scene["probes"]]
+        out[res] = MPMSolver.from_scene(scene).run({}).equivalent_stress
+    coarse, fine = out[1.0], out[2.0]
+    for name in "HIGK":
+        peak = float(np.abs(fine.sel(probe=name)).max())
+        near, avg = ((np.sqrt(((coarse.sel(probe=p) - fine.sel(probe=p)) ** 2).mean()) / peak)
+                     for p in (name, name + "_avg"))
+        assert avg < 0.8 * near, (name, float(avg), float(near))
+
+
 def test_a_run_records_the_weighted_average():
     """End to end at resolution 0.5 for 2 µs: the series at t = 0 are the weighted initial
     values (flow stress: the uniform A of the plate; position: the weighted centroid), and
