@@ -1,0 +1,290 @@
+"""The pce method: exact polynomials, Ishigami, the LOO error, sparse regression, warnings."""
+
+import math
+
+import chaospy
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from solvers.analytic import AnalyticSolver
+from uqflow.errors import StudyError
+from uqflow.inputs import InputSpace, RandomInput
+from uqflow.methods import get_method
+from uqflow.methods.pce_fit import (hermite_matrix, least_squares, multi_indices,
+                                    orthogonal_matching_pursuit)
+from uqflow.realization import evaluate_design
+
+EPS = np.finfo(float).eps
+
+
+def normal(name, mean=0.0, std=1.0):
+    return RandomInput.from_spec({"name": name, "distribution": "normal", "mean": mean,
+                                  "std": std})
+
+
+def uniform(name, lower, upper):
+    return RandomInput.from_spec({"name": name, "distribution": "uniform", "lower": lower,
+                                  "upper": upper})
+
+
+def study(scene, space, seed=0, **options):
+    """Plan, run in-process and analyze: (design, runs, statistics)."""
+    method = get_method("pce")(**options)
+    design = method.plan(space, None, np.random.SeedSequence(seed))
+    runs = evaluate_design(AnalyticSolver.from_scene(scene), design)
+    return design, runs, method.analyze(design, runs)
+
+
+def condition(design, order):
+    """cond(Ψ) of the design's order-``order`` regression matrix: the round-off bound of an
+    exact fit is cond(Ψ) · eps relative to the coefficients."""
+    z = design["standard_normal"].values
+    return np.linalg.cond(hermite_matrix(z, multi_indices(order, z.shape[1])))
+
+
+def test_registered_with_defaults():
+    opts = get_method("pce")().options
+    assert (opts.order, opts.max_order, opts.samples, opts.rule, opts.regression,
+            opts.basis, opts.loo_warning) == ("loo", 5, None, "sobol", "auto", "hermite", 1e-2)
+
+
+def test_hermite_products_equal_chaospy_expansion():
+    """The fast products are chaospy's d-variate orthonormal expansion, term for term."""
+    rng = np.random.default_rng(1)
+    z = rng.standard_normal((7, 2))
+    joint = chaospy.J(chaospy.Normal(0, 1), chaospy.Normal(0, 1))
+    expansion = chaospy.generate_expansion(4, joint, normed=True)
+    full = np.asarray(expansion(*z.T)).T                            # (n, P)
+    # Each chaospy polynomial is identified by its leading (highest-degree) exponent.
+    leading = [tuple(poly.exponents[np.argmax(np.where(np.asarray(poly.coefficients) != 0,
+                                                       poly.exponents.astype(int).sum(axis=1), -1))])
+               for poly in expansion]
+    ours = hermite_matrix(z, multi_indices(4, 2))
+    column = {tuple(alpha): k for k, alpha in enumerate(multi_indices(4, 2))}
+    reordered = ours[:, [column[a] for a in leading]]
+    # Both evaluate degree-4 polynomials of |z| < 4 whose terms reach ~1e2: rounding of
+    # 1e2 · a few eps.
+    np.testing.assert_allclose(reordered, full, rtol=0, atol=1e3 * EPS)  # 1e2 terms x eps
+
+
+def test_quadratic_in_gaussian_inputs_is_exact_at_order_two_and_three():
+    c, q = np.array([1.0, -2.0, 0.5]), np.array([[0.3, 0.1, 0.0], [0.1, 0.0, -0.2],
+                                                 [0.0, -0.2, 0.4]])
+    m, s = np.array([0.5, -1.0, 2.0]), np.array([0.7, 1.3, 0.4])
+    space = InputSpace([normal(f"x{i + 1}", m[i], s[i]) for i in range(3)])
+    scene = {"model": "quadratic", "coefficients": c.tolist(), "offset": 1.5,
+             "quadratic": q.tolist()}
+    cov = np.diag(s**2)
+    exact_mean = 1.5 + c @ m + m @ q @ m + np.trace(q @ cov)
+    b = c + 2 * q @ m
+    exact_var = b @ cov @ b + 2 * np.trace(q @ cov @ q @ cov)
+    for order in (2, 3):
+        design, _, stats = study(scene, space, order=order)
+        kappa = condition(design, order)
+        # Zero truncation error: least squares by QR is exact to cond(Ψ) · eps relative to
+        # the coefficients, whose size is that of the std; x 10 for the sums over terms.
+        bound = 10 * kappa * EPS
+        assert stats["y"].sel(statistic="mean") == pytest.approx(
+            exact_mean, abs=bound * math.sqrt(exact_var))  # bound = 10 cond(Psi) eps
+        assert stats["y"].sel(statistic="variance") == pytest.approx(
+            exact_var, rel=2 * bound)  # variance: 2 x the coefficients' relative error
+        assert int(stats["y_order"]) == order
+        assert float(stats["y_loo_error"]) < bound**2 * 1e2  # round-off residuals only
+        assert stats.attrs["warnings"] == ""
+
+
+def test_loo_chooses_the_polynomial_degree():
+    """x³ of a normal x: orders 1 and 2 leave a truncation error, 3..6 fit to round-off, and
+    the lowest exact order is kept."""
+    space = InputSpace([normal("x", 1.0, 0.3)])
+    design, _, stats = study({"model": "power", "p": 3.0}, space, max_order=6)
+    loo = stats["y_loo_by_order"].values
+    assert int(stats["y_order"]) == 3
+    assert loo[0] > 1e-2 and loo[1] > 1e-4           # x³ is not linear, nor quadratic
+    assert np.all(loo[2:] < 1e-20)                   # ROUND_OFF_LOO: (1e5 eps)^2 > these
+    exact_mean = 1.0 + 3 * 0.3**2
+    exact_var = 9 * 0.3**2 + 36 * 0.3**4 + 15 * 0.3**6
+    bound = 10 * condition(design, 3) * EPS            # 10 cond(Psi) eps, as above
+    assert stats["y"].sel(statistic="mean") == pytest.approx(exact_mean, rel=bound)
+    assert stats["y"].sel(statistic="variance") == pytest.approx(exact_var, rel=2 * bound)
+
+
+def test_loo_closed_form_equals_brute_force():
+    rng = np.random.default_rng(3)
+    z = rng.standard_normal((24, 2))
+    psi = hermite_matrix(z, multi_indices(3, 2))
+    y = np.column_stack([np.sin(z[:, 0]) + z[:, 1] ** 2, np.exp(0.3 * z[:, 1])])
+    fit = least_squares(psi, y)
+    brute = np.empty_like(y)
+    for i in range(y.shape[0]):
+        keep = np.arange(y.shape[0]) != i
+        coef = np.linalg.lstsq(psi[keep], y[keep], rcond=None)[0]
+        brute[i] = y[i] - psi[i] @ coef
+    kappa = np.linalg.cond(psi)
+    # Two backward-stable least-squares solutions of the same problem: both within
+    # cond(Ψ)² · eps of the exact one (residuals of size ~1 here), x 1e2 for the n rows.
+    np.testing.assert_allclose(fit.loo_mse, np.mean(brute**2, axis=0),
+                               rtol=1e2 * kappa**2 * EPS)  # 1e2 cond(Psi)^2 eps
+
+
+def test_sparse_regression_recovers_a_sparse_polynomial_with_fewer_runs_than_terms():
+    """y = 1.5 + 2 x1 - x2 + 0.3 x3 x4 in six normal inputs: the order-3 basis has 84 terms,
+    the design 40 runs; OMP keeps the 4 Hermite terms that represent y and no others."""
+    space = InputSpace([normal(f"x{i + 1}") for i in range(6)])
+    q = np.zeros((6, 6))
+    q[2, 3] = 0.3
+    scene = {"model": "quadratic", "coefficients": [2.0, -1.0, 0, 0, 0, 0], "offset": 1.5,
+             "quadratic": q.tolist()}
+    design, _, stats = study(scene, space, order=3, samples=40)
+    assert int(stats["y_terms"]) == 4                 # constant, x1, x2, x3 x4
+    kept = {tuple(r) for r in stats["y_multi_index"].values}
+    assert kept == {(0,) * 6, (1, 0, 0, 0, 0, 0), (0, 1, 0, 0, 0, 0), (0, 0, 1, 1, 0, 0)}
+    bound = 1e3 * EPS   # the kept 4 columns of 40 normal rows: cond ~ 10, x 10 for the sums
+    assert stats["y"].sel(statistic="mean") == pytest.approx(1.5, abs=bound)
+    assert stats["y"].sel(statistic="variance") == pytest.approx(4 + 1 + 0.09, rel=bound)
+
+
+def test_ishigami_with_the_askey_basis(reference):
+    """Legendre polynomials of the uniform inputs: moments and indices within the error the
+    LOO estimate bounds (see the comment at the tolerances)."""
+    ref = reference["ishigami"]
+    space = InputSpace([uniform(f"x{i}", -math.pi, math.pi) for i in (1, 2, 3)])
+    design, _, stats = study({"model": "ishigami"}, space, basis="askey", max_order=10)
+    eps_loo = float(stats["y_loo_error"])
+    n, terms = design.sizes["realization"], int(stats["y_terms"])
+    assert eps_loo < 1e-3
+    # The truncated remainder (variance fraction ~ eps_loo) aliases onto the fitted
+    # coefficients: their error vector has norm² ≈ eps_loo V P / n (least squares on n
+    # random-like points); 3 of those for the mean, and for every variance fraction
+    # (variance, indices) 3 sqrt(eps_loo P/n) twice (cross term) plus the missing eps_loo.
+    delta = 3 * math.sqrt(eps_loo * terms / n)
+    assert stats["y"].sel(statistic="mean") == pytest.approx(
+        ref["mean"], abs=delta * math.sqrt(ref["variance"]))
+    assert stats["y"].sel(statistic="variance") == pytest.approx(
+        ref["variance"], rel=2 * delta + eps_loo)
+    sobol = stats["y_sobol"]
+    rounding = 5e-5                                   # the reference's 4 printed digits
+    np.testing.assert_allclose(sobol.sel(sobol_index="S1"), ref["S"],
+                               atol=2 * delta + eps_loo + rounding)
+    np.testing.assert_allclose(sobol.sel(sobol_index="ST"), ref["ST"],
+                               atol=2 * delta + eps_loo + rounding)
+    assert stats.attrs["warnings"] == ""
+
+
+def test_hermite_basis_on_uniform_inputs_warns_and_points_to_askey():
+    space = InputSpace([uniform(f"x{i}", -math.pi, math.pi) for i in (1, 2, 3)])
+    _, _, stats = study({"model": "ishigami"}, space, max_order=4)
+    assert float(stats["y_loo_error"]) > 1e-2
+    assert "y: LOO error" in stats.attrs["warnings"]
+    assert 'basis = "askey"' in stats.attrs["warnings"]
+
+
+@pytest.mark.parametrize("basis", ["hermite", "askey"])
+def test_warning_fires_on_a_kink_and_not_on_a_smooth_output(basis):
+    """|4 x - 2| (Sobol' g with a = 0) has a kink at x = 1/2: no polynomial fits it to 1 %."""
+    kinked = InputSpace([uniform("x1", 0.0, 1.0)])
+    _, _, stats = study({"model": "sobol_g", "a": [0.0]}, kinked, basis=basis, max_order=6)
+    assert float(stats["y_loo_error"]) > 1e-2
+    assert "y: LOO error" in stats.attrs["warnings"]
+    assert "not smooth" in stats.attrs["warnings"]
+    # Smooth in the germs: normal inputs for Hermite, uniform ones for Legendre (uniform
+    # inputs are Φ(z), which Hermite polynomials fit only slowly: the test above).
+    smooth = InputSpace([normal("alpha", 1.5, 0.2), normal("beta", 0.15, 0.02)]) \
+        if basis == "hermite" else InputSpace([uniform("alpha", 1.0, 2.0),
+                                               uniform("beta", 0.1, 0.2)])
+    _, _, stats = study({"model": "exponential_decay"}, smooth, basis=basis, max_order=6)
+    assert stats["y_loo_error"].dims == ("t",)
+    assert float(stats["y_loo_error"].max()) < 1e-6
+    assert stats.attrs["warnings"] == ""
+
+
+def test_warning_names_the_point_of_a_series():
+    """A time series that is smooth except where one coordinate makes it kink: the warning
+    names that coordinate's value. Here: y(t) = alpha e^(-beta t) with beta a kinked
+    function is not available, so a large C.V. of beta at late times stands in: at t = 10
+    the series is far from polynomial at order 1."""
+    space = InputSpace([normal("alpha", 1.5, 0.2), uniform("beta", 0.0, 1.0)])
+    _, _, stats = study({"model": "exponential_decay"}, space, order=1)
+    loo = stats["y_loo_error"]
+    worst = float(loo["t"][int(np.argmax(loo.values))])
+    assert f"t = {worst:.4g}" in stats.attrs["warnings"]
+
+
+def test_correlated_linear_model_is_exact():
+    """y = 2 x1 - x2, x ~ N((1, 3), diag(1, 2)² with ρ = 0.5): mean -1, variance
+    4 + 4 - 2·2·1·2·0.5 = 4."""
+    space = InputSpace([normal("x1", 1.0, 1.0), normal("x2", 3.0, 2.0)],
+                       np.array([[1.0, 0.5], [0.5, 1.0]]))
+    design, _, stats = study({"model": "linear", "coefficients": [2.0, -1.0]}, space,
+                             order=1)
+    bound = 10 * condition(design, 1) * EPS            # 10 cond(Psi) eps, exact fit
+    assert stats["y"].sel(statistic="mean") == pytest.approx(-1.0, abs=2 * bound)
+    assert stats["y"].sel(statistic="variance") == pytest.approx(4.0, rel=2 * bound)
+    assert "correlated inputs" in stats.attrs["warnings"]
+
+
+@pytest.mark.parametrize("cv", [0.0, 1e-8, 0.3])
+def test_coefficient_of_variation_from_zero_to_large(cv):
+    """x³ with x normal, mean 1, C.V. v: mean 1 + 3v², variance 9v² + 36v⁴ + 15v⁶."""
+    design, _, stats = study({"model": "power", "p": 3.0}, InputSpace([normal("x", 1.0, cv)]),
+                             order=3, samples=16)
+    exact_mean, exact_var = 1 + 3 * cv**2, 9 * cv**2 + 36 * cv**4 + 15 * cv**6
+    kappa = condition(design, 3) if cv else 1.0
+    # Exact fit: 10 cond(Psi) eps relative to the outputs' size, which is 1 / (3 v) times
+    # their spread at small C.V. (y = 1 + 3 v z + ...: its rounding is eps, its spread 3 v).
+    scale = 1 + 1 / (3 * cv) if cv else 1.0
+    bound = 10 * kappa * EPS * scale                   # 10 cond(Psi) eps |y| / std(y)
+    assert stats["y"].sel(statistic="mean") == pytest.approx(exact_mean, rel=bound)
+    assert stats["y"].sel(statistic="variance") == pytest.approx(exact_var, rel=2 * bound,
+                                                                 abs=0.0)
+    if cv == 0:
+        assert float(stats["y"].sel(statistic="variance")) == 0.0
+        assert np.all(np.isnan(stats["y_sobol"].values))
+
+
+def test_failed_realizations_are_dropped_and_said():
+    space = InputSpace([normal("x", 0.0, 1.0)])
+    design, runs, stats = study({"model": "faulty", "raise_above": 0.5}, space, order=1,
+                                samples=32)
+    failed = int((runs["status"].values == "failed").sum())
+    assert failed > 0
+    assert stats.attrs["failed_runs"] == failed
+    assert f"{failed} of {design.sizes['realization']} realizations failed" in \
+        stats.attrs["warnings"]
+    assert "no longer a balanced sobol set" in stats.attrs["warnings"]
+    # y = x on the surviving x <= 0.5: the fit is exact there, so the mean is the
+    # regression's intercept at z = 0, i.e. exactly 0 to round-off.
+    assert stats["y"].sel(statistic="mean") == pytest.approx(0.0, abs=1e-12)  # 1e4 eps
+
+
+@pytest.mark.parametrize("options, match", [
+    ({"order": 2.0}, "integer"), ({"order": "2"}, "loo"), ({"order": True}, "boolean"),
+    ({"order": 0}, "1..20"), ({"order": 21}, "1..20"), ({"max_order": 21}, "20"),
+    ({"order": 2, "max_order": 3}, "max_order"), ({"samples": 0}, "1"),
+    ({"rule": "grid"}, "sobol"), ({"regression": "lasso"}, "omp"), ({"loo_warning": 0}, "0"),
+    ({"basis": "legendre"}, "askey"), ({"degree": 2}, "degree"),
+])
+def test_options_are_strict(options, match):
+    with pytest.raises(ValidationError, match=match):
+        get_method("pce")(**options)
+
+
+def test_too_few_samples_for_least_squares_names_the_minimum():
+    space = InputSpace([normal(f"x{i}") for i in range(3)])
+    method = get_method("pce")(order=3, samples=30, regression="least-squares")
+    with pytest.raises(StudyError, match=r"method\.samples: .*at least 40 "):
+        method.check(space, None)
+    get_method("pce")(order=3, samples=40, regression="least-squares").check(space, None)
+    get_method("pce")(order=3, samples=30).check(space, None)   # auto: sparse regression
+    with pytest.raises(StudyError, match=r"method\.samples: .*at least 8"):
+        get_method("pce")(order=1, samples=7).check(space, None)
+
+
+def test_askey_basis_refuses_correlated_inputs_and_big_bases():
+    space = InputSpace([normal("x1"), normal("x2")], np.array([[1.0, 0.2], [0.2, 1.0]]))
+    with pytest.raises(StudyError, match=r"method\.basis"):
+        get_method("pce")(basis="askey").check(space, None)
+    wide = InputSpace([normal(f"x{i}") for i in range(20)])
+    with pytest.raises(StudyError, match=r"method\.order: .*basis terms"):
+        get_method("pce")(order=6).check(wide, None)
