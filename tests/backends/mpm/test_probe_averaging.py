@@ -164,7 +164,7 @@ def test_kernel_centroid_stays_on_the_point_whatever_the_layout():
 
 def test_averaged_probe_moves_less_with_resolution_than_the_nearest_particle():
     """The t = 0 positions of H, I, G, K at resolutions 0.5, 1, 2 (cells 10, 5, 2.5 mm):
-    the nearest particle jumps by a quarter of the coarse cell (1.25 mm) between
+    the nearest particle jumps by a quarter of the coarse particle spacing (1.25 mm) between
     resolutions; the average over a fixed 15 mm disk converges to the centroid of the
     weighted disk ∩ plate. Its change 0.5 → 1 stays below 0.05 coarse particle spacings
     (the kernel's lattice error at this radius, 3 spacings, with the half-disk cut by the
