@@ -463,6 +463,7 @@ def _resolve(spec: StudySpec, path: Path, text: str, label: str) -> Study:
                          "a [[fields]] table (or use kind = \"nominal\" for one deterministic "
                          "run)", key="inputs")
     method.check(space, fields)
+    method.check_solver(solver, outputs, space.names)
 
     out = spec.output.path or f"results/{spec.name}.nc"
     output_path = (folder / out).resolve() if not Path(out).is_absolute() else Path(out)

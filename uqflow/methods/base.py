@@ -129,6 +129,11 @@ class PropagationMethod(abc.ABC):
             raise StudyError(f"method '{self.name}' takes no random fields; use kl-weibull, or "
                              f"drop the [[fields]] tables", key="fields")
 
+    def check_solver(self, solver, outputs: list[str], parameter_names: list[str]) -> None:
+        """Raise ``StudyError`` if this method cannot use ``solver`` for ``outputs`` with the
+        uncertain ``parameter_names`` (e.g. a capability it needs); run at load time after
+        ``check``. The default accepts every solver."""
+
     @abc.abstractmethod
     def plan(self, space: InputSpace, fields: list | None,
              seed: np.random.SeedSequence) -> xr.Dataset:

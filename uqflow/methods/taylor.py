@@ -215,18 +215,7 @@ class Taylor(PropagationMethod):
         stats = stats.assign_coords({d: runs[d] for d in runs.coords
                                      if d != "realization" and d in stats.dims})
 
-        cv = design["input_cv"].values
-        for k in st.active:
-            if not np.isfinite(cv[k]):
-                warnings.append(
-                    f"input '{names[k]}' has mean 0, so no C.V. tells how far Taylor's expansion "
-                    f"reaches; check the estimate against monte-carlo")
-            # 1e-9: a C.V. given as exactly the limit comes back from the moments rounded
-            elif cv[k] > opts.cv_warning * (1 + 1e-9):
-                warnings.append(
-                    f"input '{names[k]}' has C.V. {cv[k]:.3g} > {opts.cv_warning:g}: Taylor "
-                    f"expansions lose accuracy at large C.V. (seed 000 sec. 4.1 keeps C.V. "
-                    f"<= 0.15); check against monte-carlo")
+        warnings += cv_warnings(design["input_cv"].values, st.active, names, opts.cv_warning)
         warnings += self._omitted_mixed_warnings(st, rho, names)
         for msg in warnings:
             pywarnings.warn(msg, AccuracyWarning, stacklevel=2)
@@ -290,6 +279,21 @@ class Taylor(PropagationMethod):
             msgs.append("mixed derivatives were not computed: the second-order variance "
                         "omits the cross terms 1/2 H_kj^2 s_k^2 s_j^2")
         return msgs
+
+
+def cv_warnings(cv, active, names, limit) -> list[str]:
+    """Warnings about the inputs (indices ``active``) whose C.V. exceeds ``limit``."""
+    msgs = []
+    for k in active:
+        if not np.isfinite(cv[k]):
+            msgs.append(f"input '{names[k]}' has mean 0, so no C.V. tells how far Taylor's "
+                        f"expansion reaches; check the estimate against monte-carlo")
+        # 1e-9: a C.V. given as exactly the limit comes back from the moments rounded
+        elif cv[k] > limit * (1 + 1e-9):
+            msgs.append(f"input '{names[k]}' has C.V. {cv[k]:.3g} > {limit:g}: Taylor "
+                        f"expansions lose accuracy at large C.V. (seed 000 sec. 4.1 keeps C.V. "
+                        f"<= 0.15); check against monte-carlo")
+    return msgs
 
 
 class _Stencil:
