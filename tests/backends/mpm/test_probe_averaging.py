@@ -134,6 +134,30 @@ def test_linear_field_gives_its_value_at_the_weighted_centroid():
     assert np.all(cy[[0, 2, 3]] > 0.2 * RADIUS)
 
 
+def test_equivalent_stress_is_the_mean_of_the_particles_von_mises():
+    """Components average as components; the von Mises stress is Σ w σeq_i (linear in the
+    particle values), which by convexity exceeds the von Mises stress of the mean deviator
+    when the deviators differ, as the random ones here do."""
+    cfg, parts, index, members = members_of(thin_small(0.5))
+    cfg.outputs = ("equivalent_stress", "S11", "S12")
+    S = random_state(parts.x.size, np.random.default_rng(5))
+    S[:, ST.SXY] = np.random.default_rng(6).normal(size=parts.x.size) * 1e8
+    got = ProbeRecorder(cfg, members, 1).probe_series_values(S, parts.x, parts.y, parts.x,
+                                                             parts.y)
+    d = ST.deviatoric(S)
+    vm = np.sqrt(1.5 * (d[:, 0] ** 2 + d[:, 1] ** 2 + d[:, 3] ** 2 + 2 * d[:, 2] ** 2))
+    for k, (i, w) in enumerate(members):
+        mean_d = w @ d[i]
+        # bound: n-term weighted sums of numbers of 1e8 in two orders, 2 n eps of Σ|terms|
+        tol = 2 * i.size * EPS
+        assert got["equivalent_stress"][k] == pytest.approx(w @ vm[i], rel=tol)
+        assert got["S11"][k] == pytest.approx(mean_d[0], abs=tol * (w @ np.abs(d[i, 0])))
+        assert got["S12"][k] == pytest.approx(mean_d[2], abs=tol * (w @ np.abs(d[i, 2])))
+        vm_of_mean = np.sqrt(1.5 * (mean_d[0] ** 2 + mean_d[1] ** 2 + mean_d[3] ** 2
+                                    + 2 * mean_d[2] ** 2))
+        assert got["equivalent_stress"][k] > 1.2 * vm_of_mean
+
+
 def test_kernel_centroid_stays_on_the_point_whatever_the_layout():
     """Interior points at 400 random offsets of a unit lattice: the weighted centroid of the
     lattice points within 1.5 spacings lies within 0.05 spacing of the point (the docs'
