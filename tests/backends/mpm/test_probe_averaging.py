@@ -97,6 +97,19 @@ def test_weights_sum_to_one_and_use_only_the_bodys_particles():
     assert members[0][0].size < np.pi * RADIUS ** 2 / 2 / parts.vol0[0]
 
 
+def test_a_probe_without_a_body_averages_its_nearest_particles_body():
+    """No ``body``: the nearest particle's body is the probe's (here G's point, inside the
+    plate, with a disk reaching into the water behind it)."""
+    scene = thin_small(0.5, radius=0.02)
+    del scene["probes"][2]["body"]
+    cfg, parts, index, members = members_of(scene)
+    plate = [b.name for b in cfg.bodies].index("plate")
+    dist = np.hypot(parts.x - 0.05, parts.y)
+    assert set(parts.body[dist < 0.02].tolist()) > {plate}
+    assert set(members[2][0].tolist()) == set(np.flatnonzero((dist < 0.02)
+                                                             & (parts.body == plate)).tolist())
+
+
 def test_uniform_field_is_returned_exactly():
     cfg, parts, index, members = members_of(thin_small(0.5))
     S = ST.new_state(parts.x.size)
