@@ -3,6 +3,7 @@ docs/mpm.md). Kernels: ``step.py``; scene: ``scene.py``; materials: ``materials/
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time as _time
 from collections.abc import Mapping
@@ -13,6 +14,7 @@ import xarray as xr
 
 from solvers.mpm import step as K
 from solvers.mpm.materials import state as ST
+from solvers.mpm.materials.johnson_cook import CONVENTIONS_PARAMETER, SEED_EPS0_DOT
 from solvers.mpm.probes import ProbeRecorder
 from solvers.mpm.snapshots import SnapshotWriter
 from solvers.mpm.scene import ENERGY_OUTPUTS, PROBE_QUANTITIES, auto_extent, parse, \
@@ -40,6 +42,7 @@ class MPMSolver(Solver):
         self.extent_info = {}
         if cfg.extent == "auto":
             cfg = self._crop(cfg)
+        _apply_conventions(cfg)
         self.cfg = cfg
         self.parts = seed_particles(cfg)
         if self.parts.x.size == 0:
@@ -105,11 +108,14 @@ class MPMSolver(Solver):
     # -- contract --------------------------------------------------------------------------
     def nominal(self) -> dict[str, float]:
         """``<material label>.<parameter>`` for every parameter of every material in use
-        (the explosive's detonation point and burn width are set from the scene, not listed)."""
+        (the explosive's detonation point and burn width, and the steel's
+        ``seed_conventions`` flag, are set from the scene, not listed)."""
         out = {}
         for lab, m in self.cfg.materials.items():
             for name, v in m.values.items():
                 if name in CORE_SET and "det_x" in m.module.PARAMETERS:
+                    continue
+                if name == CONVENTIONS_PARAMETER:     # the scene's `conventions`, not sampled
                     continue
                 out[f"{lab}.{name}"] = float(v)
         return out
@@ -186,6 +192,26 @@ class MPMSolver(Solver):
             ds.attrs.update({k: v for k, v in self.extent_info.items() if k != "extent"})
             ds.attrs["extent"] = np.array(self.extent_info["extent"])
         return ds
+
+
+def _apply_conventions(cfg):
+    """Map the scene's ``conventions`` onto the materials that have a conventions flag (the
+    Johnson–Cook steel): ``seed_conventions`` = 1 under "seed", with ε̇0 = 1e6 /s (the seed's
+    1/µs) unless the scene sets ``jc.eps0_dot`` itself. The flag belongs to the scene, so a
+    material may not set it."""
+    seed = getattr(cfg, "conventions", "uqflow") == "seed"
+    for lab, m in list(cfg.materials.items()):
+        if CONVENTIONS_PARAMETER not in m.module.PARAMETERS:
+            continue
+        if CONVENTIONS_PARAMETER in m.overrides:
+            raise SceneError(f"is set by the scene's `conventions` (\"uqflow\" or \"seed\"), "
+                             f"not per material",
+                             key=f"scene.materials.{lab}.{CONVENTIONS_PARAMETER}")
+        values = dict(m.values)
+        values[CONVENTIONS_PARAMETER] = 1.0 if seed else 0.0
+        if seed and "jc.eps0_dot" not in m.overrides:
+            values["jc.eps0_dot"] = SEED_EPS0_DOT
+        cfg.materials[lab] = dataclasses.replace(m, values=values)
 
 
 # ------------------------------------------------------------------------------------------

@@ -13,8 +13,12 @@ Per step, in this order (``solver._Run.step``):
 7. material loops        per material, over its particle index list (``loop_for``): the bulk
                          viscosity q from div v (column Q), ``advance`` (``update`` when a
                          guard fails), the row checked finite (the state guard) and
-                         max (c + |v|) kept for the next step's CFL time step;
+                         max (c + |v|) kept for the next step's CFL time step (the
+                         strength kernel also records what its return used: state.py);
                          energies at output times (``energies``).
+
+Numba keys a cached kernel on its own file's text only: a change to a material module (or to
+``state.N_STATE``) needs a change here, or the cached loops below keep the old code inlined.
 
 Doing q, the state check and the CFL reduction in the material loop, where the particle's
 state row is in cache anyway, saves three passes over the state array per step (docs/mpm.md,

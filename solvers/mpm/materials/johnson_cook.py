@@ -16,6 +16,16 @@ the ε̇* ≥ 1 clamp and for εp_n = 0 with n < 1), started at an upper bound o
 in a sign bracket inside [0, (σeq* − σy(εp_n, 1, T_n))/(3G)]; the deviator is scaled by
 m = σy/σeq* (eq. 15–16), so the stress lies on the yield surface to round-off. The trial state
 is plastic when σeq* > σy(εp_n, ε̇* = 1, T_n).
+
+Seed conventions (parameter ``seed_conventions`` = 1, set by the solver from the scene's
+``conventions = "seed"``; docs/mpm_materials.md § 3a): ε̇* is the step's total equivalent
+deviatoric strain rate √(2/3 D′:D′) over ε̇0 (ε̇0 = 1e6 /s, the seed's 1/µs, unless the scene
+sets ``jc.eps0_dot``), held fixed over the return, without the ε̇* ≥ 1 clamp but floored at
+``SEED_RATE_STAR_FLOOR``; no adiabatic heating (T stays T_room).
+
+Besides the state, ``advance`` records what the return used (state.py: T_RETURN, RATE_STAR,
+DT) and the flow stress at the total strain rate (EQ_STRAIN_RATE, SY_TOTAL_RATE), the output
+that does not jump when a particle stops yielding.
 """
 
 from __future__ import annotations
@@ -26,10 +36,11 @@ import numpy as np
 from numba import njit
 
 from .mie_gruneisen import mg_bulk_sound_speed_sq, mg_coefficients
-from .state import (BURN, C as COL_C, E, EPS_P, EPS_P_RATE, ERR_DENSITY, ERR_NONFINITE, ERR_OTHER,
-                    OK, P, PLASTIC_WORK, Q, RHO, SXX, SXY, SY, SYY, SZZ, T, check_update,
-                    density_update, deviator_of, energy_update_linear_eos, jaumann_rotate,
-                    pack_parameters, require, reset_row)
+from .state import (BURN, C as COL_C, DT, E, EPS_P, EPS_P_RATE, EQ_STRAIN_RATE, ERR_DENSITY,
+                    ERR_NONFINITE, ERR_OTHER, OK, P, PLASTIC_WORK, Q, RATE_STAR, RHO, SXX, SXY,
+                    SY, SY_TOTAL_RATE, SYY, SZZ, T, T_RETURN, check_update, density_update,
+                    deviator_of, energy_update_linear_eos, jaumann_rotate, pack_parameters,
+                    require, reset_row)
 
 NAME = "mie_gruneisen_johnson_cook"
 HAS_STRENGTH = True
@@ -53,10 +64,19 @@ PARAMETERS = {
     "jc.T_melt": 1793.0,        # K
     "cp": 477.0,                # J/(kg K)
     "taylor_quinney": 0.9,
+    "seed_conventions": 0.0,    # 1: seed 000's rate measure and no heating (set by the solver)
 }
 NPRM = len(PARAMETERS)
 (I_C, I_S1, I_S2, I_S3, I_G0, I_A, I_RHO0, I_G, I_JA, I_JB, I_JN, I_JC, I_JM, I_EPS0, I_TROOM,
- I_TMELT, I_CP, I_TQ) = range(NPRM)
+ I_TMELT, I_CP, I_TQ, I_SEED) = range(NPRM)
+CONVENTIONS_PARAMETER = "seed_conventions"   # set by the solver from the scene, not sampled
+SEED_EPS0_DOT = 1e6        # 1/s: the seed's rate term is in 1/µs
+# ε̇* floor under the seed conventions (no clamp): 1e-9 is ε̇ = 1e-3 /s at ε̇0 = 1e6 /s, the
+# quasi-static end of the rates at which Johnson–Cook constants are fitted. Below it the log
+# law is an extrapolation that at ε̇ = 0 is −∞ (NaN when C = 0) and turns σy negative for
+# ε̇* < e^(−1/C) (1e-31 at C = 0.014); with the floor 1 + C ln ε̇* ≥ 1 − 20.7 C, kept > 0 by
+# ``check`` (C < 1/20.7 = 0.048 under the seed conventions).
+SEED_RATE_STAR_FLOOR = 1e-9
 
 RETURN_MAXIT = 60          # a 200,000-state sweep needs at most 12 (docs/mpm_materials.md §3)
 RETURN_RTOL = 1e-13
@@ -78,7 +98,13 @@ def check(prm: np.ndarray) -> None:
                                  "cp")]
     rules += [(k, *nonneg) for k in ("shear_modulus", "jc.B", "jc.C", "jc.T_room")]
     rules += [("taylor_quinney", lambda v: 0 <= v <= 1, "in [0, 1]"),
-              ("jc.T_melt", lambda v: v > prm[I_TROOM], "> jc.T_room")]
+              ("jc.T_melt", lambda v: v > prm[I_TROOM], "> jc.T_room"),
+              ("seed_conventions", lambda v: v in (0.0, 1.0), "0 or 1")]
+    if prm[I_SEED] == 1.0:
+        c_max = -1.0 / math.log(SEED_RATE_STAR_FLOOR)
+        rules.append(("jc.C", lambda v: v < c_max,
+                      f"< {c_max:.4g} under the seed conventions (the rate factor 1 + C ln ε̇* "
+                      f"must stay > 0 down to the floor ε̇* = {SEED_RATE_STAR_FLOOR:g})"))
     require(NAME, prm, list(PARAMETERS), rules)
 
 
@@ -99,6 +125,29 @@ def johnson_cook_flow_stress(A, B, n, C, m, eps_p, eps_rate_star, T_star):
     else:
         th = 1.0 - T_star ** m
     return h * r * th
+
+
+@njit(cache=True, fastmath=False)
+def seed_rate_factor(C, eps_rate_star):
+    """1 + C ln ε̇* without the ε̇* ≥ 1 clamp, ε̇* floored at SEED_RATE_STAR_FLOOR (seed
+    conventions): < 1 below ε̇0, finite and > 0 for every ε̇* ≥ 0 when ``check`` passed."""
+    return 1.0 + C * math.log(max(eps_rate_star, SEED_RATE_STAR_FLOOR))
+
+
+@njit(cache=True, fastmath=False)
+def johnson_cook_flow_stress_seed(A, B, n, C, m, eps_p, eps_rate_star, T_star):
+    """Seed eq. (11) under the seed conventions: as ``johnson_cook_flow_stress`` but with the
+    unclamped, floored rate factor ``seed_rate_factor``."""
+    h = A
+    if eps_p > 0.0:
+        h += B * eps_p ** n
+    if T_star <= 0.0:
+        th = 1.0
+    elif T_star >= 1.0:
+        th = 0.0
+    else:
+        th = 1.0 - T_star ** m
+    return h * seed_rate_factor(C, eps_rate_star) * th
 
 
 @njit(cache=True, fastmath=False)
@@ -137,6 +186,25 @@ def _jc_return_start(seq, A, B, n, eps_p, th, hi):
 
 @njit(cache=True, fastmath=False)
 def jc_radial_return(sxx, syy, sxy, szz, G, dt, A, B, n, C, m, eps0_dot, eps_p, T_star):
+    """Radial return of a trial deviator for the rate-dependent Johnson–Cook law (see
+    ``_jc_return``; the uqflow conventions: ε̇* = max(Δεp/(Δt ε̇0), 1))."""
+    return _jc_return(sxx, syy, sxy, szz, G, dt, A, B, n, C, m, eps0_dot, eps_p, T_star, -1.0)
+
+
+@njit(cache=True, fastmath=False)
+def jc_radial_return_fixed_rate(sxx, syy, sxy, szz, G, A, B, n, C, m, eps_p, T_star,
+                                eps_rate_star):
+    """Radial return with ε̇* fixed over the step (seed conventions): σy is a function of εp
+    alone, σy = (A + B εp^n)·seed_rate_factor(C, ε̇*)·(1 − T*^m); the same bracketed Newton
+    iteration as ``jc_radial_return`` with the rate term's slope 0. Same returns; the
+    elastic σy is σy(εp_n, ε̇*, T*)."""
+    return _jc_return(sxx, syy, sxy, szz, G, 1.0, A, B, n, C, m, 1.0, eps_p, T_star,
+                      eps_rate_star)
+
+
+@njit(cache=True, fastmath=False)
+def _jc_return(sxx, syy, sxy, szz, G, dt, A, B, n, C, m, eps0_dot, eps_p, T_star,
+               fixed_rate_star):
     """Radial return of a trial deviator for the rate-dependent Johnson–Cook law.
 
     Returns (s_xx, s_yy, s_xy, s_zz, Δεp, σy, code): σy is the flow stress the deviator was
@@ -153,15 +221,23 @@ def jc_radial_return(sxx, syy, sxy, szz, G, dt, A, B, n, C, m, eps0_dot, eps_p, 
     reaches σeq* (this one is what makes a return onto a tiny Δεp ~ 1e-26 take a few steps).
     ERR_OTHER only for dt ≤ 0 or a non-finite residual (non-finite/overflowing inputs); no
     finite physical input fails (docs/mpm_materials.md §3).
+
+    ``fixed_rate_star`` ≥ 0: ε̇* is that value for the whole step (seed conventions; dt and
+    eps0_dot unused); < 0: ε̇* = Δεp/(Δt ε̇0), clamped ≥ 1. The fixed rate folds its factor into
+    the thermal one (th ← r th), which is what keeps both start bounds above the root.
     """
+    fixed = fixed_rate_star >= 0.0
     seq = von_mises(sxx, syy, sxy, szz)
-    sy0 = johnson_cook_flow_stress(A, B, n, C, m, eps_p, 1.0, T_star)
+    if fixed:
+        sy0 = johnson_cook_flow_stress_seed(A, B, n, C, m, eps_p, fixed_rate_star, T_star)
+    else:
+        sy0 = johnson_cook_flow_stress(A, B, n, C, m, eps_p, 1.0, T_star)
     if seq <= sy0:
         return sxx, syy, sxy, szz, 0.0, sy0, OK
     if not G > 0.0:                       # no elasticity: only the scaling is defined
         k = sy0 / seq
         return sxx * k, syy * k, sxy * k, szz * k, 0.0, sy0, OK
-    if not dt * eps0_dot > 0.0:           # the plastic strain rate is undefined
+    if not (fixed or dt * eps0_dot > 0.0):   # the plastic strain rate is undefined
         return sxx, syy, sxy, szz, 0.0, sy0, ERR_OTHER
     g3 = 3.0 * G
     rate_k = 1.0 / (dt * eps0_dot)
@@ -171,6 +247,8 @@ def jc_radial_return(sxx, syy, sxy, szz, G, dt, A, B, n, C, m, eps0_dot, eps_p, 
         th = 0.0
     else:
         th = 1.0 - T_star ** m
+    if fixed:
+        th *= seed_rate_factor(C, fixed_rate_star)
     lo, hi = 0.0, (seq - sy0) / g3        # g(lo) < 0 ≤ g(hi): σy grows with Δεp
     x = max(_jc_return_start(seq, A, B, n, eps_p, th, hi), RETURN_TINY)
     converged = False
@@ -179,7 +257,7 @@ def jc_radial_return(sxx, syy, sxy, szz, G, dt, A, B, n, C, m, eps0_dot, eps_p, 
         epn = ep ** n
         rs = x * rate_k
         r, dr = 1.0, 0.0                  # rate factor and its u-derivative
-        if rs > 1.0:
+        if rs > 1.0 and not fixed:
             r += C * math.log(rs)
             dr = C
         h = A + B * epn
@@ -211,9 +289,22 @@ def jc_radial_return(sxx, syy, sxy, szz, G, dt, A, B, n, C, m, eps0_dot, eps_p, 
         # εp_n = 0, n < 0.045 and σeq*/σy0 − 1 > 1e-13). To double precision Δεp = 0 and
         # σy = σeq* − 3GΔεp = σeq*: the deviator is already on the yield surface.
         return sxx, syy, sxy, szz, 0.0, seq, OK
-    sy = johnson_cook_flow_stress(A, B, n, C, m, eps_p + x, x * rate_k, T_star)
+    if fixed:
+        sy = johnson_cook_flow_stress_seed(A, B, n, C, m, eps_p + x, fixed_rate_star, T_star)
+    else:
+        sy = johnson_cook_flow_stress(A, B, n, C, m, eps_p + x, x * rate_k, T_star)
     k = sy / seq
     return sxx * k, syy * k, sxy * k, szz * k, x, sy, OK
+
+
+@njit(cache=True, fastmath=False)
+def _flow_stress(prm, eps_p, eps_rate_star, T_star):
+    """σy under the material's conventions (``seed_conventions``)."""
+    if prm[I_SEED] != 0.0:
+        return johnson_cook_flow_stress_seed(prm[I_JA], prm[I_JB], prm[I_JN], prm[I_JC],
+                                             prm[I_JM], eps_p, eps_rate_star, T_star)
+    return johnson_cook_flow_stress(prm[I_JA], prm[I_JB], prm[I_JN], prm[I_JC], prm[I_JM],
+                                    eps_p, eps_rate_star, T_star)
 
 
 @njit(cache=True, fastmath=False)
@@ -224,9 +315,10 @@ def init(prm, S, i):
         return code
     rho0 = prm[I_RHO0]
     S[i, RHO] = rho0
-    S[i, T] = prm[I_TROOM]
-    S[i, SY] = johnson_cook_flow_stress(prm[I_JA], prm[I_JB], prm[I_JN], prm[I_JC], prm[I_JM],
-                                        0.0, 1.0, 0.0)
+    S[i, T] = S[i, T_RETURN] = prm[I_TROOM]
+    # at rest: ε̇* = 1 (uqflow: the clamp), the floor (seed conventions)
+    S[i, RATE_STAR] = SEED_RATE_STAR_FLOOR if prm[I_SEED] != 0.0 else 1.0
+    S[i, SY] = S[i, SY_TOTAL_RATE] = _flow_stress(prm, 0.0, S[i, RATE_STAR], 0.0)
     S[i, COL_C] = math.sqrt(prm[I_C] ** 2 + 4.0 * prm[I_G] / (3.0 * rho0))
     return OK
 
@@ -255,12 +347,24 @@ def advance(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
     sxx, syy, sxy, szz = deviator_of(S, i)
     sxx, syy, sxy = jaumann_rotate(sxx, syy, sxy, dt, 0.5 * (Lxy - Lyx))
     t3, g2dt = trD / 3.0, 2.0 * G * dt
+    dxx, dyy = Lxx - t3, Lyy - t3                       # D′ = (dxx, dyy, Dxy, −t3)
+    eq_rate = math.sqrt((2.0 / 3.0) * (dxx * dxx + dyy * dyy + 2.0 * Dxy * Dxy + t3 * t3))
+    total_rate_star = eq_rate / prm[I_EPS0]
+    seed = prm[I_SEED] != 0.0
     T_n = S[i, T]
     Tstar = (T_n - prm[I_TROOM]) / (prm[I_TMELT] - prm[I_TROOM])
-    nxx, nyy, nxy, nzz, dep, sy, code = jc_radial_return(
-        sxx + g2dt * (Lxx - t3), syy + g2dt * (Lyy - t3), sxy + g2dt * Dxy, szz - g2dt * t3,
-        G, dt, prm[I_JA], prm[I_JB], prm[I_JN], prm[I_JC], prm[I_JM], prm[I_EPS0], S[i, EPS_P],
-        Tstar)
+    eps_p = S[i, EPS_P]
+    if seed:
+        rate_star = max(total_rate_star, SEED_RATE_STAR_FLOOR)
+        nxx, nyy, nxy, nzz, dep, sy, code = jc_radial_return_fixed_rate(
+            sxx + g2dt * dxx, syy + g2dt * dyy, sxy + g2dt * Dxy, szz - g2dt * t3, G,
+            prm[I_JA], prm[I_JB], prm[I_JN], prm[I_JC], prm[I_JM], eps_p, Tstar, rate_star)
+    else:
+        nxx, nyy, nxy, nzz, dep, sy, code = jc_radial_return(
+            sxx + g2dt * dxx, syy + g2dt * dyy, sxy + g2dt * Dxy, szz - g2dt * t3,
+            G, dt, prm[I_JA], prm[I_JB], prm[I_JN], prm[I_JC], prm[I_JM], prm[I_EPS0], eps_p,
+            Tstar)
+        rate_star = max(dep * (1.0 / (dt * prm[I_EPS0])), 1.0)   # as the return computed it
     if code != OK:
         return code
     # energy (trapezoidal, implicit in E) and Mie-Gruneisen pressure at ρ_{n+1}
@@ -275,11 +379,13 @@ def advance(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
     if not ok:
         return ERR_OTHER
     wp = sy * dep                                             # plastic work per current volume
-    T1 = T_n + prm[I_TQ] * wp / (rho1 * prm[I_CP])
+    T1 = T_n if seed else T_n + prm[I_TQ] * wp / (rho1 * prm[I_CP])
+    # the flow stress at the total rate: the seed's return already uses it
+    sy_total = sy if seed else _flow_stress(prm, eps_p + dep, total_rate_star, Tstar)
     c2 = mg_bulk_sound_speed_sq(rho0, prm[I_C], prm[I_A], g, dfdmu, rho1, E1, p1)
     c = math.sqrt(c2 + 4.0 * G / (3.0 * rho1))
     pq = p1 + q
-    if not (nxx + nyy + nxy + nzz + E1 + p1 + T1 + c + rho1 + sy) * 0.0 == 0.0:
+    if not (nxx + nyy + nxy + nzz + E1 + p1 + T1 + c + rho1 + sy + sy_total) * 0.0 == 0.0:
         return ERR_NONFINITE
     S[i, SXX], S[i, SYY], S[i, SXY], S[i, SZZ] = nxx - pq, nyy - pq, nxy, nzz - pq
     S[i, P], S[i, RHO], S[i, E] = p1, rho1, E1
@@ -288,4 +394,6 @@ def advance(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
     S[i, T], S[i, SY], S[i, COL_C] = T1, sy, c
     S[i, PLASTIC_WORK] += wp * v1
     S[i, BURN] = 0.0
+    S[i, T_RETURN], S[i, RATE_STAR], S[i, DT] = T_n, rate_star, dt
+    S[i, EQ_STRAIN_RATE], S[i, SY_TOTAL_RATE] = eq_rate, sy_total
     return OK

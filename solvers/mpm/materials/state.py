@@ -38,10 +38,18 @@ BURN = 11                         # burn fraction 0..1 (explosives), else 0
 SY = 12                           # current flow stress σy, Pa (0 for materials without strength)
 C = 13                            # wave speed for the CFL step, m/s
 PLASTIC_WORK = 14                 # plastic work per unit reference volume, J/m³
-N_STATE = 15
+# what the last return mapping used (strength materials; 0 elsewhere), so that constitutive
+# derivatives can be evaluated at the state the return actually saw (probe_sensitivities.py)
+T_RETURN = 15                     # temperature the return used (T before this step's heating), K
+RATE_STAR = 16                    # ε̇* the return used (after the clamp or floor), 1
+DT = 17                           # the last step's Δt, s (Δεp = EPS_P_RATE · DT)
+EQ_STRAIN_RATE = 18               # total equivalent deviatoric strain rate √(2/3 D':D'), 1/s
+SY_TOTAL_RATE = 19                # σy(εp, ε̇* of EQ_STRAIN_RATE, T_RETURN), Pa: no elastic jump
+N_STATE = 20
 
 COLUMNS = ("SXX", "SYY", "SXY", "SZZ", "P", "Q", "RHO", "E", "EPS_P", "EPS_P_RATE", "T",
-           "BURN", "SY", "C", "PLASTIC_WORK")
+           "BURN", "SY", "C", "PLASTIC_WORK", "T_RETURN", "RATE_STAR", "DT", "EQ_STRAIN_RATE",
+           "SY_TOTAL_RATE")
 
 # --- error codes returned by every kernel ----------------------------------------------------
 OK = 0

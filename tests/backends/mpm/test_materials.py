@@ -241,7 +241,8 @@ def jc_trial_deviator(S, i, L, dt, G):
 def test_jc_update_converges_on_the_mc_thin_plate_states(realization):
     (A, B, C, n, m), row, L, dt, time, x, y = MC_FAILED_STATES[realization]
     prm = jc.pack({"jc.A": A, "jc.B": B, "jc.C": C, "jc.n": n, "jc.m": m})
-    S = np.array([row])
+    S = np.zeros((1, st.N_STATE))      # the rows were captured with the first 15 columns
+    S[0, :len(row)] = row
     G = prm[jc.I_G]
     trial = jc_trial_deviator(S, 0, L, dt, G)
     seq_t = jc.von_mises(*trial)
