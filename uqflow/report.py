@@ -235,6 +235,15 @@ def _method_column(stats: xr.Dataset, method: str):
             return ", ".join(shown)
 
         return "S1/ST per input (largest ST first)", top
+    if method == "pce":
+        def fit(out, focus, at):
+            if f"{out}_loo_error" not in stats or f"{out}_order" not in stats:
+                return "-"
+            loo = float(stats[f"{out}_loo_error"].isel(focus))
+            return (f"order {int(stats[f'{out}_order'])}, {int(stats[f'{out}_terms'])} terms, "
+                    f"LOO error {loo:.2g}")
+
+        return "expansion (LOO error: relative to the variance)", fit
     return None, None
 
 

@@ -288,3 +288,16 @@ def test_askey_basis_refuses_correlated_inputs_and_big_bases():
     wide = InputSpace([normal(f"x{i}") for i in range(20)])
     with pytest.raises(StudyError, match=r"method\.order: .*basis terms"):
         get_method("pce")(order=6).check(wide, None)
+
+
+def test_summary_table_shows_order_terms_and_loo_error():
+    import xarray as xr
+
+    from uqflow.report import summary_table
+    space = InputSpace([normal("x", 1.0, 0.3)])
+    _, runs, stats = study({"model": "power", "p": 3.0}, space, max_order=4)
+    tree = xr.DataTree.from_dict({"/": xr.Dataset(attrs={"study_name": "pce-test"}),
+                                  "/runs": runs, "/statistics": stats})
+    text = summary_table(tree)
+    loo = float(stats["y_loo_error"])
+    assert f"order 3, 4 terms, LOO error {loo:.2g}" in text
