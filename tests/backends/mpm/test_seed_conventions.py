@@ -41,3 +41,112 @@ def test_uqflow_conventions_are_bitwise_unchanged():
     digest = hashlib.sha256(np.ascontiguousarray(run.S[:, :15]).tobytes() + run.x.tobytes()
                             + run.y.tobytes() + run.vx.tobytes() + run.vy.tobytes()).hexdigest()
     assert digest == str(ref["state_sha256"])
+
+
+# --- the kernel under the seed conventions --------------------------------------------------
+from solvers.mpm.materials import johnson_cook as jc, state as st   # noqa: E402
+from uqflow.errors import SceneError, SolverError                    # noqa: E402
+
+EPS = np.finfo(float).eps
+SEED = {"seed_conventions": 1.0, "jc.eps0_dot": jc.SEED_EPS0_DOT}
+
+
+def fresh_seed(values=None):
+    prm = jc.pack(dict(SEED, **(values or {})))
+    S = st.new_state(1)
+    assert jc.init(prm, S, 0) == st.OK
+    return prm, S
+
+
+def jc_args(prm):
+    return prm[[jc.I_JA, jc.I_JB, jc.I_JN, jc.I_JC, jc.I_JM]]
+
+
+@pytest.mark.parametrize("rate", [0.0, 1e-300, 1e-20, 1e-3, 1e4, 1e6, 1e12])
+def test_seed_rate_factor_is_finite_and_positive_from_rest_to_huge_rates(rate):
+    """ε̇_eq = 0 (ln → −∞, NaN when C = 0), tiny, at the floor, below and above ε̇0, huge: a
+    pure shear at that rate, one step from rest; the state is finite and the rate factor is
+    1 + C ln max(ε̇_eq/ε̇0, floor) > 0."""
+    for C in (0.0, 0.014, 0.047):
+        prm, S = fresh_seed({"jc.C": C})
+        dt = min(1e-8, 1e-3 / rate) if rate > 0 else 1e-8    # shear strain per step ≤ 1e-3
+        assert jc.update(prm, S, 0, 0.0, rate, rate, 0.0, dt, 0.0, 0.0, 0.0) == st.OK
+        assert np.all(np.isfinite(S[0]))
+        star = max(S[0, st.EQ_STRAIN_RATE] / jc.SEED_EPS0_DOT, jc.SEED_RATE_STAR_FLOOR)
+        assert S[0, st.EQ_STRAIN_RATE] == pytest.approx(2 * rate / np.sqrt(3), rel=4 * EPS)
+        assert S[0, st.RATE_STAR] == star
+        factor = 1.0 + C * np.log(star)
+        assert factor > 0.0
+        A, B, n, _, m = jc_args(prm)
+        assert S[0, st.SY] == jc.johnson_cook_flow_stress_seed(A, B, n, C, m, S[0, st.EPS_P],
+                                                               star, 0.0)
+        assert S[0, st.SY] == pytest.approx((A + B * S[0, st.EPS_P] ** n) * factor,
+                                            rel=4 * EPS)     # four rounded operations
+        assert S[0, st.SY_TOTAL_RATE] == S[0, st.SY]         # the seed's return uses it
+        if rate < jc.SEED_EPS0_DOT and C > 0:
+            assert S[0, st.SY] < A                           # rate factor < 1 below ε̇0
+
+
+def test_seed_fixed_rate_return_solves_the_consistency_condition():
+    """Plastic steps at a fixed rate: σeq* − 3GΔεp = σy(εp_n + Δεp, ε̇*, T*) to the return's
+    1e-13 residual, the deviator on that surface, for εp_n = 0 (n < 1: infinite slope) and
+    > 0, rates below and above ε̇0, T* = 0 and > 0."""
+    rng = np.random.default_rng(9)
+    G = jc.PARAMETERS["shear_modulus"]
+    A, B, n, C, m = jc_args(jc.pack())
+    for _ in range(200):
+        ep = 0.0 if rng.random() < 0.3 else 10.0 ** rng.uniform(-6, 0)
+        star = 10.0 ** rng.uniform(-12, 3)
+        T_star = 0.0 if rng.random() < 0.5 else rng.uniform(0, 0.9)
+        sy0 = jc.johnson_cook_flow_stress_seed(A, B, n, C, m, ep, star, T_star)
+        d = rng.normal(size=4)
+        d[3] = -d[0] - d[1]                                  # traceless in-plane + zz
+        d *= sy0 * rng.uniform(1.0 + 1e-9, 3.0) / jc.von_mises(*d)
+        *s, dep, sy, code = jc.jc_radial_return_fixed_rate(*d, G, A, B, n, C, m, ep, T_star,
+                                                           star)
+        assert code == st.OK and dep > 0.0
+        seq = jc.von_mises(*d)
+        assert sy == jc.johnson_cook_flow_stress_seed(A, B, n, C, m, ep + dep, star, T_star)
+        # bound: the return's residual test RETURN_RTOL·σeq* plus the rounding of the
+        # final σy re-evaluation (a few eps of σeq*)
+        assert abs(seq - 3 * G * dep - sy) <= (jc.RETURN_RTOL + 8 * EPS) * seq
+        assert jc.von_mises(*s) == pytest.approx(sy, rel=8 * EPS)   # scaling: a few roundings
+
+
+def test_seed_scene_run_has_no_heating_and_slow_rate_softening():
+    sc = small_scene(conventions="seed")
+    sol = MPMSolver.from_scene(sc)
+    assert sol.nominal()["steel.jc.eps0_dot"] == jc.SEED_EPS0_DOT
+    run = _Run(sol, sol._parameters({}))
+    run.advance()
+    steel = sol.mat_index[sol.labels.index("steel")]
+    S = run.S[steel]
+    assert np.all(np.isfinite(run.S))
+    T_room = jc.PARAMETERS["jc.T_room"]
+    assert np.all(S[:, st.T] == T_room) and np.all(S[:, st.T_RETURN] == T_room)
+    assert np.any(S[:, st.EPS_P] > 0) and np.any(S[:, st.PLASTIC_WORK] > 0)
+    slow = S[:, st.EQ_STRAIN_RATE] < jc.SEED_EPS0_DOT
+    assert slow.any()
+    np.testing.assert_array_equal(S[:, st.RATE_STAR], np.maximum(
+        S[:, st.EQ_STRAIN_RATE] / jc.SEED_EPS0_DOT, jc.SEED_RATE_STAR_FLOOR))
+    A, B, n, C, m = jc_args(run.prms[sol.labels.index("steel")])
+    hard = A + B * np.where(S[:, st.EPS_P] > 0, S[:, st.EPS_P], 0.0) ** n
+    factor = S[:, st.SY] / hard
+    assert np.all(factor[slow] < 1.0)                        # the rate factor below ε̇0
+    np.testing.assert_allclose(factor, 1.0 + C * np.log(S[:, st.RATE_STAR]),
+                               rtol=8 * EPS)                 # a few rounded operations
+
+
+def test_seed_conventions_parameter_rules():
+    with pytest.raises(SolverError, match="jc.C"):
+        jc.pack(dict(SEED, **{"jc.C": 0.05}))                # 1 + C ln 1e-9 < 0
+    jc.pack({"jc.C": 0.05})                                  # fine with the clamp
+    with pytest.raises(SolverError, match="seed_conventions"):
+        jc.pack({"seed_conventions": 0.5})
+    sc = small_scene(conventions="seed")
+    sc["materials"]["steel"]["jc"] = {"eps0_dot": 1.0}       # the scene's own ε̇0 is kept
+    assert MPMSolver.from_scene(sc).nominal()["steel.jc.eps0_dot"] == 1.0
+    sc = small_scene()
+    sc["materials"]["steel"]["seed_conventions"] = 1.0
+    with pytest.raises(SceneError, match="materials.steel.seed_conventions"):
+        MPMSolver.from_scene(sc)
