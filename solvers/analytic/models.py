@@ -3,9 +3,9 @@
 Each model is a small class: its parameters with nominal values, its scene options, its
 outputs and a vectorisable formula; a smooth one also has ``derivatives`` (exact gradient and
 Hessian, so for it the local sensitivities of the Solver contract are exact and
-``taylor-local`` can be checked against closed forms). ``AnalyticSolver`` wraps one of them in
-the Solver contract. A scene option ``delay`` (seconds) makes every run sleep that long: it stands in
-for an expensive solver in the overhead benchmark and the kill-and-resume test.
+``taylor-local`` can be checked against closed forms). ``AnalyticSolver`` wraps one of them
+in the Solver contract. A scene option ``delay`` (seconds) makes every run sleep that long:
+it stands in for an expensive solver in the overhead benchmark and the kill-and-resume test.
 """
 
 from __future__ import annotations

@@ -274,3 +274,40 @@ def test_a_study_runs_once_and_a_non_finite_hessian_fails_the_realization(tmp_pa
     assert bad.runs["status"].values.tolist() == ["failed"]
     assert np.isnan(bad.statistics["y"].values).all()
     assert any("non-finite derivative 'y__hessian'" in w for w in bad.warnings)
+
+
+# --------------------------------------------------------------- the models' own derivatives
+
+DIFFERENTIABLE = [
+    ({"model": "ishigami"}, {"x1": 0.6, "x2": 0.4, "x3": 1.3}),
+    (QUADRATIC, {"x1": 0.8, "x2": -1.3}),
+    ({"model": "power", "p": 2.5}, {"x": 1.7}),
+    ({"model": "exponential_decay", "t": {"start": 0.0, "stop": 2.0, "num": 3}},
+     {"alpha": 1.5, "beta": 0.4}),
+    ({"model": "faulty"}, {"x": 0.3}),
+]
+
+
+@pytest.mark.parametrize("scene, point", DIFFERENTIABLE, ids=lambda v: str(v)[:30])
+def test_model_derivatives_match_central_differences(scene, point):
+    """Each model's gradient against central differences of its values, its Hessian against
+    central differences of its gradient: the closed forms the method tests rely on."""
+    solver = AnalyticSolver.from_scene(scene)
+    names = list(point)
+    assert set(solver.local_sensitivities()["y"]) == set(names)
+
+    def evaluate(p):
+        ds = solver.run_with_sensitivities(p, wrt=names, outputs=["y"])
+        return ds["y"].values, ds["y__gradient"].values, ds["y__hessian"].values
+
+    _, gradient, hessian = evaluate(point)
+    h = 1e-5
+    for k, name in enumerate(names):
+        plus, minus = (evaluate({**point, name: point[name] + s * h}) for s in (1, -1))
+        # truncation h^2 |f'''| / 6 (third and fourth derivatives < 60 here) plus
+        # rounding eps |f| / h (|f| < 10): below 1e-9 + 2e-10
+        np.testing.assert_allclose(gradient[..., k], (plus[0] - minus[0]) / (2 * h),
+                                   rtol=0, atol=2e-9)
+        np.testing.assert_allclose(hessian[..., k, :], (plus[1] - minus[1]) / (2 * h),
+                                   rtol=0, atol=2e-9)
+    np.testing.assert_array_equal(hessian, np.swapaxes(hessian, -1, -2))
