@@ -13,6 +13,12 @@ variables and attributes.
 Runs (xr.Dataset): the design's ``inputs`` plus every output (realization, *output dims),
 ``status`` ("ok", "failed" or "pending"), ``message`` and ``wall_time`` (s).
 
+Local sensitivities (an optional solver capability, ``uqflow.solver``): a design's boolean
+``with_sensitivities`` (realization) asks the executor to run those realizations with the
+solver's local derivatives; the runs then hold ``{out}__gradient`` and ``{out}__hessian`` on
+the ``sensitivity_run`` dim (``uqflow.realization.sensitivity_arrays``). A method that needs
+the capability says so in ``check_solver``, called when the study is loaded.
+
 Statistics (xr.Dataset): every output with a leading ``statistic`` dimension, the input
 summary, and attributes ``method``, ``solver_runs``, ``failed_runs``, ``solver_wall_time``
 and ``warnings`` (one warning per line).
