@@ -1,0 +1,729 @@
+"""What MPM results add to ``uqflow report``: seed 000's Tables 6-8 and 3/9, Figs. 5-6, 9-12.
+
+``report(trees, folder, figures=True, time=None, reference=None) -> (text, pngs)`` compares
+several results of the same scene (different methods: ``monte-carlo`` plain or with a control
+variate, ``taylor``, ``taylor-local``, ``pce``, any method whose statistics carry ``mean`` and
+``variance``) and
+
+- prints the seed's **Tables 6-8 layout**: for every probe output (flow stress, S11, S22,
+  pressure p*, ...), probe and C.V., each result's mean and variance at one output time,
+  against the **reference** (the Monte Carlo result with the smallest standard error, see
+  ``choose_reference``) with the relative errors and the reference's own uncertainty, and the
+  seed's numbers (Tables 6-8, converted to SI) where output, probe and C.V. match;
+- prints the seed's **Tables 3/9 layout**: solver runs, failed runs, solver time, per-run
+  time and the speed-up against a 10,000-sample Monte Carlo at our per-run time, beside the
+  seed's timings;
+- draws the seed's **Figs. 5-6 and 9-12** for every (output, probe): mean and variance over
+  time, one line per result, the reference's band (mean ± 2 standard errors, variance ± 2
+  standard errors of the variance) shaded; one row of panels per C.V.
+
+The rules (reference, time, error formulas) are in docs/mpm_report.md. The seed's numbers
+come from ``data/seed_tables.toml`` (an exact copy of ``tests/data/seed_tables.toml``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import tomllib
+import warnings
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+from uqflow.errors import StudyError
+
+__all__ = ["report", "load_results", "seed_tables", "seed_moments", "seed_costs",
+           "choose_reference", "table_time", "variance_error", "moments_tables", "cost_table",
+           "draw_figures", "MPMResult", "MC_SAMPLES_COMPARED"]
+
+#: The seed's Monte Carlo sample count, against which every speed-up is stated.
+MC_SAMPLES_COMPARED = 10_000
+#: Seed Tables 6-8 give means in 1e-2 Mbar and variances in 1e-6 Mbar²; 1 Mbar = 1e11 Pa.
+SEED_MEAN_UNIT_PA = 1e-2 * 1e11
+SEED_VARIANCE_UNIT_PA2 = 1e-6 * 1e11 ** 2
+#: Which seed table holds which output (our output names).
+SEED_TABLE_OF_OUTPUT = {"flow_stress": "table6_flow_stress", "S11": "table7_S11",
+                        "S22": "table8_S22"}
+#: The seed figure that shows an (output, probe); the others are drawn in the same style.
+SEED_FIGURE = {("pressure", "E"): "Fig. 5", ("pressure", "F"): "Fig. 6",
+               ("flow_stress", "H"): "Fig. 9", ("flow_stress", "I"): "Fig. 10",
+               ("S11", "G"): "Fig. 11", ("S22", "G"): "Fig. 12"}
+#: Two C.V.s are one group when they agree to this relative tolerance: the study files write
+#: them to a few digits, and input_cv = std/mean carries only rounding beyond that.
+CV_MATCH_RTOL = 1e-9
+#: Reference bands are mean ± BAND_WIDTH standard errors (≈ 95 % for a normal error).
+BAND_WIDTH = 2.0
+
+
+# ------------------------------------------------------------------------------ seed numbers
+
+def seed_tables() -> dict:
+    """The ``[smpm]`` table of the seed numbers (package data ``data/seed_tables.toml``, an
+    exact copy of ``tests/data/seed_tables.toml``; that file if the copy is missing)."""
+    try:
+        text = (resources.files("solvers.mpm") / "data" / "seed_tables.toml").read_text(
+            encoding="utf-8")
+    except (FileNotFoundError, OSError):
+        text = (Path(__file__).resolve().parents[2] / "tests" / "data"
+                / "seed_tables.toml").read_text(encoding="utf-8")
+    return tomllib.loads(text)["smpm"]
+
+
+@dataclass(frozen=True)
+class SeedMoments:
+    """One row of seed Tables 6-8 in SI units (Pa, Pa²)."""
+    mc_mean: float
+    smpm_mean: float
+    mc_variance: float
+    smpm_variance: float
+
+
+def seed_moments(output: str) -> dict[tuple[str, float], SeedMoments]:
+    """Seed Table 6, 7 or 8 for ``output`` as {(probe, C.V.): SeedMoments}, converted from
+    1e-2 Mbar (= 1 GPa) and 1e-6 Mbar² (= 1e-2 GPa²) to Pa and Pa²; {} for other outputs."""
+    key = SEED_TABLE_OF_OUTPUT.get(output)
+    if key is None:
+        return {}
+    rows = {}
+    for probe, cv, mc_mean, smpm_mean, mc_var, smpm_var in seed_tables()["example2_jc"][key]:
+        rows[(str(probe), float(cv))] = SeedMoments(
+            mc_mean * SEED_MEAN_UNIT_PA, smpm_mean * SEED_MEAN_UNIT_PA,
+            mc_var * SEED_VARIANCE_UNIT_PA2, smpm_var * SEED_VARIANCE_UNIT_PA2)
+    return rows
+
+
+@dataclass(frozen=True)
+class SeedCost:
+    example: str
+    table: str
+    cv: float
+    smpm_seconds: float
+    mc_seconds: float
+    mc_samples: int
+
+    @property
+    def per_run_seconds(self) -> float:
+        return self.mc_seconds / self.mc_samples
+
+    @property
+    def speedup(self) -> float:
+        return self.mc_seconds / self.smpm_seconds
+
+
+def seed_costs() -> dict[str, SeedCost]:
+    """Seed Tables 3 (example 1, Mie-Grüneisen inputs) and 9 (example 2, Johnson-Cook)."""
+    seed = seed_tables()
+    n = int(seed["mc_samples"])
+    ex1, ex2 = seed["example1_eos"]["time_s"], seed["example2_jc"]["time_s"]
+    return {"eos": SeedCost("example 1", "Table 3", 0.01, ex1["smpm"], ex1["monte_carlo"], n),
+            "jc": SeedCost("example 2", "Table 9", 0.1, ex2["smpm"], ex2["monte_carlo"], n)}
+
+
+# ------------------------------------------------------------------------------ one result
+
+@dataclass
+class MPMResult:
+    """One result file as the report reads it."""
+    file: str
+    name: str
+    method: str
+    label: str
+    attrs: dict
+    runs: xr.Dataset | None
+    stats: xr.Dataset | None
+    outputs: list[str]
+    probes: list[str]
+    times: np.ndarray
+    parameters: tuple[str, ...]
+    cv: float | None
+    cv_text: str
+    scene: tuple[str, str]          # (what, identity) of the scene
+
+    @property
+    def plain_monte_carlo(self) -> bool:
+        return self.method == "monte-carlo" and self.stats is not None \
+            and "control" not in self.stats.attrs
+
+    def statistic(self, output: str, label: str) -> xr.DataArray | None:
+        if self.stats is None or output not in self.stats \
+                or label not in self.stats["statistic"].values:
+            return None
+        return self.stats[output].sel(statistic=label)
+
+    def cost(self) -> tuple[int, int, float]:
+        """Solver runs done, failed runs, solver seconds (from the statistics, else runs)."""
+        source = self.stats.attrs if self.stats is not None else {}
+        if "solver_runs" in source:
+            return (int(source["solver_runs"]), int(source.get("failed_runs", 0)),
+                    float(source.get("solver_wall_time", math.nan)))
+        if self.runs is None or "status" not in self.runs:
+            return 0, 0, math.nan
+        status = np.asarray(self.runs["status"].values).astype(str)
+        done = status != "pending"
+        wall = np.asarray(self.runs["wall_time"].values, float)[done] \
+            if "wall_time" in self.runs else np.array([np.nan])
+        return int(done.sum()), int((status == "failed").sum()), float(np.nansum(wall))
+
+
+def _file_of(tree: xr.DataTree) -> str:
+    source = tree.encoding.get("source") if tree.encoding else None
+    if source:
+        return Path(source).name
+    return str(tree.attrs.get("study_file") or tree.attrs.get("study_name") or "result")
+
+
+def _scene_identity(attrs: dict) -> tuple[str, str]:
+    """(what the scene is, its identity): a scene file by the sha256 of its text as the study
+    read it, an inline scene table by the sha256 of its canonical JSON."""
+    read = json.loads(str(attrs.get("study_read_files") or "{}"))
+    if "scene" in read:
+        path, sha = read["scene"]
+        return f"scene file {path} (sha256 {sha[:12]})", sha
+    try:
+        scene = tomllib.loads(str(attrs.get("study", ""))).get("scene")
+    except tomllib.TOMLDecodeError:
+        scene = None
+    if isinstance(scene, dict):
+        sha = hashlib.sha256(json.dumps(scene, sort_keys=True, default=str).encode()).hexdigest()
+        return f"inline scene table (sha256 {sha[:12]})", sha
+    description = str(attrs.get("solver_description", "?"))
+    return f"scene '{description}'", description
+
+
+def _method_label(method: str, stats: xr.Dataset | None, options: dict) -> str:
+    a = stats.attrs if stats is not None else {}
+    if method == "monte-carlo":
+        rule = a.get("rule", options.get("rule", "?"))
+        n = a.get("samples_ok", options.get("samples", "?"))
+        text = f"monte-carlo {rule} {n}"
+        if a.get("control") and int(a.get("control_used", 1)):
+            text += f" + control {a['control']}"
+        return text
+    if method == "taylor":
+        return f"taylor order {a.get('order', options.get('order', '?'))}"
+    if method == "pce":
+        order = a.get("order", options.get("order", "?"))
+        return f"pce order {order}"
+    return method
+
+
+def _probe_outputs(ds: xr.Dataset | None, want_statistic: bool) -> list[str]:
+    if ds is None:
+        return []
+    return [str(v) for v in ds.data_vars
+            if "probe" in ds[v].dims and "time" in ds[v].dims
+            and (not want_statistic or "statistic" in ds[v].dims)
+            and (want_statistic or "realization" in ds[v].dims)]
+
+
+def _common_cv(ds: xr.Dataset | None) -> tuple[float | None, str, tuple[str, ...]]:
+    if ds is None or "input_cv" not in ds:
+        return None, "?", ()
+    names = tuple(str(p) for p in ds["parameter"].values)
+    cv = np.asarray(ds["input_cv"].values, float)
+    finite = cv[np.isfinite(cv) & (cv > 0)]
+    if finite.size == 0:
+        return None, "0", names
+    if np.allclose(finite, finite[0], rtol=CV_MATCH_RTOL, atol=0):
+        return float(finite[0]), f"{finite[0]:.3g}", names
+    return None, "mixed " + "/".join(f"{c:.3g}" for c in finite), names
+
+
+def _read(tree: xr.DataTree) -> MPMResult:
+    attrs = dict(tree.attrs)
+    runs = tree["runs"].to_dataset() if "runs" in tree.children else None
+    stats = tree["statistics"].to_dataset() if "statistics" in tree.children else None
+    source = stats if stats is not None else runs
+    if source is None or "probe" not in source.coords:
+        raise StudyError("has no probe outputs (time, probe): not an MPM result",
+                         file=_file_of(tree))
+    method = str((stats.attrs.get("method") if stats is not None else None)
+                 or attrs.get("method", "?"))
+    try:
+        options = json.loads(str(attrs.get("method_options") or "{}"))
+    except json.JSONDecodeError:
+        options = {}
+    outputs = _probe_outputs(stats, True) if stats is not None else _probe_outputs(runs, False)
+    cv, cv_text, parameters = _common_cv(source)
+    return MPMResult(
+        file=_file_of(tree), name=str(attrs.get("study_name", "?")), method=method,
+        label=_method_label(method, stats, options), attrs=attrs, runs=runs, stats=stats,
+        outputs=outputs, probes=[str(p) for p in source["probe"].values],
+        times=np.asarray(source["time"].values, float), parameters=parameters, cv=cv,
+        cv_text=cv_text, scene=_scene_identity(attrs))
+
+
+def load_results(trees) -> tuple[list[MPMResult], list[str], list[str]]:
+    """The results, the outputs they all have, and notes on what is left out.
+
+    Refused with a one-line ``StudyError`` naming the file: a result of another scene than
+    the first, with other probes or output times, or with no probe output in common."""
+    results = [_read(t) for t in trees]
+    first = results[0]
+    notes = []
+    for res in results[1:]:
+        if res.scene[1] != first.scene[1]:
+            raise StudyError(f"{res.scene[0]} is not the {first.scene[0]} of {first.file}: "
+                             f"results of different scenes are not compared", file=res.file,
+                             key="scene")
+        if res.probes != first.probes:
+            raise StudyError(f"probes {res.probes} differ from {first.probes} of {first.file}",
+                             file=res.file, key="probe")
+        if res.times.shape != first.times.shape or not np.array_equal(res.times, first.times):
+            raise StudyError(f"output times differ from those of {first.file}", file=res.file,
+                             key="time")
+    with_outputs = [r for r in results if r.outputs]
+    common = [o for o in (with_outputs[0].outputs if with_outputs else [])
+              if all(o in r.outputs for r in with_outputs)]
+    for res in with_outputs:
+        if not common:
+            raise StudyError(f"no output in common with {with_outputs[0].file} (outputs "
+                             f"{', '.join(res.outputs)} against "
+                             f"{', '.join(with_outputs[0].outputs)})", file=res.file,
+                             key="outputs")
+        left = [o for o in res.outputs if o not in common]
+        if left:
+            notes.append(f"{res.file}: {', '.join(left)} not in every result: not compared")
+    return results, common, notes
+
+
+# ------------------------------------------------------------------------------ errors
+
+def mean_error(res: MPMResult, output: str) -> xr.DataArray | None:
+    """The standard error of the mean the result reports (``stderr``), None without one."""
+    return res.statistic(output, "stderr")
+
+
+def variance_error(res: MPMResult, output: str) -> tuple[xr.DataArray | None, str]:
+    """The standard error of the result's variance over (time, probe), and how it was had.
+
+    * a result that reports it (``{output}_variance_stderr``: control-variate Monte Carlo);
+    * plain randomized QMC (``stderr_kind = rqmc``, R replicates, realization i in replicate
+      i mod R): the spread of the R within-replicate variances / sqrt(R);
+    * plain i.i.d. Monte Carlo (random or LHS): sqrt((m4 - s⁴ (n-3)/(n-1)) / n) from the
+      sample variance s² and fourth central moment m4 of the ok runs — the kurtosis-based
+      formula, which for normal data is s² sqrt(2/(n-1));
+    * otherwise None ("not available")."""
+    if res.stats is None:
+        return None, "no statistics"
+    if f"{output}_variance_stderr" in res.stats:
+        return res.stats[f"{output}_variance_stderr"], "reported by the method"
+    if not res.plain_monte_carlo:
+        return None, "not available"
+    if res.runs is None or output not in res.runs or "status" not in res.runs:
+        return None, "not available (no runs)"
+    ok = np.asarray(res.runs["status"].values).astype(str) == "ok"
+    y = np.asarray(res.runs[output].values, float)
+    template = res.stats[output].isel(statistic=0, drop=True)
+    kind = str(res.stats.attrs.get("stderr_kind", "iid"))
+    if kind == "rqmc":
+        r = int(res.stats.attrs.get("replicates", 0))
+        which = np.flatnonzero(ok) % r if r else np.array([], int)
+        y_ok = y[ok]
+        within = [y_ok[which == k].var(axis=0, ddof=1) for k in range(r)
+                  if np.sum(which == k) > 1]
+        if len(within) < 2:
+            return None, "not available (fewer than 2 replicates with 2 runs)"
+        within = np.stack(within)
+        err = within.std(axis=0, ddof=1) / math.sqrt(len(within))
+        return template.copy(data=err), f"spread of {len(within)} replicate variances"
+    y_ok = y[ok]
+    n = y_ok.shape[0]
+    if n < 4:
+        return None, "not available (fewer than 4 ok runs)"
+    centred = y_ok - y_ok.mean(axis=0)
+    s2 = centred.var(axis=0, ddof=1)
+    m4 = np.mean(centred ** 4, axis=0)
+    err = np.sqrt(np.maximum((m4 - s2 ** 2 * (n - 3) / (n - 1)) / n, 0.0))
+    return template.copy(data=err), f"kurtosis formula, {n} i.i.d. runs"
+
+
+# ------------------------------------------------------------------------------ rules
+
+def table_time(results: list[MPMResult], time: float | None) -> tuple[int, str]:
+    """Index of the table's output time and the sentence that says which it is: the output
+    time nearest ``time`` (seconds), by default the last output time."""
+    times = results[0].times
+    if time is None:
+        return len(times) - 1, f"t = {times[-1] * 1e6:.4g} µs (the last output time)"
+    k = int(np.argmin(np.abs(times - float(time))))
+    return k, (f"t = {times[k] * 1e6:.4g} µs (the output time nearest the requested "
+               f"{float(time) * 1e6:.4g} µs)")
+
+
+def _score(res: MPMResult, outputs: list[str], k: int) -> float:
+    """Median over outputs and probes of stderr / |mean| at time index ``k``."""
+    ratios = []
+    for out in outputs:
+        se, mean = mean_error(res, out), res.statistic(out, "mean")
+        if se is None or mean is None:
+            continue
+        s = np.asarray(se.isel(time=k).values, float)
+        m = np.abs(np.asarray(mean.isel(time=k).values, float))
+        use = np.isfinite(s) & np.isfinite(m) & (m > 0)
+        ratios.extend((s[use] / m[use]).tolist())
+    return float(np.median(ratios)) if ratios else math.inf
+
+
+def choose_reference(group: list[MPMResult], outputs: list[str], k: int,
+                     reference: str | None = None) -> MPMResult | None:
+    """The reference of a group of results at one C.V.: the result named by ``reference``
+    (file name or study name) if it is in the group; else the result with a standard error
+    of the mean (Monte Carlo, plain or control-variate) whose median relative standard error
+    stderr/|mean| over the outputs and probes at the table time is smallest; None if no
+    result reports a standard error."""
+    if reference is not None:
+        for res in group:
+            if reference in (res.file, res.name):
+                return res
+    scored = [(s, i) for i, res in enumerate(group)
+              if res.stats is not None and math.isfinite(s := _score(res, outputs, k))]
+    return group[min(scored)[1]] if scored else None
+
+
+def _groups(results: list[MPMResult]) -> list[list[MPMResult]]:
+    """Results grouped by their random inputs and C.V., in order of first appearance."""
+    groups: list[list[MPMResult]] = []
+    for res in results:
+        for group in groups:
+            other = group[0]
+            same_cv = (res.cv is None and other.cv is None and res.cv_text == other.cv_text) \
+                or (res.cv is not None and other.cv is not None
+                    and math.isclose(res.cv, other.cv, rel_tol=CV_MATCH_RTOL))
+            if other.parameters == res.parameters and same_cv:
+                group.append(res)
+                break
+        else:
+            groups.append([res])
+    return groups
+
+
+def _is_johnson_cook(res: MPMResult) -> bool:
+    return bool(res.parameters) and all(".jc." in p for p in res.parameters)
+
+
+def _seed_row(res: MPMResult, output: str, probe: str) -> SeedMoments | None:
+    """The seed's Tables 6-8 row for this output, probe and C.V.: only for a study whose
+    random inputs are Johnson-Cook parameters (the seed's example 2)."""
+    if res.cv is None or not _is_johnson_cook(res):
+        return None
+    for (p, cv), row in seed_moments(output).items():
+        if p == probe and math.isclose(cv, res.cv, rel_tol=CV_MATCH_RTOL):
+            return row
+    return None
+
+
+# ------------------------------------------------------------------------------ formatting
+
+def _scale(units: str) -> tuple[float, str, str]:
+    """Divisor and printed units of means and variances: stresses in GPa and GPa²."""
+    if units == "Pa":
+        return 1e9, "GPa", "GPa²"
+    return 1.0, units or "-", f"({units})²" if units else "-"
+
+
+def _fmt(x: float, digits: int = 5) -> str:
+    return "nan" if not np.isfinite(x) else f"{x:.{digits}g}"
+
+
+def _rel(x: float, ref: float) -> float:
+    return (x - ref) / abs(ref) if np.isfinite(x) and np.isfinite(ref) and ref != 0 \
+        else math.nan
+
+
+def _pct(r: float) -> str:
+    return "-" if not np.isfinite(r) else f"{100 * r:+.3g} %"
+
+
+def _grid(header: list[str], rows: list[list[str]], right: set[int]) -> list[str]:
+    widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
+
+    def line(cells):
+        return "  ".join(c.rjust(w) if i in right else c.ljust(w)
+                         for i, (c, w) in enumerate(zip(cells, widths))).rstrip()
+
+    return [line(header), "  ".join("-" * w for w in widths), *map(line, rows)]
+
+
+def _value(da: xr.DataArray | None, k: int, j: int) -> float:
+    return math.nan if da is None else float(da.isel(time=k, probe=j).values)
+
+
+# ------------------------------------------------------------------------------ Tables 6-8
+
+def moments_tables(results: list[MPMResult], outputs: list[str], time: float | None = None,
+                   reference: str | None = None) -> str:
+    """The seed's Tables 6-8 layout for every output (see the module docstring)."""
+    k, when = table_time(results, time)
+    groups = _groups(results)
+    lines, refs = [], []
+    for group in groups:
+        ref = choose_reference(group, outputs, k, reference)
+        refs.append(ref)
+        what = ", ".join(group[0].parameters) if len(groups) > 1 else ""
+        lines.append(f"C.V. {group[0].cv_text}{' (' + what + ')' if what else ''}: reference "
+                     + (f"{ref.file} ({ref.label})" if ref else
+                        "none (no result reports a standard error of the mean)"))
+    if reference is not None and not any(
+            r is not None and reference in (r.file, r.name) for r in refs):
+        lines.append(f"the requested reference '{reference}' is in no group: the rule chose")
+    for out in outputs:
+        units = next((str(r.stats[out].attrs.get("units", "")) for r in results
+                      if r.stats is not None and out in r.stats), "")
+        div, unit, unit2 = _scale(units)
+        seed_key = SEED_TABLE_OF_OUTPUT.get(out)
+        seed_name = {"table6_flow_stress": "Table 6", "table7_S11": "Table 7",
+                     "table8_S22": "Table 8"}.get(seed_key, "Tables 6-8")
+        lines += ["", f"{out} at {when}: seed {seed_name} layout; mean [{unit}], variance "
+                      f"[{unit2}]; 'vs ref' = relative error against the reference, "
+                      f"(z) = difference in reference standard errors"]
+        rows = []
+        for group, ref in zip(groups, refs):
+            for j, probe in enumerate(results[0].probes):
+                rows += _moment_rows(group, ref, out, k, j, probe, div)
+        lines += _grid(["probe", "C.V.", "result", "method", "runs", "mean", "vs ref",
+                        "variance", "vs ref"], rows, {4, 5, 6, 7, 8})
+    return "\n".join(lines)
+
+
+def _moment_rows(group, ref, out, k, j, probe, div) -> list[list[str]]:
+    rows = []
+    ref_mean = _value(ref.statistic(out, "mean"), k, j) if ref else math.nan
+    ref_var = _value(ref.statistic(out, "variance"), k, j) if ref else math.nan
+    ref_se = _value(mean_error(ref, out), k, j) if ref else math.nan
+    ref_var_err, how = variance_error(ref, out) if ref else (None, "")
+    ref_var_se = _value(ref_var_err, k, j)
+    for res in group:
+        runs, failed, _ = res.cost()
+        mean = _value(res.statistic(out, "mean"), k, j)
+        var = _value(res.statistic(out, "variance"), k, j)
+        if res.stats is None:
+            rows.append([probe, res.cv_text, res.file, res.label, f"{runs}",
+                         "no statistics (study did not finish)", "", "", ""])
+            continue
+        if res is ref:
+            mean_text = f"{_fmt(mean / div)} ± {_fmt(ref_se / div, 2)}"
+            var_text = f"{_fmt(var / div ** 2, 4)} ± " + (
+                _fmt(ref_var_se / div ** 2, 2) if np.isfinite(ref_var_se) else "n/a")
+            rows.append([probe, res.cv_text, res.file, res.label + " (ref)", f"{runs}",
+                         mean_text, "-", var_text, "-"])
+            continue
+        z = (mean - ref_mean) / ref_se if np.isfinite(ref_se) and ref_se > 0 else math.nan
+        vs_mean = _pct(_rel(mean, ref_mean)) + (f" ({z:+.2g})" if np.isfinite(z) else "")
+        rows.append([probe, res.cv_text, res.file, res.label, f"{runs}", _fmt(mean / div),
+                     vs_mean, _fmt(var / div ** 2, 4), _pct(_rel(var, ref_var))])
+    seed = _seed_row(group[0], out, probe)
+    if seed is not None:
+        cv = group[0].cv_text
+        n = f"{MC_SAMPLES_COMPARED}"
+        rows.append([probe, cv, "seed", "Monte Carlo", n, _fmt(seed.mc_mean / div),
+                     _pct(_rel(seed.mc_mean, ref_mean)), _fmt(seed.mc_variance / div ** 2, 4),
+                     _pct(_rel(seed.mc_variance, ref_var))])
+        rows.append([probe, cv, "seed", "SMPM", "1", _fmt(seed.smpm_mean / div),
+                     _pct(_rel(seed.smpm_mean, ref_mean)),
+                     _fmt(seed.smpm_variance / div ** 2, 4),
+                     _pct(_rel(seed.smpm_variance, ref_var))])
+    return rows
+
+
+def _reference_notes(results: list[MPMResult], outputs: list[str]) -> list[str]:
+    notes = []
+    for res in results:
+        if res.stats is None:
+            continue
+        if mean_error(res, outputs[0]) is not None:
+            notes.append(f"{res.file}: standard error of the mean: "
+                         f"{res.stats.attrs.get('stderr_note') or res.stats.attrs.get('stderr_kind', 'reported')}; "
+                         f"of the variance: {variance_error(res, outputs[0])[1]}")
+    return notes
+
+
+# ------------------------------------------------------------------------------ Tables 3/9
+
+def _per_run_baseline(results: list[MPMResult]) -> tuple[float, str]:
+    """Our per-run time: the median wall time of the ok plain solver runs (realizations run
+    without sensitivities) over all results; with none, of every ok run."""
+    plain, every = [], []
+    for res in results:
+        if res.runs is None or "wall_time" not in res.runs or "status" not in res.runs:
+            continue
+        ok = np.asarray(res.runs["status"].values).astype(str) == "ok"
+        wall = np.asarray(res.runs["wall_time"].values, float)
+        flagged = np.asarray(res.runs["with_sensitivities"].values, bool) \
+            if "with_sensitivities" in res.runs else np.zeros_like(ok)
+        plain.extend(wall[ok & ~flagged].tolist())
+        every.extend(wall[ok].tolist())
+    if plain:
+        return float(np.median(plain)), f"median wall time of the {len(plain)} plain runs"
+    if every:
+        return float(np.median(every)), (f"median wall time of the {len(every)} runs (all "
+                                         f"with sensitivities)")
+    return math.nan, "no run finished"
+
+
+def _seconds(t: float) -> str:
+    if not np.isfinite(t):
+        return "?"
+    if t < 120:
+        return f"{t:.3g} s"
+    if t < 7200:
+        return f"{t / 60:.3g} min"
+    return f"{t / 3600:.3g} h"
+
+
+def cost_table(results: list[MPMResult]) -> str:
+    """The seed's Tables 3/9 layout: runs, failures, solver time, per-run time, speed-up."""
+    per_run, how = _per_run_baseline(results)
+    mc_time = MC_SAMPLES_COMPARED * per_run
+    lines = [f"Cost (seed Tables 3 and 9 layout). Our per-run time {_seconds(per_run)} "
+             f"({how}); a {MC_SAMPLES_COMPARED:,}-sample Monte Carlo at our per-run time = "
+             f"{MC_SAMPLES_COMPARED:,} × {_seconds(per_run)} = {_seconds(mc_time)}; speed-up "
+             f"= that / the result's solver time (solver time: the sum of its runs' wall "
+             f"times)"]
+    rows = []
+    for res in results:
+        runs, failed, wall = res.cost()
+        per = wall / runs if runs else math.nan
+        speedup = mc_time / wall if np.isfinite(wall) and wall > 0 else math.nan
+        rows.append([res.file, res.label, res.cv_text, f"{runs}", f"{failed}", _seconds(wall),
+                     _seconds(per), f"{speedup:,.0f}" if np.isfinite(speedup) else "?"])
+    kinds = {("jc" if _is_johnson_cook(r) else "eos" if r.parameters and all(
+        ".eos." in p for p in r.parameters) else None) for r in results}
+    shown = [c for key, c in seed_costs().items() if key in kinds] \
+        or list(seed_costs().values())
+    for cost in shown:
+        rows.append([f"seed {cost.example} ({cost.table})", "SMPM", f"{cost.cv:g}", "1", "-",
+                     _seconds(cost.smpm_seconds), "-", f"{cost.speedup:,.0f}"])
+        rows.append([f"seed {cost.example} ({cost.table})", f"Monte Carlo", f"{cost.cv:g}",
+                     f"{cost.mc_samples:,}", "-", _seconds(cost.mc_seconds),
+                     _seconds(cost.per_run_seconds), "1"])
+    lines += _grid(["result", "method", "C.V.", "runs", "failed", "solver time", "per run",
+                    f"speed-up vs {MC_SAMPLES_COMPARED:,} MC"], rows, {3, 4, 5, 6, 7})
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------ figures
+
+def _figure(width, height, nrows, ncols):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width, height), layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig, fig.subplots(nrows, ncols, squeeze=False, sharex=True)
+
+
+def _draw_one(results, groups, refs, out, j, probe):
+    units = next((str(r.stats[out].attrs.get("units", "")) for r in results
+                  if r.stats is not None and out in r.stats), "")
+    div, unit, unit2 = _scale(units)
+    fig, axes = _figure(11.0, 3.6 * len(groups), len(groups), 2)
+    t_us = results[0].times * 1e6
+    colors = ["#1f4e79", "#c0392b", "#2e8b57", "#8e44ad", "#d35400", "#7f8c8d", "#16a085"]
+    for row, (group, ref) in enumerate(zip(groups, refs)):
+        ax_mean, ax_var = axes[row]
+        if ref is not None:
+            mean = np.asarray(ref.statistic(out, "mean").isel(probe=j).values, float) / div
+            se = mean_error(ref, out)
+            if se is not None:
+                s = np.asarray(se.isel(probe=j).values, float) / div
+                ax_mean.fill_between(t_us, mean - BAND_WIDTH * s, mean + BAND_WIDTH * s,
+                                     color="0.8", label=f"reference ± {BAND_WIDTH:g} stderr")
+            var = np.asarray(ref.statistic(out, "variance").isel(probe=j).values,
+                             float) / div ** 2
+            err, _ = variance_error(ref, out)
+            if err is not None:
+                e = np.asarray(err.isel(probe=j).values, float) / div ** 2
+                ax_var.fill_between(t_us, var - BAND_WIDTH * e, var + BAND_WIDTH * e,
+                                    color="0.8", label=f"reference ± {BAND_WIDTH:g} stderr")
+        for n, res in enumerate(r for r in group if r.stats is not None):
+            style = dict(color=colors[n % len(colors)], lw=1.8 if res is ref else 1.1,
+                         ls="-" if res is ref else ("--", ":", "-.")[n % 3])
+            label = f"{res.label} ({res.file})" + (", reference" if res is ref else "")
+            for ax, stat, d in ((ax_mean, "mean", div), (ax_var, "variance", div ** 2)):
+                values = res.statistic(out, stat)
+                if values is not None:
+                    ax.plot(t_us, np.asarray(values.isel(probe=j).values, float) / d,
+                            label=label, **style)
+        ax_mean.set_ylabel(f"mean {out} [{unit}]")
+        ax_var.set_ylabel(f"variance of {out} [{unit2}]")
+        for ax, what in ((ax_mean, "mean"), (ax_var, "variance")):
+            ax.set_title(f"{what} of {out} at {probe}, C.V. {group[0].cv_text}",
+                         fontsize="medium")
+            ax.grid(alpha=0.3)
+        ax_mean.legend(fontsize="small", loc="best")
+    for ax in axes[-1]:
+        ax.set_xlabel("time [µs]")
+    seed = SEED_FIGURE.get((out, probe))
+    fig.suptitle(f"{out} at probe {probe}: mean and variance over time by method"
+                 + (f" (seed {seed})" if seed else " (seed Figs. 5-6, 9-12 layout)"))
+    return fig
+
+
+def draw_figures(results: list[MPMResult], outputs: list[str], folder: Path,
+                 time: float | None = None, reference: str | None = None) -> list[Path]:
+    """``mpm_<output>_<probe>.png`` for every common output and probe, into ``folder``; the
+    reference of each C.V. is the one of the tables (chosen at the same time)."""
+    with_stats = [r for r in results if r.stats is not None]
+    if not with_stats:
+        return []
+    groups = [[r for r in g if r.stats is not None] for g in _groups(with_stats)]
+    k, _ = table_time(results, time)
+    refs = [choose_reference(g, outputs, k, reference) for g in groups]
+    written = []
+    for out in outputs:
+        for j, probe in enumerate(results[0].probes):
+            name = f"mpm_{out}_{probe}.png"
+            try:
+                fig = _draw_one(with_stats, groups, refs, out, j, probe)
+            except Exception as exc:  # one broken figure must not cost the others
+                from uqflow.report import FigureWarning
+                warnings.warn(f"figure {name} not written: {type(exc).__name__}: {exc}",
+                              FigureWarning, stacklevel=2)
+                continue
+            path = Path(folder) / name
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fig.savefig(path, dpi=100, format="png")
+            fig.clear()
+            written.append(path)
+    return written
+
+
+# ------------------------------------------------------------------------------ the hook
+
+def report(trees, folder, figures: bool = True, time: float | None = None,
+           reference: str | None = None) -> tuple[str, list[Path]]:
+    """Seed 000's comparisons for a set of MPM results of one scene: the text (Tables 6-8 and
+    3/9 layouts) and the PNG figures written into ``folder`` (none with ``figures=False``).
+
+    ``time`` (seconds): the output time of Tables 6-8 (nearest output time; default the last).
+    ``reference``: the file or study name of the reference result (default: the rule of
+    ``choose_reference``). ``uqflow report`` uses the defaults."""
+    trees = list(trees)
+    if not trees:
+        return "", []
+    results, outputs, notes = load_results(trees)
+    parts = ["MPM comparison (seed 000, Tables 6-8 and 3/9)"]
+    for res in results:
+        runs, failed, _ = res.cost()
+        if res.stats is None:
+            notes.append(f"{res.file}: no statistics (the study did not finish): "
+                         f"{runs} runs done, {failed} failed; in the cost table only")
+        elif failed:
+            notes.append(f"{res.file}: {failed} of {runs} runs failed; its statistics are "
+                         f"over the others")
+    if outputs:
+        parts.append(moments_tables(results, outputs, time, reference))
+        notes += _reference_notes(results, outputs)
+    parts.append(cost_table(results))
+    text = "\n\n".join(parts)
+    if notes:
+        text += "\n\n" + "\n".join(f"note: {n}" for n in notes)
+    pngs = draw_figures(results, outputs, Path(folder), time, reference) \
+        if figures and outputs else []
+    return text, pngs
