@@ -16,6 +16,7 @@ from solvers.mpm import step as K
 from solvers.mpm.materials import state as ST
 from solvers.mpm.materials.johnson_cook import CONVENTIONS_PARAMETER, SEED_EPS0_DOT
 from solvers.mpm.probes import ProbeRecorder
+from solvers.mpm.report import report as _report
 from solvers.mpm.snapshots import SnapshotWriter
 from solvers.mpm.scene import ENERGY_OUTPUTS, PROBE_QUANTITIES, auto_extent, parse, \
     place_probes, probe_members, seed_particles
@@ -37,6 +38,10 @@ UNITS_BY_NAME = {"rho0": "kg m-3", "shear_modulus": "Pa", "E": "Pa", "D": "m s-1
 @register_solver("mpm")
 class MPMSolver(Solver):
     """Explicit 2-D plane-strain MPM (MUSL, quadratic B-splines) with EOS/strength materials."""
+
+    #: ``uqflow report`` on MPM results: seed 000's Tables 6-8 and 3/9, Figs. 5-6, 9-12
+    #: (solvers/mpm/report.py, docs/mpm_report.md)
+    report = staticmethod(_report)
 
     def __init__(self, cfg):
         self.extent_info = {}
