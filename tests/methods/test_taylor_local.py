@@ -3,7 +3,6 @@ against closed forms on the analytic models (for which "local" is exact)."""
 
 import subprocess
 import sys
-import textwrap
 import warnings
 
 import numpy as np
@@ -190,15 +189,27 @@ def test_statistics_layout():
 
 # --------------------------------------------------------------- study files and failures
 
-def _study(tmp_path, scene, inputs, method='kind = "taylor-local"', extra="", name="s"):
-    text = textwrap.dedent(f"""\
-        name = "{name}"
-        solver = "{extra or 'analytic'}"
-        scene = {scene}
-        """) + inputs + f"\n[method]\n{method}\n\n[execution]\nworkers = 0\n" \
-        f"max_failure_fraction = 1.0\n\n[output]\npath = \"{name}.nc\"\nfigures = false\n"
+STUDY = """\
+name = "{name}"
+solver = "{solver}"
+scene = {scene}
+{inputs}
+[method]
+kind = "taylor-local"
+
+[execution]
+workers = 0
+max_failure_fraction = 1.0
+
+[output]
+path = "{name}.nc"
+figures = false
+"""
+
+
+def _study(tmp_path, scene, inputs, solver="analytic", name="s"):
     path = tmp_path / f"{name}.toml"
-    path.write_text(text)
+    path.write_text(STUDY.format(name=name, solver=solver, scene=scene, inputs=inputs))
     return path
 
 
@@ -224,7 +235,7 @@ def test_the_gamut_bar_has_no_local_derivatives(tmp_path):
     ).nominal()
     name, value = next(iter(nominal.items()))
     path = _study(tmp_path, scene, _normal(name, value, abs(value) * 0.05 or 1.0),
-                  extra="gamut_bar")
+                  solver="gamut_bar")
     with pytest.raises(StudyError, match='has no local sensitivities.*use kind = "taylor"'):
         load_study(path)
 
