@@ -205,15 +205,18 @@ def test_warning_fires_on_a_kink_and_not_on_a_smooth_output(basis):
 
 
 def test_warning_names_the_point_of_a_series():
-    """A time series that is smooth except where one coordinate makes it kink: the warning
-    names that coordinate's value. Here: y(t) = alpha e^(-beta t) with beta a kinked
-    function is not available, so a large C.V. of beta at late times stands in: at t = 10
-    the series is far from polynomial at order 1."""
+    """y(t) = alpha e^(-beta t), beta ~ U(0, 1), at order 1: the late times are far from
+    linear in beta. The warning names the worst point by its coordinate, and its std's
+    share of the output's largest."""
     space = InputSpace([normal("alpha", 1.5, 0.2), uniform("beta", 0.0, 1.0)])
     _, _, stats = study({"model": "exponential_decay"}, space, order=1)
     loo = stats["y_loo_error"]
-    worst = float(loo["t"][int(np.argmax(loo.values))])
-    assert f"t = {worst:.4g}" in stats.attrs["warnings"]
+    at = int(np.argmax(loo.values))
+    assert f"t = {float(loo['t'][at]):.4g}" in stats.attrs["warnings"]
+    variance = stats["y"].sel(statistic="variance").values
+    share = math.sqrt(variance[at] / variance.max())
+    assert share < 1
+    assert f"where its std is {100 * share:.2g} % of its largest" in stats.attrs["warnings"]
 
 
 def test_correlated_linear_model_is_exact():

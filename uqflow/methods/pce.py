@@ -10,6 +10,7 @@ error, and reads mean, variance and Sobol' indices off the coefficients.
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 import chaospy
@@ -280,8 +281,15 @@ def _fit_warnings(out, runs, out_dims, shape, fit, threshold, hint="") -> list[s
         worst = np.unravel_index(int(np.argmax(loo)), shape) if shape else ()
         where = ", ".join(_coordinate_text(runs, dim, i) for dim, i in zip(out_dims, worst))
         count = f" ({int(bad.sum())} of {bad.size} points above {threshold:g})" if shape else ""
+        # How much that point matters: a relative error where the output hardly scatters
+        # misleads less than one at its largest scatter.
+        variance = fit.variance.reshape(shape) if shape else fit.variance.reshape(())
+        share = math.sqrt(float(variance[worst]) / float(np.max(variance))) \
+            if shape and np.max(variance) > 0 else 1.0
+        scatter = f", where its std is {100 * share:.2g} % of its largest" if share < 1 else ""
         warnings.append(
-            f"{out}: LOO error {float(loo[worst]):.2g}{' at ' + where if where else ''}{count} "
+            f"{out}: LOO error {float(loo[worst]):.2g}{' at ' + where if where else ''}"
+            f"{scatter}{count} "
             f"with order {fit.order}: the expansion does not fit; the output is likely not "
             f"smooth in the inputs there (yield onset, unloading, a kink): raise max_order or "
             f"samples, or trust monte-carlo there{hint}")
