@@ -34,6 +34,8 @@ def probe_values(name, S, vx, vy, x, y, conventions="uqflow"):
         return S[:, ST.P]
     if name == "flow_stress":
         return S[:, ST.SY]
+    if name == "flow_stress_total_rate":
+        return S[:, ST.SY_TOTAL_RATE]
     if name in ("S11", "S22", "S12", "S33", "equivalent_stress"):
         d = ST.deviatoric(S)
         if name == "equivalent_stress":

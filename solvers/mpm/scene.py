@@ -36,6 +36,11 @@ PROBE_QUANTITIES = {
     # name: (units, long name)
     "pressure": ("Pa", "EOS pressure p* (compression positive, without q)"),
     "flow_stress": ("Pa", "current flow stress sigma_y"),
+    "flow_stress_total_rate": ("Pa", "Johnson-Cook flow stress at the step's total equivalent "
+                                     "strain rate sqrt(2/3 D':D') (not the return's plastic "
+                                     "rate), the plastic strain after the step and the "
+                                     "temperature the return used: no jump between plastic "
+                                     "and elastic steps"),
     "equivalent_stress": ("Pa", "von Mises stress sqrt(3/2 s:s) incl. s_zz (without s_zz "
                                 "under conventions = \"seed\")"),
     "S11": ("Pa", "deviatoric stress s_xx"),
