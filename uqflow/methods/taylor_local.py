@@ -76,7 +76,7 @@ class TaylorLocal(PropagationMethod):
 
     def check_solver(self, solver, outputs, parameter_names):
         available = solver.local_sensitivities()
-        label = solver.describe()
+        label = _solver_label(solver)
         if not available:
             raise StudyError(f"solver '{label}' has no local sensitivities (it cannot return "
                              f"derivatives of its outputs from one run); {ALTERNATIVE}",
@@ -174,6 +174,14 @@ class TaylorLocal(PropagationMethod):
         stats = finish_statistics(stats, design, runs, self.name, warnings)
         stats.attrs.update(order=opts.order, variance=opts.variance, assumption=FROZEN_STATE)
         return stats
+
+
+def _solver_label(solver) -> str:
+    """The solver's name, with its variant where its description starts with one
+    ("analytic/sobol_g", "gamut_bar/M1"; "mpm" from "mpm: 120x70 cells ...")."""
+    words = solver.describe().split()
+    first = words[0].rstrip(":,;") if words else ""
+    return first if solver.name and first.startswith(solver.name) else solver.name
 
 
 def _curvature_warnings(out, runs, dims, ratio) -> list[str]:
