@@ -15,6 +15,8 @@ import xarray as xr
 from solvers.mpm import step as K
 from solvers.mpm.materials import state as ST
 from solvers.mpm.materials.johnson_cook import CONVENTIONS_PARAMETER, SEED_EPS0_DOT
+from solvers.mpm.probe_sensitivities import OUTPUTS as SENSITIVITY_OUTPUTS, \
+    ProbeSensitivities, sensitivity_parameters
 from solvers.mpm.probes import ProbeRecorder
 from solvers.mpm.report import report as _report
 from solvers.mpm.snapshots import SnapshotWriter
@@ -181,8 +183,46 @@ class MPMSolver(Solver):
         if fields:
             raise SolverError(f"the mpm solver takes no random fields (got "
                               f"{', '.join(map(str, fields))})")
+        return self._execute(params)
+
+    def local_sensitivities(self) -> dict[str, tuple[str, ...]]:
+        """The scene's outputs with local (frozen-state) derivatives — ``pressure``,
+        ``flow_stress``, ``flow_stress_total_rate``, ``S11``, ``S22``, ``S12``, ``S33`` — each
+        with the EOS (S1, S2, S3, γ0, a) and Johnson–Cook (A, B, C, n, m) parameters of every
+        MG–JC steel in the scene (``probe_sensitivities.py``: which of these vanish and why).
+        None when the scene has no such steel."""
+        wrt = sensitivity_parameters(self)
+        if not wrt:
+            return {}
+        return {o: wrt for o in self.cfg.outputs if o in SENSITIVITY_OUTPUTS}
+
+    def run_with_sensitivities(self, params, wrt, outputs) -> xr.Dataset:
+        """``run(params)`` plus ``<o>__gradient`` (time, probe, parameter) and ``<o>__hessian``
+        (time, probe, parameter, parameter_j) for each ``o`` in ``outputs``: derivatives at
+        the realization's parameters with the state of each output time held fixed
+        (probe_sensitivities.py); the recording runs at output times only."""
+        wrt, outputs = [str(w) for w in wrt], [str(o) for o in outputs]
+        available = self.local_sensitivities()
+        for o in outputs:
+            if o not in available:
+                raise SolverError(f"output '{o}' has no local derivative in this scene (with "
+                                  f"derivatives: {', '.join(available) or 'none'}); use "
+                                  f"method 'taylor'")
+            missing = [w for w in wrt if w not in available[o]]
+            if missing:
+                raise SolverError(f"output '{o}' has no local derivative with respect to "
+                                  f"'{missing[0]}' (only {', '.join(available[o])}); use "
+                                  f"method 'taylor'")
+        if len(set(wrt)) != len(wrt):
+            raise SolverError(f"parameters listed twice in wrt: {wrt}")
+        return self._execute(params, wrt, outputs)
+
+    def _execute(self, params, wrt=None, outputs=()):
         prms = self._parameters(dict(params or {}))
         run = _Run(self, prms)
+        if outputs:
+            run.sensitivities = ProbeSensitivities(self, prms, run.recorder.members, wrt,
+                                                   outputs, self.times.size)
         run.snapshots = SnapshotWriter.open(self.cfg, params)   # None without scene.snapshots
         try:
             run.advance()
@@ -192,6 +232,13 @@ class MPMSolver(Solver):
         ds = self._template.copy(deep=True)
         for name, arr in run.recorder.results().items():
             ds[name].values[...] = arr
+        if outputs:
+            ds = ds.assign_coords(parameter=("parameter", wrt), parameter_j=("parameter_j", wrt))
+            sens = run.sensitivities
+            for o in outputs:
+                dims = ds[o].dims
+                ds[o + "__gradient"] = ((*dims, "parameter"), sens.gradient[o])
+                ds[o + "__hessian"] = ((*dims, "parameter", "parameter_j"), sens.hessian[o])
         ds.attrs.update(run.summary())
         if self.extent_info:
             ds.attrs.update({k: v for k, v in self.extent_info.items() if k != "extent"})
@@ -278,6 +325,7 @@ class _Run:
                 self._raise_first("initial state")
         self.recorder = ProbeRecorder(cfg, solver.probe_members, solver.times.size)
         self.snapshots = None     # a snapshots.SnapshotWriter, set by MPMSolver.run
+        self.sensitivities = None  # a ProbeSensitivities, set by run_with_sensitivities
 
     def _impedances(self):
         """{side: (ρ0 c_p, ρ0 c_s)} of each absorbing side: the material of the particle
@@ -360,6 +408,8 @@ class _Run:
         t0 = _time.perf_counter()
         times = self.solver.times
         self.recorder.record(0, self)
+        if self.sensitivities is not None:
+            self.sensitivities.record(0, self)
         if self.snapshots is not None:
             self.snapshots.maybe_write(0, self)
         dt_floor = cfg.dt_min
@@ -405,6 +455,8 @@ class _Run:
                                       f"= {cfg.max_steps} reached before end_time "
                                       f"{cfg.end_time:g} s")
             self.recorder.record(k, self)
+            if self.sensitivities is not None:
+                self.sensitivities.record(k, self)
             if self.snapshots is not None:
                 self.snapshots.maybe_write(k, self)
         self.wall = _time.perf_counter() - t0

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .johnson_cook import SEED_RATE_STAR_FLOOR
 from .state import MG_DEN_MIN
 
 MG_PARAMETERS = ("eos.S1", "eos.S2", "eos.S3", "eos.gamma0", "eos.a")
@@ -93,26 +94,29 @@ def mie_gruneisen_sensitivities(mu, E, rho0, C, S1, S2, S3, gamma0, a):
     return p, grad, hess
 
 
-def _jc_state_factors(eps_p, eps_rate_star, T_star):
-    """Broadcast states; ln εp where εp > 0, ln ε̇* of the clamped rate (0 for ε̇* ≤ 1),
+def _jc_state_factors(eps_p, eps_rate_star, T_star, rate_clamped=True):
+    """Broadcast states; ln εp where εp > 0, ln ε̇* of the clamped rate (0 for ε̇* ≤ 1; with
+    ``rate_clamped`` False, the seed conventions: ln max(ε̇*, SEED_RATE_STAR_FLOOR)),
     ln T* on 0 < T* < 1 (0 elsewhere, where the factor it multiplies is masked, so no NaN reaches a product)."""
     eps_p, rate, T_star = np.broadcast_arrays(np.asarray(eps_p, dtype=float),
                                               np.asarray(eps_rate_star, dtype=float),
                                               np.asarray(T_star, dtype=float))
     hardened = eps_p > 0.0
     log_eps = np.log(np.where(hardened, eps_p, 1.0))
-    log_rate = np.log(np.maximum(rate, 1.0))
+    log_rate = np.log(np.maximum(rate, 1.0 if rate_clamped else SEED_RATE_STAR_FLOOR))
     softened = (T_star > 0.0) & (T_star < 1.0)
     log_T = np.log(np.where(softened, T_star, 1.0))
     melted = T_star >= 1.0
     return eps_p, hardened, log_eps, log_rate, T_star, softened, log_T, melted
 
 
-def johnson_cook_flow_stress_value(A, B, C, n, m, eps_p, eps_rate_star, T_star):
-    """σy(εp, ε̇*, T*), seed eq. (11) with the clamps of ``johnson_cook_flow_stress``, for
-    arrays of states; the parameters may be complex (complex-step differentiation)."""
+def johnson_cook_flow_stress_value(A, B, C, n, m, eps_p, eps_rate_star, T_star,
+                                   rate_clamped=True):
+    """σy(εp, ε̇*, T*), seed eq. (11) with the clamps of ``johnson_cook_flow_stress`` (with
+    ``rate_clamped`` False: of ``johnson_cook_flow_stress_seed``), for arrays of states; the
+    parameters may be complex (complex-step differentiation)."""
     eps_p, hardened, _, log_rate, T_star, softened, _, melted = _jc_state_factors(
-        eps_p, eps_rate_star, T_star)
+        eps_p, eps_rate_star, T_star, rate_clamped)
     power_eps = np.where(hardened, np.power(np.where(hardened, eps_p, 1.0), n), 0.0)
     power_T = np.power(np.where(softened, T_star, 1.0), m)
     hardening = A + B * power_eps
@@ -121,8 +125,9 @@ def johnson_cook_flow_stress_value(A, B, C, n, m, eps_p, eps_rate_star, T_star):
     return hardening * rate_factor * thermal
 
 
-def johnson_cook_sensitivities(A, B, C, n, m, eps_p, eps_rate_star, T_star):
+def johnson_cook_sensitivities(A, B, C, n, m, eps_p, eps_rate_star, T_star, rate_clamped=True):
     """(σy, ∂σy/∂θ, ∂²σy/∂θ²) with θ = (A, B, C, n, m), for arrays of states (εp, ε̇*, T*).
+    ``rate_clamped`` False: the seed conventions' rate factor (no clamp, ε̇* floored).
 
     With h = A + BP, P = εp^n, Lε = ln εp; r = 1 + CΛ, Λ = ln max(ε̇*, 1); t = 1 − Q,
     Q = T*^m, LT = ln T*:
@@ -134,7 +139,7 @@ def johnson_cook_sensitivities(A, B, C, n, m, eps_p, eps_rate_star, T_star):
     so every C-derivative vanishes there.
     """
     eps_p, hardened, log_eps, log_rate, T_star, softened, log_T, melted = _jc_state_factors(
-        eps_p, eps_rate_star, T_star)
+        eps_p, eps_rate_star, T_star, rate_clamped)
     P = np.where(hardened, np.power(np.where(hardened, eps_p, 1.0), n), 0.0)
     Q = np.where(softened, np.power(np.where(softened, T_star, 1.0), m), 0.0)
     h = A + B * P
@@ -172,3 +177,70 @@ def johnson_cook_sensitivities(A, B, C, n, m, eps_p, eps_rate_star, T_star):
         hess[..., i, j] = value
         hess[..., j, i] = value
     return sigma, grad, hess
+
+
+def johnson_cook_return_sensitivities(A, B, C, n, m, G, eps_p, delta_eps_p, eps_rate_star,
+                                      T_star, rate_fixed=False):
+    """(∂σ̄/∂θ, ∂²σ̄/∂θ²), θ = (A, B, C, n, m), of the flow stress σ̄ a radial return reaches
+    from a FIXED trial deviator (the seed's frozen state of the step), for arrays of returns.
+
+    State after the return: εp = εp_n + Δεp (``eps_p``, ``delta_eps_p`` > 0: plastic; 0:
+    elastic, all derivatives 0), the ε̇* and T* it used. The return solves
+    3GΔ + F(Δ, θ) = σeq* with F(Δ, θ) = h(εp_n + Δ)·r·t, h = A + Bεp^n, t = 1 − T*^m and
+    r = 1 + C ln(Δ/(Δt ε̇0)) above the clamp (rate-dependent, uqflow), 1 below it, or
+    r = 1 + C ln ε̇* fixed over the step (``rate_fixed``, seed conventions). With σ̄ = σeq* − 3GΔ
+    and K = 3G + H, H = F_Δ (the consistent tangent of OUR return):
+
+        Δ_θ = −F_θ/K,   ∂σ̄/∂θ = 3G F_θ/K,
+        Δ_θφ = −(F_θφ + F_Δθ Δ_φ + F_Δφ Δ_θ + F_ΔΔ Δ_θ Δ_φ)/K,   ∂²σ̄/∂θ∂φ = −3G Δ_θφ.
+
+    Each deviator component follows as s_ij = (s*_ij/σeq*) σ̄ (the scaling is fixed by the
+    trial), so its derivatives are s_ij/σ̄ times these (seed eq. 29–30, corrected: per
+    component, and with the tangent K). F_θ, F_θφ are ``johnson_cook_sensitivities`` at the
+    state the return used; the Δ-derivatives, with ε = εp, P = ε^n, Lε = ln ε, Λ = ln ε̇*,
+    ρ = r_Δ = C/Δ above the clamp (0 when clamped or fixed):
+      F_Δ  = t(Bnε^(n−1) r + hρ),  F_ΔΔ = t(Bn(n−1)ε^(n−2) r + 2Bnε^(n−1)ρ − hρ/Δ),
+      F_ΔA = tρ,  F_ΔB = t(nε^(n−1) r + Pρ),  F_ΔC = t(Bnε^(n−1)Λ + h ρ/C) [ρ/C = 1/Δ],
+      F_Δn = t(Bε^(n−1)(1 + nLε) r + BPLε ρ),  F_Δm = −T*^m ln T*·(Bnε^(n−1) r + hρ).
+    """
+    eps_p, dep, rate, T_star = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (
+        eps_p, delta_eps_p, eps_rate_star, T_star)))
+    shape = eps_p.shape
+    grad = np.zeros(shape + (5,))
+    hess = np.zeros(shape + (5, 5))
+    plastic = dep > 0.0
+    if not np.any(plastic):
+        return grad, hess
+    A, B, C, n, m, G = (np.broadcast_to(np.asarray(v, dtype=float), shape)[plastic]
+                        for v in (A, B, C, n, m, G))
+    ep, dep, rate, T_star = eps_p[plastic], dep[plastic], rate[plastic], T_star[plastic]
+    _, F_t, F_tt = johnson_cook_sensitivities(A, B, C, n, m, ep, rate, T_star,
+                                              rate_clamped=not rate_fixed)
+    _, _, log_eps, log_rate, _, softened, log_T, melted = _jc_state_factors(
+        ep, rate, T_star, rate_clamped=not rate_fixed)
+    Q = np.where(softened, np.power(np.where(softened, T_star, 1.0), m), 0.0)
+    t = np.where(melted, 0.0, 1.0 - Q)
+    P = np.power(ep, n)                        # ep ≥ Δεp > 0
+    P1 = P / ep                                # ε^(n−1)
+    h = A + B * P
+    r = 1.0 + C * log_rate
+    rate_dependent = (rate > 1.0) if not rate_fixed else np.zeros(ep.shape, dtype=bool)
+    inv_dep = np.where(rate_dependent, 1.0 / dep, 0.0)          # r_ΔC = 1/Δ above the clamp
+    rho = C * inv_dep                                           # r_Δ
+    H = t * (B * n * P1 * r + h * rho)
+    F_dd = t * (B * n * (n - 1.0) * P1 / ep * r + 2.0 * B * n * P1 * rho - h * rho * inv_dep)
+    F_dt = np.stack([t * rho,
+                     t * (n * P1 * r + P * rho),
+                     t * (B * n * P1 * log_rate + h * inv_dep),
+                     t * (B * P1 * (1.0 + n * log_eps) * r + B * P * log_eps * rho),
+                     -Q * log_T * (B * n * P1 * r + h * rho)], axis=-1)
+    g3 = 3.0 * G
+    K = g3 + H
+    d_t = -F_t / K[:, None]                                     # Δ_θ
+    cross = F_dt[:, :, None] * d_t[:, None, :]
+    cross = cross + np.swapaxes(cross, 1, 2)                    # a + b = b + a: symmetric
+    d_tt = -(F_tt + cross + F_dd[:, None, None] * (d_t[:, :, None] * d_t[:, None, :])) \
+        / K[:, None, None]
+    grad[plastic] = -g3[:, None] * d_t
+    hess[plastic] = -g3[:, None, None] * d_tt
+    return grad, hess

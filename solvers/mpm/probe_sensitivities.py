@@ -1,0 +1,119 @@
+"""Local (frozen-state) parameter derivatives of the probe series: the seed's one-run Taylor
+method (000, eq. 22–35) on our kernels (docs/mpm_materials.md § 10).
+
+At each output time, for each probe member particle of a Mie–Grüneisen/Johnson–Cook steel,
+from the state its last step recorded (state.py: ρ, E; εp, Δεp = EPS_P_RATE·DT, RATE_STAR,
+T_RETURN, EQ_STRAIN_RATE; the deviator and SY):
+
+* ``pressure``: ∂p*/∂(S1, S2, S3, γ0, a) at (μ, E), both branches of eq. 10;
+* ``flow_stress``: ∂σy/∂(A, B, C, n, m) at (εp, the ε̇* the return used, T* of T_RETURN);
+* ``flow_stress_total_rate``: the same at ε̇* of the step's total strain rate;
+* ``S11``, ``S22``, ``S12``, ``S33``: the deviator through the consistent tangent of the return
+  from the step's fixed trial (``johnson_cook_return_sensitivities``), 0 in elastic steps.
+
+First and second derivatives; a probe's are Σ w · (its members' particle derivatives), as its
+value is. A particle has derivatives only with respect to its own material's parameters: a
+probe member in the water (or any material that is not the MG–JC steel) contributes exactly
+0, as does every (output, parameter) pair without a local dependence (pressure wrt the JC
+constants, the stresses wrt the EOS ones). History quantities (plastic strain, velocities,
+energies, density, temperature) have no local derivative: they are sums over the steps, which
+the frozen state does not differentiate.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from solvers.mpm.materials import johnson_cook as JC, state as ST
+from solvers.mpm.materials.sensitivities import (JC_PARAMETERS, MG_PARAMETERS,
+                                                 johnson_cook_return_sensitivities,
+                                                 johnson_cook_sensitivities,
+                                                 mie_gruneisen_sensitivities)
+
+LOCAL_PARAMETERS = MG_PARAMETERS + JC_PARAMETERS          # a steel particle's 10 derivatives
+DEVIATOR_COLUMN = {"S11": 0, "S22": 1, "S12": 2, "S33": 3}   # of state.deviatoric
+OUTPUTS = ("pressure", "flow_stress", "flow_stress_total_rate", *DEVIATOR_COLUMN)
+
+
+def steel_labels(solver):
+    """Labels of the scene's materials with the MG–JC steel model, in the solver's order."""
+    return [lab for lab in solver.labels if solver.cfg.materials[lab].module is JC]
+
+
+def sensitivity_parameters(solver):
+    """``<label>.<parameter>`` of every parameter with a local derivative, per steel label."""
+    return tuple(f"{lab}.{p}" for lab in steel_labels(solver) for p in LOCAL_PARAMETERS)
+
+
+def particle_derivatives(output, rows, prm):
+    """(gradient (N, 10), Hessian (N, 10, 10)) of ``output`` for state rows of one steel
+    material with packed parameters ``prm``, in LOCAL_PARAMETERS order."""
+    n_rows = rows.shape[0]
+    grad = np.zeros((n_rows, 10))
+    hess = np.zeros((n_rows, 10, 10))
+    A, B, C, n, m = prm[[JC.I_JA, JC.I_JB, JC.I_JC, JC.I_JN, JC.I_JM]]
+    seed = prm[JC.I_SEED] != 0.0
+    T_star = (rows[:, ST.T_RETURN] - prm[JC.I_TROOM]) / (prm[JC.I_TMELT] - prm[JC.I_TROOM])
+    if output == "pressure":
+        rho0 = prm[JC.I_RHO0]
+        _, g, h = mie_gruneisen_sensitivities(rows[:, ST.RHO] / rho0 - 1.0, rows[:, ST.E], rho0,
+                                              *prm[[JC.I_C, JC.I_S1, JC.I_S2, JC.I_S3,
+                                                    JC.I_G0, JC.I_A]])
+        grad[:, :5], hess[:, :5, :5] = g, h
+    elif output in ("flow_stress", "flow_stress_total_rate"):
+        rate = (rows[:, ST.RATE_STAR] if output == "flow_stress"
+                else rows[:, ST.EQ_STRAIN_RATE] / prm[JC.I_EPS0])
+        _, g, h = johnson_cook_sensitivities(A, B, C, n, m, rows[:, ST.EPS_P], rate, T_star,
+                                             rate_clamped=not seed)
+        grad[:, 5:], hess[:, 5:, 5:] = g, h
+    else:
+        g, h = johnson_cook_return_sensitivities(
+            A, B, C, n, m, prm[JC.I_G], rows[:, ST.EPS_P], rows[:, ST.EPS_P_RATE] * rows[:, ST.DT],
+            rows[:, ST.RATE_STAR], T_star, rate_fixed=seed)
+        s = ST.deviatoric(rows)[:, DEVIATOR_COLUMN[output]]
+        sy = rows[:, ST.SY]
+        ratio = np.divide(s, sy, out=np.zeros_like(s), where=sy != 0.0)   # s*_ij/σeq*
+        grad[:, 5:], hess[:, 5:, 5:] = ratio[:, None] * g, ratio[:, None, None] * h
+    return grad, hess
+
+
+class ProbeSensitivities:
+    """Gradient and Hessian series of ``outputs`` wrt ``wrt`` at every probe, recorded at the
+    output times from the state the time loop left (``record``, beside ProbeRecorder.record)."""
+
+    def __init__(self, solver, prms, members, wrt, outputs, n_times):
+        self.outputs = tuple(outputs)
+        self.prms = prms
+        position = {name: k for k, name in enumerate(wrt)}
+        n_probes, n_wrt = len(members), len(wrt)
+        # per steel material: its members' (probe, particle, weight) and where its 10 local
+        # parameters land in ``wrt`` (−1: not asked for)
+        self.groups = []
+        material = solver.parts.material
+        for lab in steel_labels(solver):
+            k = solver.labels.index(lab)
+            probe, index, weight = [], [], []
+            for j, (idx, w) in enumerate(members):
+                mine = material[idx] == k
+                probe += [j] * int(mine.sum())
+                index += list(idx[mine])
+                weight += list(w[mine])
+            slots = np.array([position.get(f"{lab}.{p}", -1) for p in LOCAL_PARAMETERS])
+            if index and np.any(slots >= 0):
+                self.groups.append((k, np.array(probe), np.array(index, dtype=np.int64),
+                                    np.array(weight), slots))
+        self.gradient = {o: np.zeros((n_times, n_probes, n_wrt)) for o in self.outputs}
+        self.hessian = {o: np.zeros((n_times, n_probes, n_wrt, n_wrt)) for o in self.outputs}
+
+    def record(self, k, run):
+        for material, probe, index, weight, slots in self.groups:
+            keep = np.flatnonzero(slots >= 0)
+            cols = slots[keep]
+            rows = run.S[index]
+            for o in self.outputs:
+                g, h = particle_derivatives(o, rows, self.prms[material])
+                np.add.at(self.gradient[o][k], (probe[:, None], cols[None, :]),
+                          weight[:, None] * g[:, keep])
+                np.add.at(self.hessian[o][k], (probe[:, None, None], cols[None, :, None],
+                                               cols[None, None, :]),
+                          weight[:, None, None] * h[:, keep][:, :, keep])
