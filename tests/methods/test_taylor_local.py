@@ -324,3 +324,11 @@ def test_model_derivatives_match_central_differences(scene, point):
         np.testing.assert_allclose(hessian[..., k, :], (plus[1] - minus[1]) / (2 * h),
                                    rtol=0, atol=2e-9)
     np.testing.assert_array_equal(hessian, np.swapaxes(hessian, -1, -2))
+
+
+def test_which_analytic_models_have_local_derivatives():
+    """docs/study-files.md: every analytic model but sobol_g and random_E_bar."""
+    from solvers.analytic import MODELS
+    having = {name for name in MODELS
+              if AnalyticSolver.from_scene({"model": name}).local_sensitivities()}
+    assert having == set(MODELS) - {"sobol_g", "random_E_bar"}
