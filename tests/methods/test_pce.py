@@ -310,3 +310,29 @@ def test_summary_table_shows_order_terms_and_loo_error():
     text = summary_table(tree)
     loo = float(stats["y_loo_error"])
     assert f"order 3, 4 terms, LOO error {loo:.2g}" in text
+
+
+def test_docs_state_the_code_constants():
+    """docs/pce.md states the method's constants and default counts: they are the code's."""
+    import re
+    from pathlib import Path
+
+    from uqflow.methods import pce, pce_fit
+    text = (Path(__file__).resolve().parents[2] / "docs" / "pce.md").read_text()
+    stated = {
+        "OVERSAMPLING": r"`OVERSAMPLING = (\d+)`", "OMP_PATIENCE": r"10 steps after the best "
+        r"LOO error\s+\(`OMP_PATIENCE`\)", "ROUND_OFF_LOO": r"`ROUND_OFF_LOO = ([0-9e.-]+)`",
+        "MAX_BASIS_TERMS": r"`MAX_BASIS_TERMS = (\d+)`",
+    }
+    assert float(re.search(stated["OVERSAMPLING"], text).group(1)) == pce_fit.OVERSAMPLING
+    assert re.search(stated["OMP_PATIENCE"], text) and pce_fit.OMP_PATIENCE == 10
+    assert float(re.search(stated["ROUND_OFF_LOO"], text).group(1)) == pce_fit.ROUND_OFF_LOO
+    assert int(re.search(stated["MAX_BASIS_TERMS"], text).group(1)) == pce.MAX_BASIS_TERMS
+    assert "5,000 terms (`MAX_BASIS_TERMS`" in (
+        Path(__file__).resolve().parents[2] / "docs" / "study-files.md").read_text()
+    # The default design sizes the page quotes: 3 inputs at max_order 5, 10 at order 3.
+    assert "# samples = 112 " in text and get_method("pce")()._samples(3) == 112
+    assert "d = 10 inputs at order 3 is 286 terms (572 runs by default)" in " ".join(
+        text.split())
+    assert get_method("pce")(order=3)._samples(10) == 572
+    assert "the linear basis needs (2(d + 1))" in " ".join(text.split())

@@ -158,15 +158,11 @@ def orthogonal_matching_pursuit(psi: np.ndarray, y: np.ndarray) -> Fit:
     return best
 
 
-def fit_order(z: np.ndarray, y: np.ndarray, order: int, regression: str,
-              marginals: list) -> Fit | None:
-    """The fit of total degree ``order`` in the polynomials orthonormal under ``marginals``:
-    least squares if the runs are at least OVERSAMPLING times the basis size (or
-    ``regression`` is "least-squares"), else OMP (None when least squares is demanded and
-    the runs are too few)."""
-    indices = multi_indices(order, z.shape[1])
-    psi = product_matrix(z, indices, marginals)
-    enough = z.shape[0] >= OVERSAMPLING * indices.shape[0]
+def fit_order(psi: np.ndarray, y: np.ndarray, regression: str) -> Fit | None:
+    """The fit on the basis columns ``psi`` (n, P): least squares if the runs are at least
+    OVERSAMPLING times the basis size (or ``regression`` is "least-squares"), else OMP (None
+    when least squares is demanded and the runs are too few)."""
+    enough = psi.shape[0] >= OVERSAMPLING * psi.shape[1]
     if regression == "omp" or (regression == "auto" and not enough):
         return orthogonal_matching_pursuit(psi, y)
     if not enough:
@@ -215,9 +211,14 @@ def select_expansion(z: np.ndarray, y: np.ndarray, orders: list[int], regression
     the lowest order among those at round-off (ROUND_OFF_LOO). None if none could be fitted."""
     top = max(orders)
     loo_by_order = np.full(top, np.nan)
+    # One evaluation of the highest order's basis serves every order: the order-p basis is
+    # its columns of total degree <= p (the constant term stays first).
+    every = multi_indices(top, z.shape[1])
+    psi = product_matrix(z, every, marginals)
+    degree = every.sum(axis=1)
     fits = {}
     for order in orders:
-        fit = fit_order(z, y, order, regression, marginals)
+        fit = fit_order(psi[:, degree <= order], y, regression)
         if fit is not None:
             fits[order] = fit
             loo_by_order[order - 1] = fit.aggregate_loo
@@ -226,7 +227,7 @@ def select_expansion(z: np.ndarray, y: np.ndarray, orders: list[int], regression
     least = max(min(f.aggregate_loo for f in fits.values()), ROUND_OFF_LOO)
     order = min(o for o, f in fits.items() if f.aggregate_loo <= least)
     fit = fits[order]
-    indices = multi_indices(order, z.shape[1])
+    indices = every[degree <= order]
     # Keep the constant term first: the mean and variance read it by position.
     sort = np.argsort(fit.active, kind="stable")
     sparse = len(fit.active) < indices.shape[0]
