@@ -321,6 +321,7 @@ def test_model_derivatives_match_central_differences(scene, point):
         # rounding eps |f| / h (|f| < 10): below 1e-9 + 2e-10
         np.testing.assert_allclose(gradient[..., k], (plus[0] - minus[0]) / (2 * h),
                                    rtol=0, atol=2e-9)
+        # the same bound one derivative up: h^2 |f''''| / 6 + eps |f'| / h < 2e-9
         np.testing.assert_allclose(hessian[..., k, :], (plus[1] - minus[1]) / (2 * h),
                                    rtol=0, atol=2e-9)
     np.testing.assert_array_equal(hessian, np.swapaxes(hessian, -1, -2))
