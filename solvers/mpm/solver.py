@@ -190,7 +190,7 @@ class MPMSolver(Solver):
         ``flow_stress``, ``flow_stress_total_rate``, ``S11``, ``S22``, ``S12``, ``S33`` — each
         with the EOS (S1, S2, S3, γ0, a) and Johnson–Cook (A, B, C, n, m) parameters of every
         MG–JC steel in the scene (``probe_sensitivities.py``: which of these vanish and why).
-        None when the scene has no such steel."""
+        Empty when the scene has no such steel."""
         wrt = sensitivity_parameters(self)
         if not wrt:
             return {}

@@ -150,3 +150,14 @@ def test_seed_conventions_parameter_rules():
     sc["materials"]["steel"]["seed_conventions"] = 1.0
     with pytest.raises(SceneError, match="materials.steel.seed_conventions"):
         MPMSolver.from_scene(sc)
+
+
+def test_documented_seed_constants():
+    """The numbers of docs/mpm_materials.md § 3a: ε̇0 = 1e6 /s, the floor 1e-9 (1e-3 /s at
+    ε̇0), the negative-factor threshold e^(−1/C) ≈ 1e-31 at C = 0.014, the factor's lower bound
+    1 − 20.7 C and the largest C, 0.048 (both printed to 3 and 2 digits)."""
+    assert jc.SEED_EPS0_DOT == 1e6 and jc.SEED_RATE_STAR_FLOOR == 1e-9
+    assert jc.SEED_RATE_STAR_FLOOR * jc.SEED_EPS0_DOT == pytest.approx(1e-3, rel=4 * EPS)
+    assert round(np.log10(np.exp(-1 / 0.014))) == -31
+    assert -np.log(jc.SEED_RATE_STAR_FLOOR) == pytest.approx(20.7, abs=0.05)
+    assert -1 / np.log(jc.SEED_RATE_STAR_FLOOR) == pytest.approx(0.048, abs=0.0005)
