@@ -333,3 +333,28 @@ def test_which_analytic_models_have_local_derivatives():
     having = {name for name in MODELS
               if AnalyticSolver.from_scene({"model": name}).local_sensitivities()}
     assert having == set(MODELS) - {"sobol_g", "random_E_bar"}
+
+
+def _thin_plate_study(tmp_path, outputs):
+    """The shipped JC thin-plate study (5 JC inputs, the small MPM scene) with taylor-local."""
+    from pathlib import Path
+    studies = Path(__file__).resolve().parents[2] / "studies"
+    text = (studies / "smpm_jc_thin_plate.toml").read_text()
+    head, _ = text.split("[method]", 1)
+    head = head.replace('scene = "scenes/', f'scene = "{studies}/scenes/')
+    head = "\n".join(f"outputs = {outputs}" if line.startswith("outputs =") else line
+                     for line in head.splitlines())
+    path = tmp_path / "thin.toml"
+    path.write_text(head + '\n[method]\nkind = "taylor-local"\n\n[execution]\nworkers = 0\n'
+                    '\n[output]\npath = "thin.nc"\n')
+    return path
+
+
+def test_the_mpm_outputs_with_and_without_local_derivatives(tmp_path):
+    study = load_study(_thin_plate_study(tmp_path, '["flow_stress", "S11", "S22"]'))
+    assert study.method.name == "taylor-local" and len(study.space.names) == 5
+    with pytest.raises(StudyError) as info:
+        load_study(_thin_plate_study(tmp_path, '["flow_stress", "plastic_strain"]'))
+    assert info.value.key == "outputs"
+    assert "output 'plastic_strain' has no local derivative in solver 'mpm'" in str(info.value)
+    assert 'use kind = "taylor"' in str(info.value)
