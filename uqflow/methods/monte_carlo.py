@@ -12,17 +12,27 @@ The standard error of the mean depends on the rule (see docs/inputs.md, "Error o
   formula would overstate their error by orders of magnitude.
 
 Variance, std and quantiles of the output are the pooled sample estimates for every rule.
+
+With ``control`` (``"taylor-local"`` or ``"taylor"``) a few control realizations open the
+design and give a quadratic surrogate whose mean is known; mean, variance and their errors are
+then the control-variate estimates of ``uqflow/methods/control_variate.py`` (quantiles stay
+the plain sample ones). See docs/control_variates.md.
 """
 
 from __future__ import annotations
 
 from typing import Literal
 
+import warnings as pywarnings
+
 import numpy as np
 import xarray as xr
 from pydantic import Field, ValidationInfo, field_validator, model_validator
 from scipy import stats as sps
 
+from uqflow.errors import AccuracyWarning
+
+from uqflow.methods import control_variate as cv
 from uqflow.methods.base import (MethodOptions, PropagationMethod, failure_warning,
                                  finish_statistics, make_design, ok_mask, output_names,
                                  register_method)
@@ -63,6 +73,12 @@ class MonteCarloOptions(SampleStatisticsOptions):
     replicates: int = Field(8, ge=2, le=4096, description="independent scramblings of a "
                             "quasi-random rule (sobol, halton); their spread is the error")
     samples: int = Field(1000, ge=1, description="number of realizations (the most run)")
+    control: Literal["none", "taylor-local", "taylor"] = Field(
+        "none", description="control variate: the second-order Taylor surrogate from the "
+                            "solver's local derivatives (1 extra run) or from central "
+                            "differences (2n+1 extra runs)")
+    control_step: float = Field(0.1, gt=0, description="control = \"taylor\": the stencil "
+                                                        "step as a fraction of each input's std")
 
     @field_validator("samples")
     @classmethod
@@ -93,12 +109,32 @@ class MonteCarloOptions(SampleStatisticsOptions):
                              f"'{self.rule}' has independent points (drop the key)")
         return self
 
+    @model_validator(mode="after")
+    def _control_step_only_for_taylor(self):
+        if "control_step" in self.model_fields_set and self.control != "taylor":
+            raise ValueError(f"'control_step' applies to control = \"taylor\" only, not "
+                             f"\"{self.control}\" (drop the key)")
+        return self
+
 
 @register_method("monte-carlo")
 class MonteCarlo(PropagationMethod):
     """Monte Carlo sampling (random, LHS, scrambled Sobol or Halton) with error estimates."""
 
     Options = MonteCarloOptions
+
+    @property
+    def control(self) -> str:
+        """The control variate ("none" also for subclasses whose options have no control)."""
+        return getattr(self.options, "control", "none")
+
+    def check(self, space, fields):
+        super().check(space, fields)
+        if self.control != "none":
+            cv.check_inputs(space)
+
+    def check_solver(self, solver, outputs, parameter_names):
+        cv.check_solver(self.control, solver, outputs, parameter_names)
 
     def plan(self, space, fields, seed):
         self.check(space, fields)
@@ -112,6 +148,9 @@ class MonteCarlo(PropagationMethod):
         design.attrs["rule"] = rule
         if rule in QUASI_RANDOM_RULES:
             design.attrs["replicates"] = self.options.replicates
+        if self.control != "none":
+            design = cv.with_control(self.control, self.options.control_step, space,
+                                     design)
         return design
 
     def _replicates(self, design) -> int | None:
@@ -123,34 +162,47 @@ class MonteCarlo(PropagationMethod):
     def stop_points(self, n_planned):
         if self.options.target_rel_stderr is None:
             return np.zeros(0, dtype=np.int64)
+        # The control realizations open the design; the counts are over the samples after
+        # them, so a study stops at the same samples with and without a control.
+        control = max(n_planned - self.options.samples, 0) if self.control != "none" else 0
+        n_samples = n_planned - control
         if self.options.rule in QUASI_RANDOM_RULES:
             # Only whole balanced prefixes of every replicate: R 2^k realizations.
             r = self.options.replicates
-            counts = r * 2 ** np.arange(int(np.log2(max(n_planned // r, 1))) + 1)
-            counts = counts[(counts >= self.options.min_samples) & (counts <= n_planned)]
-            return counts.astype(np.int64)
+            counts = r * 2 ** np.arange(int(np.log2(max(n_samples // r, 1))) + 1)
+            counts = counts[(counts >= self.options.min_samples) & (counts <= n_samples)]
+            return counts.astype(np.int64) + control
         # Checks about 9 % apart: the overshoot past the first sufficient count stays below
         # that, and the number of checks grows only with log(n).
-        first = min(self.options.min_samples, n_planned)
-        k_max = int(np.ceil(8 * np.log2(max(n_planned / first, 1.0))))
+        first = min(self.options.min_samples, n_samples)
+        k_max = int(np.ceil(8 * np.log2(max(n_samples / max(first, 1), 1.0))))
         counts = np.ceil(first * 2.0 ** (np.arange(k_max + 1) / 8)).astype(np.int64)
-        return np.unique(np.minimum(counts, n_planned))
+        return np.unique(np.minimum(counts, n_samples)) + control
 
     def enough(self, design, runs):
         target = self.options.target_rel_stderr
         if target is None:
             return False
         r = self._replicates(design)
+        _, samples = cv.sample_part(design, runs)
+        count = samples.sizes["realization"]
         if r is not None:
             # Judge the longest prefix of whole replicate prefixes with nothing pending.
-            pending = np.flatnonzero(runs["status"].values == "pending")
-            finished = int(pending[0]) if pending.size else runs.sizes["realization"]
-            runs = runs.isel(realization=slice(0, finished // r * r))
-        ok = ok_mask(runs)
+            pending = np.flatnonzero(samples["status"].values == "pending")
+            finished = int(pending[0]) if pending.size else count
+            count = finished // r * r
+        ok = ok_mask(samples)[:count]
         if ok.sum() < self.options.min_samples:
             return False
+        surrogates = self._surrogates(design, runs, quiet=True)
         for out in output_names(runs):
-            mean, stderr, _, _ = _mean_error(runs[out].values, ok, r)
+            if surrogates:
+                est = cv.sample_estimates(surrogates[out], design, runs, out,
+                                          r or cv.CROSS_FIT_FOLDS, r is not None, count)
+                shape = runs[out].shape[1:]
+                mean, stderr = est.mean.reshape(shape), est.stderr.reshape(shape)
+            else:
+                mean, stderr, _, _ = _mean_error(samples[out].values[:count], ok, r)
             # A field output is judged against its largest |mean|: elements crossing zero
             # would otherwise never reach any relative target.
             scale = np.maximum(np.abs(mean), np.max(np.abs(mean)))
@@ -160,52 +212,92 @@ class MonteCarlo(PropagationMethod):
                 return False
         return True
 
+    def _surrogates(self, design, runs, quiet=False, warnings=None):
+        """The control's surrogates, or None (no control, or it failed: then plain MC)."""
+        if not cv.control_count(design):
+            return None
+        try:
+            return cv.build_surrogates(design, runs)
+        except cv.ControlFailed as err:
+            if not quiet:
+                msg = (f"control \"{design.attrs['control']}\" gave no surrogate ({err}): the "
+                       f"statistics are plain Monte Carlo over the samples")
+                warnings.append(msg)
+                pywarnings.warn(msg, AccuracyWarning, stacklevel=3)
+            return None
+
     def analyze(self, design, runs):
-        ok = ok_mask(runs)
-        n = int(ok.sum())
         opts = self.options
         rule = design.attrs.get("rule", opts.rule)
         r = self._replicates(design)
+        warnings = failure_warning(runs)
+        surrogates = self._surrogates(design, runs, warnings=warnings)
+        _, samples = cv.sample_part(design, runs)
+        ok = ok_mask(samples)
+        n = int(ok.sum())
         q_labels = [f"q{100 * q:g}" for q in opts.quantiles]
         labels = ["mean", "variance", "std", "stderr", "ci_low", "ci_high", *q_labels]
         data, dof = {}, n - 1
         for out in output_names(runs):
-            y = runs[out].values[ok]
+            y = samples[out].values[ok]
             dims = runs[out].dims[1:]
             if n == 0:
                 block = np.full((len(labels),) + runs[out].shape[1:], np.nan)
             else:
-                mean, stderr, dof, replicate_means = _mean_error(runs[out].values, ok, r)
-                t = sps.t.ppf(0.5 + opts.confidence / 2, dof) if dof > 0 else np.nan
+                plain = _mean_error(samples[out].values, ok, r)
+                mean, stderr, dof, replicate_means = plain
                 _, var = _mean_var(y)
+                if surrogates:
+                    plain_var = var
+                    est = cv.sample_estimates(surrogates[out], design, runs, out,
+                                              r or cv.CROSS_FIT_FOLDS, r is not None)
+                    shape = runs[out].shape[1:]
+                    mean, stderr, var = (a.reshape(shape)
+                                         for a in (est.mean, est.stderr, est.variance))
+                    dof = est.dof
+                    replicate_means = est.fold_means.reshape((-1, *shape))
+                    data.update(cv.control_variables(out, runs, dims, est, n, shape,
+                                                   (plain[0], plain_var, plain[1]),
+                                                   surrogates[out]))
+                t = sps.t.ppf(0.5 + opts.confidence / 2, dof) if dof > 0 else np.nan
                 quant = np.quantile(y, opts.quantiles, axis=0)
-                block = np.stack([mean, var, np.sqrt(var), stderr, mean - t * stderr,
-                                  mean + t * stderr, *quant])
+                block = np.stack([mean, var, np.sqrt(np.maximum(var, 0.0)), stderr,
+                                  mean - t * stderr, mean + t * stderr, *quant])
                 if r is not None:
+                    what = ("control-variate estimate of the mean of {out} from each scrambled "
+                            "replicate (its slope from the other replicates)" if surrogates
+                            else "mean of {out} over each scrambled replicate")
                     data[f"{out}_replicate_means"] = (
                         ("replicate", *dims), replicate_means,
-                        {"long_name": f"mean of {out} over each scrambled replicate (NaN: "
-                                      f"no successful realization in it)"})
+                        {"long_name": what.format(out=out) + " (NaN: no successful "
+                                                             "realization in it)"})
             data[out] = (("statistic", *dims), block)
-            if r is None:
+            if surrogates:
+                data[f"{out}_trace"], counts = cv.control_trace(
+                    surrogates[out], design, runs, out, dims, r, opts.trace_points)
+            elif r is None:
                 data[f"{out}_trace"], counts = self._trace(y, dims)
             else:
-                data[f"{out}_trace"], counts = _rqmc_trace(runs[out].values, ok, r, dims)
+                data[f"{out}_trace"], counts = _rqmc_trace(samples[out].values, ok, r, dims)
         coords = {"statistic": labels, "trace_statistic": ["mean", "std", "stderr"]}
         if data:
             coords["trace_samples"] = counts
+        if surrogates:
+            coords.update(plain_statistic=["mean", "variance", "stderr"],
+                          surrogate_statistic=["mean", "variance"])
         stats = xr.Dataset(data, coords=coords)
         stats = stats.assign_coords({d: runs[d] for d in runs.coords
                                      if d not in ("realization",) and d in stats.dims})
-        warnings = failure_warning(runs)
         if n < 2:
             warnings.append(f"only {n} realization(s) succeeded: no variance can be estimated")
         stats = finish_statistics(stats, design, runs, self.name, warnings)
         stats.attrs.update(rule=rule, samples_ok=n, confidence=opts.confidence,
                            stderr_kind=STDERR_KINDS[rule], degrees_of_freedom=int(max(dof, 0)),
-                           stderr_note=_stderr_note(rule, r, dof))
+                           stderr_note=_stderr_note(rule, r, dof, surrogates is not None))
         if r is not None:
             stats.attrs["replicates"] = r
+        if cv.control_count(design):
+            stats.attrs.update(cv.control_attrs(design, samples, surrogates is not None))
         return stats
 
     def _trace(self, y, dims):
@@ -236,8 +328,16 @@ class MonteCarlo(PropagationMethod):
                 {"long_name": "running estimates against sample count"}), counts
 
 
-def _stderr_note(rule: str, replicates: int | None, dof: int) -> str:
+def _stderr_note(rule: str, replicates: int | None, dof: int, control: bool = False) -> str:
     """One line saying which error estimate the standard error and the interval use."""
+    if control:
+        if replicates is not None:
+            return (f"control variate, randomized QMC: spread of the control-variate means of "
+                    f"{replicates} independently scrambled {rule} replicates, Student t with "
+                    f"{dof} degrees of freedom")
+        return (f"control variate: sqrt((1 - rho^2) s^2 / n), Student t with {dof} degrees "
+                f"of freedom" + (" (conservative for Latin hypercube)" if rule == "lhs"
+                                 else ""))
     if replicates is not None:
         return (f"randomized QMC: spread of the means of {replicates} independently scrambled "
                 f"{rule} replicates, Student t with {dof} degrees of freedom")
