@@ -61,10 +61,11 @@ def test_return_temperature_is_the_temperature_before_heating():
 def test_rate_star_is_the_clamped_plastic_rate():
     prm, S = fresh()
     # elastic step: ε̇* = 1 (the clamp); the total strain rate is still recorded
-    L = (1e3, 0.0, 0.0, -1e3)
+    # uniaxial strain rate: D′ = (2/3, −1/3, 0, −1/3)·ε̇, the plane-strain D′_zz counts
+    L = (1e3, 0.0, 0.0, 0.0)
     assert jc.update(prm, S, 0, *L, 1e-9, 0.0, 0.0, 0.0) == st.OK
     assert S[0, st.EPS_P] == 0.0 and S[0, st.RATE_STAR] == 1.0
-    D = np.array([1e3, -1e3, 0.0, 0.0])               # D′ (xx, yy, xy, zz), tr D = 0
+    D = np.array([2 / 3, -1 / 3, 0.0, -1 / 3]) * 1e3
     assert S[0, st.EQ_STRAIN_RATE] == pytest.approx(math.sqrt(2 / 3 * D @ D), rel=4 * EPS)
     # plastic steps: ε̇* = Δεp/(Δt ε̇0) when above 1 (fast), 1 when below (ε̇0 = 1e9 /s)
     for eps0, above in ((1.0, True), (1e9, False)):

@@ -85,6 +85,9 @@ def test_seed_rate_factor_is_finite_and_positive_from_rest_to_huge_rates(rate):
         assert S[0, st.SY_TOTAL_RATE] == S[0, st.SY]         # the seed's return uses it
         if rate < jc.SEED_EPS0_DOT and C > 0:
             assert S[0, st.SY] < A                           # rate factor < 1 below ε̇0
+        # the factor itself, called below the floor (ε̇* = 0, tiny): floored, finite
+        assert jc.seed_rate_factor(C, S[0, st.EQ_STRAIN_RATE] / jc.SEED_EPS0_DOT) == \
+            pytest.approx(factor, rel=4 * EPS)               # one log, two roundings
 
 
 def test_seed_fixed_rate_return_solves_the_consistency_condition():
