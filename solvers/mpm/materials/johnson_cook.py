@@ -112,19 +112,29 @@ def check(prm: np.ndarray) -> None:
 def johnson_cook_flow_stress(A, B, n, C, m, eps_p, eps_rate_star, T_star):
     """Seed eq. (11) with the limits: B εp^n = 0 for εp ≤ 0; rate factor 1 for ε̇* ≤ 1
     (ε̇* clamped ≥ 1, so ln ε̇* ≥ 0); T* clipped to [0, 1] (T*^m = 0 at T* = 0, σy = 0 at melt)."""
-    h = A
-    if eps_p > 0.0:
-        h += B * eps_p ** n
     r = 1.0
     if eps_rate_star > 1.0:
         r += C * math.log(eps_rate_star)
+    return hardening(A, B, n, eps_p) * r * thermal_factor(m, T_star)
+
+
+@njit(cache=True, fastmath=False)
+def hardening(A, B, n, eps_p):
+    """A + B εp^n, with B εp^n = 0 for εp ≤ 0 (the limit, not 0^n evaluated)."""
+    h = A
+    if eps_p > 0.0:
+        h += B * eps_p ** n
+    return h
+
+
+@njit(cache=True, fastmath=False)
+def thermal_factor(m, T_star):
+    """1 − T*^m with T* clipped to [0, 1]: 1 at T* ≤ 0, 0 at melt."""
     if T_star <= 0.0:
-        th = 1.0
-    elif T_star >= 1.0:
-        th = 0.0
-    else:
-        th = 1.0 - T_star ** m
-    return h * r * th
+        return 1.0
+    if T_star >= 1.0:
+        return 0.0
+    return 1.0 - T_star ** m
 
 
 @njit(cache=True, fastmath=False)
@@ -138,16 +148,8 @@ def seed_rate_factor(C, eps_rate_star):
 def johnson_cook_flow_stress_seed(A, B, n, C, m, eps_p, eps_rate_star, T_star):
     """Seed eq. (11) under the seed conventions: as ``johnson_cook_flow_stress`` but with the
     unclamped, floored rate factor ``seed_rate_factor``."""
-    h = A
-    if eps_p > 0.0:
-        h += B * eps_p ** n
-    if T_star <= 0.0:
-        th = 1.0
-    elif T_star >= 1.0:
-        th = 0.0
-    else:
-        th = 1.0 - T_star ** m
-    return h * seed_rate_factor(C, eps_rate_star) * th
+    return (hardening(A, B, n, eps_p) * seed_rate_factor(C, eps_rate_star)
+            * thermal_factor(m, T_star))
 
 
 @njit(cache=True, fastmath=False)
@@ -241,12 +243,7 @@ def _jc_return(sxx, syy, sxy, szz, G, dt, A, B, n, C, m, eps0_dot, eps_p, T_star
         return sxx, syy, sxy, szz, 0.0, sy0, ERR_OTHER
     g3 = 3.0 * G
     rate_k = 1.0 / (dt * eps0_dot)
-    if T_star <= 0.0:                     # thermal factor: T* is frozen over the step
-        th = 1.0
-    elif T_star >= 1.0:
-        th = 0.0
-    else:
-        th = 1.0 - T_star ** m
+    th = thermal_factor(m, T_star)        # T* is frozen over the step
     if fixed:
         th *= seed_rate_factor(C, fixed_rate_star)
     lo, hi = 0.0, (seq - sy0) / g3        # g(lo) < 0 ≤ g(hi): σy grows with Δεp

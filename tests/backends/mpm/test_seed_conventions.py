@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import hashlib
-import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -12,17 +11,12 @@ import pytest
 
 from solvers.mpm.solver import MPMSolver, _Run
 
+from .test_local_sensitivities import small_scene
+
 REPO = Path(__file__).resolve().parents[3]
 REFERENCE = REPO / "tests/data/mpm_uqflow_reference.npz"
 REFERENCE_OUTPUTS = ["pressure", "flow_stress", "S11", "S22", "S12", "S33", "plastic_strain",
                      "temperature", "velocity_x"]
-
-
-def small_scene(**over):
-    sc = tomllib.loads((REPO / "studies/scenes/mpm_contact_thin_small.toml").read_text())
-    sc.update(resolution=0.5, end_time=8e-6, output_interval=1e-6, threads=1)
-    sc.update(over)
-    return sc
 
 
 def test_uqflow_conventions_are_bitwise_unchanged():
