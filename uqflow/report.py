@@ -361,10 +361,13 @@ class _Context:
         return _units(self.stats, self.runs, out)
 
     def ok_values(self, out) -> np.ndarray | None:
-        """The outputs of the ok runs (realization first), None without runs."""
+        """The outputs of the ok runs (realization first), None without runs; a control
+        variate's control realizations (stencil points at the means) are not samples."""
         if self.runs is None or out not in self.runs or "status" not in self.runs:
             return None
         ok = _status(self.runs) == "ok"
+        if "role" in self.runs.coords:
+            ok &= np.asarray(self.runs["role"].values) != "control"
         return np.asarray(self.runs[out].values, dtype=float)[ok]
 
     def title(self, out, what, focus=None):

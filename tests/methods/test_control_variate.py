@@ -16,6 +16,7 @@ from uqflow.inputs import InputSpace, RandomInput
 from uqflow.methods.monte_carlo import MonteCarlo
 from uqflow.methods.taylor import NOISE
 from uqflow.realization import evaluate_design
+from uqflow.report import _Context
 from uqflow.study import load_study
 
 
@@ -104,6 +105,7 @@ def test_reported_reduction_matches_the_spread_over_seeds():
     # A ratio of two sample variances over 50 seeds: within the 0.1 % and 99.9 % quantiles
     # of F(49, 49) (the two spreads are taken as independent normal-sample variances)
     low, high = sps.f.ppf([0.001, 0.999], seeds - 1, seeds - 1)
+    assert (round(low, 2), round(high, 2)) == (0.41, 2.46)  # as docs/control_variates.md says
     assert low <= seen / expected <= high
 
 
@@ -243,6 +245,8 @@ def test_a_study_stops_on_the_control_variate_error_and_stores_it(tmp_path):
     # 1 + 2 x at the mean 0.5, from 16 samples of an exact surrogate: a few ulps of 2
     assert _stat(stats, "mean") == pytest.approx(2.0, abs=64 * 2 * 2**-52)
     assert (tmp_path / "s.nc").exists()
+    # the report's histogram and faint runs show the samples, not the stencil points
+    assert _Context("s", "monte-carlo", result.runs, stats).ok_values("y").shape == (16,)
 
 
 # --------------------------------------------------------------------------- validation
