@@ -45,15 +45,29 @@ def sensitivity_parameters(solver):
     return tuple(f"{lab}.{p}" for lab in steel_labels(solver) for p in LOCAL_PARAMETERS)
 
 
-def particle_derivatives(output, rows, prm):
+def return_tangent(rows, prm):
+    """(∂σ̄/∂θ (N, 5), ∂²σ̄/∂θ² (N, 5, 5)) of the flow stress each row's last return reached,
+    from its fixed trial (0 for elastic steps): what every deviator component scales."""
+    return johnson_cook_return_sensitivities(
+        *prm[[JC.I_JA, JC.I_JB, JC.I_JC, JC.I_JN, JC.I_JM]], prm[JC.I_G], rows[:, ST.EPS_P],
+        rows[:, ST.EPS_P_RATE] * rows[:, ST.DT], rows[:, ST.RATE_STAR], return_T_star(rows, prm),
+        rate_fixed=prm[JC.I_SEED] != 0.0)
+
+
+def return_T_star(rows, prm):
+    """T* of the temperature the rows' last return used (before that step's heating)."""
+    return (rows[:, ST.T_RETURN] - prm[JC.I_TROOM]) / (prm[JC.I_TMELT] - prm[JC.I_TROOM])
+
+
+def particle_derivatives(output, rows, prm, tangent=None):
     """(gradient (N, 10), Hessian (N, 10, 10)) of ``output`` for state rows of one steel
-    material with packed parameters ``prm``, in LOCAL_PARAMETERS order."""
+    material with packed parameters ``prm``, in LOCAL_PARAMETERS order. ``tangent``: the
+    rows' ``return_tangent``, when already computed (the four deviator components share it)."""
     n_rows = rows.shape[0]
     grad = np.zeros((n_rows, 10))
     hess = np.zeros((n_rows, 10, 10))
     A, B, C, n, m = prm[[JC.I_JA, JC.I_JB, JC.I_JC, JC.I_JN, JC.I_JM]]
     seed = prm[JC.I_SEED] != 0.0
-    T_star = (rows[:, ST.T_RETURN] - prm[JC.I_TROOM]) / (prm[JC.I_TMELT] - prm[JC.I_TROOM])
     if output == "pressure":
         rho0 = prm[JC.I_RHO0]
         _, g, h = mie_gruneisen_sensitivities(rows[:, ST.RHO] / rho0 - 1.0, rows[:, ST.E], rho0,
@@ -63,13 +77,11 @@ def particle_derivatives(output, rows, prm):
     elif output in ("flow_stress", "flow_stress_total_rate"):
         rate = (rows[:, ST.RATE_STAR] if output == "flow_stress"
                 else rows[:, ST.EQ_STRAIN_RATE] / prm[JC.I_EPS0])
-        _, g, h = johnson_cook_sensitivities(A, B, C, n, m, rows[:, ST.EPS_P], rate, T_star,
-                                             rate_clamped=not seed)
+        _, g, h = johnson_cook_sensitivities(A, B, C, n, m, rows[:, ST.EPS_P], rate,
+                                             return_T_star(rows, prm), rate_clamped=not seed)
         grad[:, 5:], hess[:, 5:, 5:] = g, h
     else:
-        g, h = johnson_cook_return_sensitivities(
-            A, B, C, n, m, prm[JC.I_G], rows[:, ST.EPS_P], rows[:, ST.EPS_P_RATE] * rows[:, ST.DT],
-            rows[:, ST.RATE_STAR], T_star, rate_fixed=seed)
+        g, h = return_tangent(rows, prm) if tangent is None else tangent
         s = ST.deviatoric(rows)[:, DEVIATOR_COLUMN[output]]
         sy = rows[:, ST.SY]
         ratio = np.divide(s, sy, out=np.zeros_like(s), where=sy != 0.0)   # s*_ij/σeq*
@@ -110,8 +122,11 @@ class ProbeSensitivities:
             keep = np.flatnonzero(slots >= 0)
             cols = slots[keep]
             rows = run.S[index]
+            prm = self.prms[material]
+            tangent = (return_tangent(rows, prm)
+                       if any(o in DEVIATOR_COLUMN for o in self.outputs) else None)
             for o in self.outputs:
-                g, h = particle_derivatives(o, rows, self.prms[material])
+                g, h = particle_derivatives(o, rows, prm, tangent)
                 np.add.at(self.gradient[o][k], (probe[:, None], cols[None, :]),
                           weight[:, None] * g[:, keep])
                 np.add.at(self.hessian[o][k], (probe[:, None, None], cols[None, :, None],
