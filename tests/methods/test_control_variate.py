@@ -277,10 +277,10 @@ def test_a_solver_without_local_derivatives_names_control_taylor(tmp_path):
 
 
 @pytest.mark.parametrize("options, message", [
-    ('control = "pce"', "control"),
-    ('control_step = 0.5', "'control_step' applies to control = \"taylor\" only"),
-    ('control = "taylor-local"\ncontrol_step = 0.5', "applies to control = \"taylor\""),
-    ('control = "taylor"\ncontrol_step = 0.0', "control_step"),
+    ('control = "pce"', "method.control: Input should be 'none', 'taylor-local' or 'taylor'"),
+    ('control_step = 0.5', "method: 'control_step' applies to control = \"taylor\" only"),
+    ('control = "taylor-local"\ncontrol_step = 0.5', "applies to control = \"taylor\" only"),
+    ('control = "taylor"\ncontrol_step = 0.0', "method.control_step: .*greater than 0"),
 ])
 def test_option_errors_name_the_key(tmp_path, options, message):
     path = _study(tmp_path, '{ model = "linear", coefficients = [2.0] }', options)
@@ -296,3 +296,47 @@ def test_correlated_non_normal_inputs_are_refused(tmp_path):
                   'control = "taylor"', inputs=inputs)
     with pytest.raises(StudyError, match="method.control: .*correlated non-normal"):
         load_study(path)
+
+
+# ------------------------------------------------------------------------------ the MPM
+
+def test_on_the_mpm_the_whole_solver_control_sees_what_the_frozen_state_misses():
+    """The small thin-plate scene, coarse and short, Johnson-Cook A and B uncertain. The
+    flow stress depends on A and B directly: both controls follow it (rho > 0.99 at the
+    median point). The pressure depends on them only through the deformation history: its
+    local (frozen-state) derivatives are zero, so the taylor-local surrogate is constant and
+    the estimate is plain Monte Carlo's, while the whole-solver stencil follows it."""
+    import tomllib
+    from pathlib import Path
+
+    from uqflow.solver import get_solver
+
+    scene = tomllib.loads((Path(__file__).parents[2] / "studies/scenes/"
+                           "mpm_contact_thin_small.toml").read_text())
+    scene.update(resolution=0.5, end_time=12e-6, output_interval=1e-6, threads=1)
+    solver = get_solver("mpm").from_scene(scene)
+    nominal = solver.nominal()
+    space = InputSpace([RandomInput.from_spec({"name": n, "distribution": "normal",
+                                               "mean": nominal[n], "std": 0.1 * nominal[n]})
+                        for n in ("steel.jc.A", "steel.jc.B")])
+    outputs = ["flow_stress", "pressure"]
+    median_rho = {}
+    for control in ("taylor-local", "taylor"):
+        method = MonteCarlo(samples=16, control=control)
+        method.check_solver(solver, outputs, space.names)
+        design = method.plan(space, None, np.random.SeedSequence(0))
+        stats = method.analyze(design, evaluate_design(solver, design, outputs))
+        assert stats.attrs["control_used"] == 1
+        for out in outputs:
+            varies = stats[out].sel(statistic="variance").values > 0
+            median_rho[control, out] = np.median(stats[f"{out}_correlation"].values[varies])
+            if (control, out) == ("taylor-local", "pressure"):
+                assert np.all(stats[f"{out}_surrogate"].sel(surrogate_statistic="variance") == 0)
+                # fold-size-weighted fold means against the pooled mean: a few ulps
+                np.testing.assert_allclose(
+                    stats[out].sel(statistic="mean"),
+                    stats[f"{out}_plain"].sel(plain_statistic="mean"), rtol=8 * 2**-52)
+    assert median_rho["taylor-local", "flow_stress"] > 0.99
+    assert median_rho["taylor", "flow_stress"] > 0.99
+    assert median_rho["taylor-local", "pressure"] == 0
+    assert median_rho["taylor", "pressure"] > 0.9
