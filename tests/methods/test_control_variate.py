@@ -288,6 +288,14 @@ def test_option_errors_name_the_key(tmp_path, options, message):
         load_study(path)
 
 
+def test_a_stencil_step_lost_to_rounding_names_control_step(tmp_path):
+    inputs = '\n[[inputs]]\nname = "x1"\ndistribution = "normal"\nmean = 1e20\nstd = 1.0\n'
+    path = _study(tmp_path, '{ model = "linear", coefficients = [2.0] }', 'control = "taylor"',
+                  inputs=inputs)
+    with pytest.raises(StudyError, match="method.control_step: .*a larger control_step"):
+        load_study(path)
+
+
 def test_correlated_non_normal_inputs_are_refused(tmp_path):
     inputs = "".join(f'\n[[inputs]]\nname = "x{k}"\ndistribution = "uniform"\nlower = 0.0\n'
                      f'upper = 1.0\n' for k in (1, 2))

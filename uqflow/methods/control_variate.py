@@ -23,6 +23,7 @@ import xarray as xr
 from uqflow.errors import StudyError
 from uqflow.methods.base import make_design, ok_mask, output_names
 from uqflow.methods.taylor import Taylor, _second_order_variance, _Stencil
+from uqflow.methods.taylor_local import ALTERNATIVE, TaylorLocal
 from uqflow.realization import SENSITIVITY_FLAG, sensitivity_arrays
 
 CONTROLS = ("none", "taylor-local", "taylor")
@@ -38,9 +39,12 @@ class ControlFailed(Exception):
     """The control realizations cannot give a surrogate (a failed run, a missing derivative)."""
 
 
-def check_inputs(space) -> None:
-    """The surrogate's mean and variance are closed-form for normal inputs (any correlation)
-    or independent inputs (any distributions); refuse the rest at load time."""
+def check_space(control: str, step: float, space) -> None:
+    """Refuse at load time what the control cannot treat: a stencil step lost to rounding
+    (``taylor``), and inputs for which the surrogate's mean and variance are not closed-form
+    (they are for normal inputs with any correlation and for independent ones)."""
+    if control == "taylor":
+        control_design(control, step, space)
     active = np.flatnonzero(space.stds > 0)
     normal = all(space.inputs[k].kind == "normal" for k in active)
     rho = space.correlation
@@ -58,7 +62,6 @@ def check_solver(control, solver, outputs, parameter_names) -> None:
     ``taylor-local``), with ``control = "taylor"`` named as the alternative."""
     if control != "taylor-local":
         return
-    from uqflow.methods.taylor_local import ALTERNATIVE, TaylorLocal
     try:
         TaylorLocal().check_solver(solver, outputs, parameter_names)
     except StudyError as err:

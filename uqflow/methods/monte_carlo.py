@@ -131,7 +131,7 @@ class MonteCarlo(PropagationMethod):
     def check(self, space, fields):
         super().check(space, fields)
         if self.control != "none":
-            cv.check_inputs(space)
+            cv.check_space(self.control, self.options.control_step, space)
 
     def check_solver(self, solver, outputs, parameter_names):
         cv.check_solver(self.control, solver, outputs, parameter_names)
