@@ -133,6 +133,31 @@ def _seconds(t) -> str:
     return f"{t / 3600:.3g} h"
 
 
+def _control_lines(stats: xr.Dataset, outs: list[str]) -> list[str]:
+    """What a control variate bought, per output at its row's point (docs/control_variates.md)."""
+    if not stats.attrs.get("control"):
+        return []
+    if not int(stats.attrs.get("control_used", 0)):
+        return [f"control variate {stats.attrs['control']}: not used (its control runs "
+                f"failed), plain Monte Carlo"]
+    lines = [f"control variate {stats.attrs['control']} ({stats.attrs['control_runs']} "
+             f"control run(s)): correlation rho with the surrogate, variance reduction "
+             f"1/(1 - rho^2), equivalent plain samples n/(1 - rho^2)"]
+    for out in outs:
+        if f"{out}_correlation" in stats:
+            focus = _focus(stats, out)
+            rho, gain, count = (float(stats[f"{out}_{v}"].isel(focus)) for v in
+                                ("correlation", "variance_reduction", "equivalent_samples"))
+            where = f" at {_where(stats, focus)}" if focus else ""
+            if math.isfinite(gain):
+                lines.append(f"  {out}{where}: rho {rho:.6g}, reduction {gain:.3g}x, "
+                             f"equivalent to {count:.3g} plain samples")
+            else:
+                lines.append(f"  {out}{where}: rho 1, the surrogate reproduces it to rounding "
+                             f"(no error left to reduce)")
+    return lines
+
+
 def _grid(header: list[str], rows: list[list[str]], right: set[int]) -> list[str]:
     """A fixed-width table; columns in ``right`` are right-aligned."""
     widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
@@ -191,6 +216,7 @@ def summary_table(tree: xr.DataTree) -> str:
     if stats.attrs.get("stderr_note"):
         # Which error the interval rests on decides how far it can be trusted: say it.
         lines.append(f"standard error and interval of the mean: {stats.attrs['stderr_note']}")
+    lines += _control_lines(stats, outs)
     lines.append("")
     lines.append(_cost_line(stats, attrs, method))
     failure = _first_failure(runs)

@@ -16,7 +16,8 @@ from uqflow.inputs import InputSpace, RandomInput
 from uqflow.methods.monte_carlo import MonteCarlo
 from uqflow.methods.taylor import NOISE
 from uqflow.realization import evaluate_design
-from uqflow.report import _Context
+from uqflow.report import _Context, summary_table
+from uqflow.store import open_result
 from uqflow.study import load_study
 
 
@@ -247,6 +248,22 @@ def test_a_study_stops_on_the_control_variate_error_and_stores_it(tmp_path):
     assert (tmp_path / "s.nc").exists()
     # the report's histogram and faint runs show the samples, not the stencil points
     assert _Context("s", "monte-carlo", result.runs, stats).ok_values("y").shape == (16,)
+    table = summary_table(open_result(tmp_path / "s.nc"))
+    assert "control variate taylor (3 control run(s))" in table
+    assert "y: rho 1, the surrogate reproduces it to rounding" in table
+
+
+def test_the_report_says_what_the_control_bought(tmp_path):
+    path = _study(tmp_path, '{ model = "power", p = 3.0 }', 'control = "taylor-local"\n'
+                  'samples = 64', inputs='\n[[inputs]]\nname = "x"\ndistribution = "normal"\n'
+                                        'mean = 1.0\nstd = 0.1\n')
+    run_study(load_study(path), show_progress=False)
+    tree = open_result(tmp_path / "s.nc")
+    stats = tree["statistics"].to_dataset()
+    rho, gain, count = (float(stats[f"y_{v}"]) for v in
+                        ("correlation", "variance_reduction", "equivalent_samples"))
+    assert f"y: rho {rho:.6g}, reduction {gain:.3g}x, equivalent to {count:.3g} plain " \
+           f"samples" in summary_table(tree)
 
 
 # --------------------------------------------------------------------------- validation

@@ -258,6 +258,9 @@ def estimate(y, g, fold, folds, surrogate_mean, surrogate_variance, rqmc: bool) 
     s_fg = np.sum(yc * gc, axis=0) / (n - 1)
     with np.errstate(divide="ignore", invalid="ignore"):
         rho = np.where(varies, np.clip(s_fg / np.sqrt(s_ff * s_gg), -1.0, 1.0), 0.0)
+    # The sums behind rho carry a relative rounding of up to n eps each, so a 1 - rho^2 below
+    # 2 n eps is rounding: the surrogate reproduces the output, and rho is +-1.
+    rho = np.where(1 - rho**2 <= 2 * n * np.finfo(float).eps, np.sign(rho), rho)
 
     member = fold[:, None] == np.arange(folds)[None, :]
     size = member.sum(axis=0).astype(float)
