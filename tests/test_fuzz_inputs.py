@@ -323,11 +323,11 @@ LIMITS = [
     ("`method.resamples` (sobol)", "10⁸", STUDIES / "sobol_g.toml",
      [(("method", "samples"), 1024), (("method", "resamples"), 10**5)], [],
      "method.resamples"),
-    ("`execution.workers`", "512", STUDIES / "quickstart.toml",
+    ("`execution.workers`", "512", STUDIES / "ishigami_mc.toml",
      [(("execution", "workers"), 513)], [], "execution.workers"),
-    ("`execution.batch`", "10⁷", STUDIES / "quickstart.toml",
+    ("`execution.batch`", "10⁷", STUDIES / "ishigami_mc.toml",
      [(("execution", "batch"), 10**7 + 1)], [], "execution.batch"),
-    ("`execution.seed`", "2⁶⁴ − 1", STUDIES / "quickstart.toml",
+    ("`execution.seed`", "2⁶⁴ − 1", STUDIES / "ishigami_mc.toml",
      [(("execution", "seed"), 2**64)], [], "execution.seed"),
     ("`fields[i].modes`", "1,000", KL,
      [(("fields", 0, "captured_variance"), MISSING), (("fields", 0, "modes"), 1001)], [],
@@ -410,7 +410,7 @@ def test_every_documented_limit_is_exercised():
 
 @pytest.mark.parametrize("study,edits", [
     (STUDIES / "mc_exponential_decay.toml", [(("method", "samples"), 10**7)]),
-    (STUDIES / "quickstart.toml", [(("execution", "seed"), 2**64 - 1),
+    (STUDIES / "ishigami_mc.toml", [(("execution", "seed"), 2**64 - 1),
                                    (("execution", "workers"), 512)]),
     (STUDIES / "sobol_g.toml", [(("method", "samples"), 10**6),
                                 (("method", "resamples"), 100)]),
@@ -422,10 +422,10 @@ def test_each_bound_itself_validates(study, edits, tmp_path):
 
 # --------------------------------------------------------------------------- the real CLI
 CLI_VARIANTS = [
-    (STUDIES / "quickstart.toml", [(("inputs", 0, "lower"), -1e308),
+    (STUDIES / "ishigami_mc.toml", [(("inputs", 0, "lower"), -1e308),
                                    (("inputs", 0, "upper"), 1e308)], [], "inputs[0].lower"),
-    (STUDIES / "quickstart.toml", [(("method", "samples"), True)], [], "method.samples"),
-    (STUDIES / "quickstart.toml", [(("execution", "seed"), 2**64)], [], "execution.seed"),
+    (STUDIES / "ishigami_mc.toml", [(("method", "samples"), True)], [], "method.samples"),
+    (STUDIES / "ishigami_mc.toml", [(("execution", "seed"), 2**64)], [], "execution.seed"),
     (MPM, [], [(("cell_size",), math.nan)], "scene.cell_size"),
     (BAR, [(("scene", "n_ro"), 1e300)], [], "scene.n_ro"),
 ]

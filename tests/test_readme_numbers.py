@@ -29,19 +29,36 @@ def test_ishigami_exact_moments_as_stated():
     # + b^2 pi^8/18 + 1/2 (Sobol' & Levitan 1999); the README rounds to 4 decimals.
     a, b = 7.0, 0.1
     variance = a**2 / 8 + b * math.pi**4 / 5 + b**2 * math.pi**8 / 18 + 0.5
-    stated = _stated(r"mean ([0-9.]+) and variance ([0-9.]+)")
+    stated = _stated(r"mean ([0-9.]+) and variance\s+([0-9.]+)")
     assert float(stated.group(1)) == a / 2
     assert float(stated.group(2)) == pytest.approx(variance, abs=5e-5)  # 4 decimals shown
+
+
+def test_ishigami_study_is_what_the_readme_describes():
+    study = load_study(STUDIES / "ishigami_mc.toml")
+    options = study.method.options
+    points = int(_stated(r"ishigami_mc.toml`:\s+(\d+) scrambled Sobol").group(1))
+    assert (options.samples, options.rule, options.replicates) == (points, "sobol", 8)
 
 
 def test_quickstart_is_what_the_readme_describes():
     study = load_study(STUDIES / "quickstart.toml")
     options = study.method.options
-    points = int(_stated(r"Ishigami function by Monte Carlo, (\d+) scrambled Sobol").group(1))
-    assert (options.samples, options.rule) == (points, "sobol")
-    replicates = int(_stated(r"spread of (\d+) independently scrambled").group(1))
-    dof = int(_stated(r"Student t with (\d+) degrees of freedom").group(1))
-    assert options.replicates == replicates and dof == replicates - 1
+    samples = int(_stated(r"and (\d+) Monte Carlo runs that use").group(1))
+    runs = int(_stated(r"(\d+) runs of an [0-9,]+-particle scene").group(1))
+    particles = int(_stated(r"runs of an ([0-9,]+)-particle scene").group(1).replace(",", ""))
+    replicates, per = map(int, _stated(r"\((\d+) independently scrambled Sobol' replicates "
+                                       r"of (\d+), Student t").groups())
+    dof = int(_stated(r"replicates of \d+, Student t with (\d+) degrees of freedom").group(1))
+    cv = float(_stated(r"Johnson.Cook parameters normal with C.V. ([0-9.]+)").group(1))
+    assert (options.samples, options.rule, options.control) == (samples, "sobol", "taylor-local")
+    assert (options.replicates, replicates * per, dof) == (replicates, samples, replicates - 1)
+    assert runs == samples + 1                       # the control run, then the samples
+    assert study.solver.parts.x.size == particles
+    assert len(study.space.inputs) == 5
+    assert all(i.name.startswith("steel.jc.") and i.kind == "normal" for i in study.space.inputs)
+    # the study's literal 0.10 against the README's: one rounding each
+    assert [i.cv for i in study.space.inputs] == pytest.approx([cv] * 5, rel=1e-15)
     assert study.spec.execution.workers == 2
 
 

@@ -342,8 +342,8 @@ def test_cli_report_on_a_missing_file_is_one_line_and_exit_2(tmp_path, capsys):
     assert not report.figure_folder(missing).exists()
 
 
-def test_the_documented_quickstart_table_is_what_uqflow_prints(tmp_path):
-    """docs/results.md shows the table of studies/quickstart.toml: every line but the times
+def test_the_documented_ishigami_table_is_what_uqflow_prints(tmp_path):
+    """docs/results.md shows the table of studies/ishigami_mc.toml: every line but the times
     on the cost line must be the one uqflow prints."""
     from pathlib import Path
 
@@ -351,7 +351,7 @@ def test_the_documented_quickstart_table_is_what_uqflow_prints(tmp_path):
     doc = (root / "docs" / "results.md").read_text()
     section = doc[doc.index("## `uqflow report RESULT`: the table"):]
     shown = section.split("```\n")[1].splitlines()
-    study = load_study(root / "studies" / "quickstart.toml")
+    study = load_study(root / "studies" / "ishigami_mc.toml")
     out = run_study(study, workers=0, show_progress=False, output=tmp_path / "q.nc")
     printed = report.summary_table(report.open_result(out.path)).splitlines()
     times = re.compile(r"solver wall time [0-9.]+ s, elapsed [0-9.]+ s")

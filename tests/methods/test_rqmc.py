@@ -219,7 +219,7 @@ def test_a_failed_realization_leaves_its_replicate_with_fewer_points():
 # --------------------------------------------------------------------------------------------
 
 def write_study(tmp_path, method_lines):
-    text = (ROOT / "studies" / "quickstart.toml").read_text()
+    text = (ROOT / "studies" / "ishigami_mc.toml").read_text()
     head, _ = text.split("[method]")
     path = tmp_path / "study.toml"
     path.write_text(head + "[method]\nkind = \"monte-carlo\"\n" + method_lines
@@ -261,7 +261,7 @@ def test_good_replicate_options():
 
 @pytest.fixture(scope="module")
 def quickstart(tmp_path_factory):
-    study = load_study(ROOT / "studies" / "quickstart.toml")
+    study = load_study(ROOT / "studies" / "ishigami_mc.toml")
     out = tmp_path_factory.mktemp("quickstart") / "quickstart.nc"
     outcome = run_study(dataclasses.replace(study, output_path=out), workers=0,
                         show_progress=False)
