@@ -278,14 +278,14 @@ def load_results(trees) -> tuple[list[MPMResult], list[str], list[str]]:
             raise StudyError(f"output times differ from those of {first.file}", file=res.file,
                              key="time")
     with_outputs = [r for r in results if r.outputs]
-    common = [o for o in (with_outputs[0].outputs if with_outputs else [])
-              if all(o in r.outputs for r in with_outputs)]
+    common = list(with_outputs[0].outputs) if with_outputs else []
+    for res in with_outputs[1:]:
+        if not set(res.outputs) & set(common):
+            raise StudyError(f"no output in common with the results before it (outputs "
+                             f"{', '.join(res.outputs)} against {', '.join(common)} of "
+                             f"{with_outputs[0].file} ...)", file=res.file, key="outputs")
+        common = [o for o in common if o in res.outputs]
     for res in with_outputs:
-        if not common:
-            raise StudyError(f"no output in common with {with_outputs[0].file} (outputs "
-                             f"{', '.join(res.outputs)} against "
-                             f"{', '.join(with_outputs[0].outputs)})", file=res.file,
-                             key="outputs")
         left = [o for o in res.outputs if o not in common]
         if left:
             notes.append(f"{res.file}: {', '.join(left)} not in every result: not compared")
@@ -465,7 +465,8 @@ def moments_tables(results: list[MPMResult], outputs: list[str], time: float | N
     for group in groups:
         ref = choose_reference(group, outputs, k, reference)
         refs.append(ref)
-        what = ", ".join(group[0].parameters) if len(groups) > 1 else ""
+        several_input_sets = len({g[0].parameters for g in groups}) > 1
+        what = ", ".join(group[0].parameters) if several_input_sets else ""
         lines.append(f"C.V. {group[0].cv_text}{' (' + what + ')' if what else ''}: reference "
                      + (f"{ref.file} ({ref.label})" if ref else
                         "none (no result reports a standard error of the mean)"))
@@ -537,9 +538,10 @@ def _reference_notes(results: list[MPMResult], outputs: list[str]) -> list[str]:
         if res.stats is None:
             continue
         if mean_error(res, outputs[0]) is not None:
-            notes.append(f"{res.file}: standard error of the mean: "
-                         f"{res.stats.attrs.get('stderr_note') or res.stats.attrs.get('stderr_kind', 'reported')}; "
-                         f"of the variance: {variance_error(res, outputs[0])[1]}")
+            how = res.stats.attrs.get("stderr_note") or res.stats.attrs.get("stderr_kind",
+                                                                            "reported")
+            notes.append(f"{res.file}: standard error of the mean: {how}; of the variance: "
+                         f"{variance_error(res, outputs[0])[1]}")
     return notes
 
 
