@@ -211,6 +211,7 @@ def test_speedup_against_ten_thousand_runs_at_our_per_run_time(tmp_path):
     text = mpm_report.cost_table(mpm_report.load_results(trees(mc, local))[0])
     # per-run time: the median of the 8 plain runs, 2 s (the sensitivity run is not plain);
     # 10,000 x 2 s = 20,000 s; speed-ups 20,000/16 = 1,250 and 20,000/2.2 = 9,091
+    assert "(median wall time of the 8 plain runs)" in text
     assert "10,000 × 2 s = 5.56 h" in text
     rows = {l.split()[0]: l for l in text.splitlines()}
     assert rows["mc.nc"].split()[-1] == "1,250" and " 8 " in rows["mc.nc"]
