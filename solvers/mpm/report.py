@@ -521,7 +521,7 @@ def _moment_rows(group, ref, out, k, j, probe, div) -> list[list[str]]:
     seed = _seed_row(group[0], out, probe)
     if seed is not None:
         cv = group[0].cv_text
-        n = f"{MC_SAMPLES_COMPARED}"
+        n = f"{MC_SAMPLES_COMPARED:,}"
         rows.append([probe, cv, "seed", "Monte Carlo", n, _fmt(seed.mc_mean / div),
                      _pct(_rel(seed.mc_mean, ref_mean)), _fmt(seed.mc_variance / div ** 2, 4),
                      _pct(_rel(seed.mc_variance, ref_var))])
