@@ -36,6 +36,7 @@ import numpy as np
 import xarray as xr
 
 from uqflow.errors import StudyError
+from uqflow.report import _grid, _seconds
 
 __all__ = ["report", "load_results", "seed_tables", "seed_moments", "seed_costs",
            "choose_reference", "table_time", "variance_error", "moments_tables", "cost_table",
@@ -440,16 +441,6 @@ def _pct(r: float) -> str:
     return "-" if not np.isfinite(r) else f"{100 * r:+.3g} %"
 
 
-def _grid(header: list[str], rows: list[list[str]], right: set[int]) -> list[str]:
-    widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
-
-    def line(cells):
-        return "  ".join(c.rjust(w) if i in right else c.ljust(w)
-                         for i, (c, w) in enumerate(zip(cells, widths))).rstrip()
-
-    return [line(header), "  ".join("-" * w for w in widths), *map(line, rows)]
-
-
 def _value(da: xr.DataArray | None, k: int, j: int) -> float:
     return math.nan if da is None else float(da.isel(time=k, probe=j).values)
 
@@ -566,16 +557,6 @@ def _per_run_baseline(results: list[MPMResult]) -> tuple[float, str]:
         return float(np.median(every)), (f"median wall time of the {len(every)} runs (all "
                                          f"with sensitivities)")
     return math.nan, "no run finished"
-
-
-def _seconds(t: float) -> str:
-    if not np.isfinite(t):
-        return "?"
-    if t < 120:
-        return f"{t:.3g} s"
-    if t < 7200:
-        return f"{t / 60:.3g} min"
-    return f"{t / 3600:.3g} h"
 
 
 def cost_table(results: list[MPMResult]) -> str:
