@@ -710,3 +710,45 @@ def report(trees, folder, figures: bool = True, time: float | None = None,
     pngs = draw_figures(results, outputs, Path(folder), time, reference) \
         if figures and outputs else []
     return text, pngs
+
+
+# ------------------------------------------------------------------------------ command line
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m solvers.mpm.report RESULT... [--time S] [--reference NAME] [--figures DIR |
+    --no-figures]``: the comparison alone, with the two choices ``uqflow report`` leaves to
+    their defaults. Exit 2 with one line on a refused set of results."""
+    import argparse
+    import sys
+
+    from uqflow.report import open_result
+
+    parser = argparse.ArgumentParser(prog="python -m solvers.mpm.report",
+                                     description=__doc__.split("\n")[0])
+    parser.add_argument("results", type=Path, nargs="+")
+    parser.add_argument("--time", type=float, default=None,
+                        help="output time of Tables 6-8 in seconds (nearest output time; "
+                             "default: the last)")
+    parser.add_argument("--reference", default=None,
+                        help="file or study name of the reference (default: the Monte Carlo "
+                             "result with the smallest relative standard error)")
+    parser.add_argument("--figures", type=Path, default=None,
+                        help="folder for the PNGs (default: beside the first result)")
+    parser.add_argument("--no-figures", action="store_true")
+    args = parser.parse_args(argv)
+    try:
+        trees = [open_result(p) for p in args.results]
+        folder = args.figures or args.results[0].resolve().parent
+        text, pngs = report(trees, folder, figures=not args.no_figures, time=args.time,
+                            reference=args.reference)
+    except StudyError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(text)
+    for png in pngs:
+        print(f"figure: {png}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -18,7 +18,6 @@ from solvers.mpm.materials.johnson_cook import CONVENTIONS_PARAMETER, SEED_EPS0_
 from solvers.mpm.probe_sensitivities import OUTPUTS as SENSITIVITY_OUTPUTS, \
     ProbeSensitivities, sensitivity_parameters
 from solvers.mpm.probes import ProbeRecorder
-from solvers.mpm.report import report as _report
 from solvers.mpm.snapshots import SnapshotWriter
 from solvers.mpm.scene import ENERGY_OUTPUTS, PROBE_QUANTITIES, auto_extent, parse, \
     place_probes, probe_members, seed_particles
@@ -41,9 +40,13 @@ UNITS_BY_NAME = {"rho0": "kg m-3", "shear_modulus": "Pa", "E": "Pa", "D": "m s-1
 class MPMSolver(Solver):
     """Explicit 2-D plane-strain MPM (MUSL, quadratic B-splines) with EOS/strength materials."""
 
-    #: ``uqflow report`` on MPM results: seed 000's Tables 6-8 and 3/9, Figs. 5-6, 9-12
-    #: (solvers/mpm/report.py, docs/mpm_report.md)
-    report = staticmethod(_report)
+    @staticmethod
+    def report(trees, folder, figures=True):
+        """``uqflow report`` on MPM results: seed 000's Tables 6-8 and 3/9, Figs. 5-6, 9-12
+        (solvers/mpm/report.py, docs/mpm_report.md); imported when called, so a worker
+        that only runs the solver never loads the report's tables and plotting."""
+        from solvers.mpm.report import report
+        return report(trees, folder, figures=figures)
 
     def __init__(self, cfg):
         self.extent_info = {}
