@@ -332,6 +332,15 @@ def test_cli_report_no_figures(studies, tmp_path, capsys):
     assert not (tmp_path / "elsewhere").exists()
 
 
+def test_cli_report_time_on_a_solver_without_a_comparison_is_one_line_and_exit_2(studies,
+                                                                                   capsys):
+    path = studies("mc", ISHIGAMI, MC)
+    assert main(["report", str(path), "--no-figures", "--time", "1e-6"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--time: the 'analytic' solver's report takes no such option" in \
+        err[0]
+
+
 def test_cli_report_on_a_missing_file_is_one_line_and_exit_2(tmp_path, capsys):
     missing = tmp_path / "nope.nc"
     assert main(["report", str(missing)]) == 2

@@ -53,6 +53,12 @@ def _parser() -> argparse.ArgumentParser:
     rep.add_argument("--figures", type=Path, default=None,
                      help="folder for the PNG figures (default: beside the result)")
     rep.add_argument("--no-figures", action="store_true")
+    rep.add_argument("--time", type=float, default=None, metavar="SECONDS",
+                     help="the output time of a solver's comparison tables (MPM: default the "
+                          "last output time)")
+    rep.add_argument("--reference", default=None, metavar="NAME",
+                     help="the result the comparison measures the others against (its file "
+                          "name without .nc; MPM: default the smallest standard error)")
 
     sub.add_parser("list", help="list the registered solvers and propagation methods")
     return p
@@ -123,7 +129,8 @@ def _report(args) -> int:
                 print(f"figure: {fig}")
     text, figures = report.solver_report(trees, args.figures or
                                          report.figure_folder(args.results[0]).parent,
-                                         figures=not args.no_figures)
+                                         figures=not args.no_figures, time=args.time,
+                                         reference=args.reference)
     if text:
         print(text)
     for fig in figures:

@@ -678,22 +678,39 @@ _FIGURES = [("histogram", _histogram), ("band", _band), ("convergence", _converg
             ("sobol", _sobol), ("contributions", _contributions)]
 
 
-def solver_report(trees: list, folder: Path, figures: bool = True) -> tuple[str, list[Path]]:
-    """What the results' solver adds: its ``report(trees, folder, figures)`` classmethod, if any.
+def solver_report(trees: list, folder: Path, figures: bool = True,
+                  **options) -> tuple[str, list[Path]]:
+    """What the results' solver adds: its ``report(trees, folder, figures, **options)``
+    static- or classmethod, if any.
 
     A solver knows the comparisons its users look at (the gamut bar prints the seed's Table 1
     beside ours and draws the seed's figures); results of different solvers are not mixed.
+    ``options`` given as None are left out; one the solver's report does not take is a
+    ``StudyError`` naming it (``uqflow report --time`` on results of a solver without times).
     """
+    import inspect
+
     from uqflow.solver import get_solver
 
+    options = {k: v for k, v in options.items() if v is not None}
     solvers = {str(t.attrs.get("solver", "")) for t in trees}
     if len(solvers) != 1 or "" in solvers:
+        if options:
+            raise StudyError(f"--{next(iter(options))} applies to a solver's comparison of "
+                             f"results of one solver; these are of {sorted(solvers)}",
+                             key=next(iter(options)))
         return "", []
+    name = solvers.pop()
     try:
-        solver_class = get_solver(solvers.pop())
+        solver_class = get_solver(name)
     except StudyError:
         return "", []
     hook = getattr(solver_class, "report", None)
+    taken = set(inspect.signature(hook).parameters) if hook is not None else set()
+    for key in options:
+        if key not in taken:
+            raise StudyError(f"--{key}: the '{name}' solver's report takes no such option",
+                             key=key)
     if hook is None:
         return "", []
-    return hook(trees, Path(folder), figures=figures)
+    return hook(trees, Path(folder), figures=figures, **options)

@@ -41,12 +41,12 @@ class MPMSolver(Solver):
     """Explicit 2-D plane-strain MPM (MUSL, quadratic B-splines) with EOS/strength materials."""
 
     @staticmethod
-    def report(trees, folder, figures=True):
+    def report(trees, folder, figures=True, time=None, reference=None):
         """``uqflow report`` on MPM results: seed 000's Tables 6-8 and 3/9, Figs. 5-6, 9-12
         (solvers/mpm/report.py, docs/mpm_report.md); imported when called, so a worker
         that only runs the solver never loads the report's tables and plotting."""
         from solvers.mpm.report import report
-        return report(trees, folder, figures=figures)
+        return report(trees, folder, figures=figures, time=time, reference=reference)
 
     def __init__(self, cfg):
         self.extent_info = {}

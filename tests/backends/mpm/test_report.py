@@ -341,3 +341,15 @@ def test_module_command_line_takes_time_and_reference(tmp_path, capsys):
     other = write(tmp_path / "other.nc", method="taylor", scene=("x.toml", "0" * 64))
     assert mpm_report.main([str(big), str(other), "--no-figures"]) == 2
     assert capsys.readouterr().err.startswith("error: other.nc: scene:")
+
+
+def test_uqflow_report_takes_time_and_reference(tmp_path, capsys):
+    from uqflow.cli import main
+    small = write(tmp_path / "mc_small.nc", method="monte-carlo", mean=1.01e9, stderr=0.02e9)
+    big = write(tmp_path / "mc_big.nc", method="monte-carlo", stderr=0.005e9)
+    argv = ["report", str(small), str(big), "--time", "4e-6", "--reference", "mc_small",
+            "--no-figures"]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "t = 5 µs (the output time nearest the requested 4 µs)" in out
+    assert "C.V. 0.1: reference mc_small.nc" in out
