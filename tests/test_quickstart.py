@@ -51,3 +51,5 @@ def test_the_table_says_what_the_answer_cost_and_how_sure_it_is(quickstart):
     assert "cost: 17 solver runs, 0 failed" in text
     comparison, _ = report.solver_report([quickstart], Path("."), figures=False)
     assert "seed Table 6 layout" in comparison and "speed-up" in comparison
+    # the one-run answer beside the corrected one, for every probe of every output
+    assert comparison.count("its control: taylor-local surrogate") == 3 * 4

@@ -491,24 +491,8 @@ def _moment_rows(group, ref, out, k, j, probe, div) -> list[list[str]]:
     ref_var_err, how = variance_error(ref, out) if ref else (None, "")
     ref_var_se = _value(ref_var_err, k, j)
     for res in group:
-        runs, failed, _ = res.cost()
-        mean = _value(res.statistic(out, "mean"), k, j)
-        var = _value(res.statistic(out, "variance"), k, j)
-        if res.stats is None:
-            rows.append([probe, res.cv_text, res.file, res.label, f"{runs}",
-                         "no statistics (study did not finish)", "", "", ""])
-            continue
-        if res is ref:
-            mean_text = f"{_fmt(mean / div)} ± {_fmt(ref_se / div, 2)}"
-            var_text = f"{_fmt(var / div ** 2, 4)} ± " + (
-                _fmt(ref_var_se / div ** 2, 2) if np.isfinite(ref_var_se) else "n/a")
-            rows.append([probe, res.cv_text, res.file, res.label + " (ref)", f"{runs}",
-                         mean_text, "-", var_text, "-"])
-            continue
-        z = (mean - ref_mean) / ref_se if np.isfinite(ref_se) and ref_se > 0 else math.nan
-        vs_mean = _pct(_rel(mean, ref_mean)) + (f" ({z:+.2g})" if np.isfinite(z) else "")
-        rows.append([probe, res.cv_text, res.file, res.label, f"{runs}", _fmt(mean / div),
-                     vs_mean, _fmt(var / div ** 2, 4), _pct(_rel(var, ref_var))])
+        rows += _result_rows(res, ref, out, k, j, probe, div, ref_mean, ref_var, ref_se,
+                             ref_var_se)
     seed = _seed_row(group[0], out, probe)
     if seed is not None:
         cv = group[0].cv_text
@@ -520,6 +504,43 @@ def _moment_rows(group, ref, out, k, j, probe, div) -> list[list[str]]:
                      _pct(_rel(seed.smpm_mean, ref_mean)),
                      _fmt(seed.smpm_variance / div ** 2, 4),
                      _pct(_rel(seed.smpm_variance, ref_var))])
+    return rows
+
+
+def _result_rows(res, ref, out, k, j, probe, div, ref_mean, ref_var, ref_se,
+                 ref_var_se) -> list[list[str]]:
+    """The row of one result; a control-variate result adds the row of its surrogate (the
+    control's own answer: for taylor-local the seed's one-run method, its variance the
+    quadratic's full one), which costs only the control runs."""
+    rows = []
+    runs, failed, _ = res.cost()
+    mean = _value(res.statistic(out, "mean"), k, j)
+    var = _value(res.statistic(out, "variance"), k, j)
+    if res.stats is None:
+        rows.append([probe, res.cv_text, res.file, res.label, f"{runs}",
+                     "no statistics (study did not finish)", "", "", ""])
+        return rows
+    if res is ref:
+        mean_text = f"{_fmt(mean / div)} ± {_fmt(ref_se / div, 2)}"
+        var_text = f"{_fmt(var / div ** 2, 4)} ± " + (
+            _fmt(ref_var_se / div ** 2, 2) if np.isfinite(ref_var_se) else "n/a")
+        rows.append([probe, res.cv_text, res.file, res.label + " (ref)", f"{runs}",
+                     mean_text, "-", var_text, "-"])
+    else:
+        z = (mean - ref_mean) / ref_se if np.isfinite(ref_se) and ref_se > 0 else math.nan
+        vs_mean = _pct(_rel(mean, ref_mean)) + (f" ({z:+.2g})" if np.isfinite(z) else "")
+        rows.append([probe, res.cv_text, res.file, res.label, f"{runs}", _fmt(mean / div),
+                     vs_mean, _fmt(var / div ** 2, 4), _pct(_rel(var, ref_var))])
+    surrogate = res.stats.get(f"{out}_surrogate")
+    if surrogate is not None:
+        mean = _value(surrogate.sel(surrogate_statistic="mean"), k, j)
+        var = _value(surrogate.sel(surrogate_statistic="variance"), k, j)
+        z = (mean - ref_mean) / ref_se if np.isfinite(ref_se) and ref_se > 0 else math.nan
+        rows.append([probe, res.cv_text, res.file,
+                     f"  its control: {res.stats.attrs.get('control', '?')} surrogate",
+                     f"{res.stats.attrs.get('control_runs', '?')}", _fmt(mean / div),
+                     _pct(_rel(mean, ref_mean)) + (f" ({z:+.2g})" if np.isfinite(z) else ""),
+                     _fmt(var / div ** 2, 4), _pct(_rel(var, ref_var))])
     return rows
 
 
