@@ -346,6 +346,37 @@ def elastic_table(all_results: list[Results]) -> str:
     return "\n".join(lines)
 
 
+def plastic_step_table(all_results: list[Results]) -> str:
+    """The deviator in plastic steps after LATE_US (some local derivative non-zero): the
+    first-order std from the frozen derivatives over the one from the whole-solver ones, and
+    how the two A-derivatives follow each other over time."""
+    lines = [f"| case | output | plastic-step points after {LATE_US:g} µs, per probe | "
+             "frozen / whole-solver first-order std (median) | ∂/∂A frozen / whole (median) | "
+             "correlation over time of the two ∂/∂A |", "|---|---|---|---|---|---|"]
+    for res in all_results:
+        times_us = np.asarray(res.ref["time"].values) * 1e6
+        probes = [str(p) for p in res.ref["probe"].values]
+        sigma = np.asarray(res.whole["input_std"].values, float)[:, None, None]
+        for out in ("S11", "S22"):
+            if out not in res.case.local_outputs:
+                continue
+            local = np.asarray(res.local[f"{out}_gradient"].values, float)
+            whole = np.asarray(res.whole[f"{out}_gradient"].values, float)
+            ratio = np.sqrt(((local * sigma) ** 2).sum(0) / ((whole * sigma) ** 2).sum(0))
+            plastic = ~np.all(local == 0.0, axis=0) & (times_us > LATE_US)[:, None]
+            a = [str(q) for q in res.local["parameter"].values].index("steel.jc.A")
+            cells = [[], [], [], []]
+            for j, probe in enumerate(probes):
+                m = plastic[:, j]
+                cells[0].append(f"{probe} {m.sum()}")
+                cells[1].append(f"{probe} {np.median(ratio[m, j]):.2f}")
+                cells[2].append(f"{probe} {np.median(local[a, m, j] / whole[a, m, j]):.2f}")
+                cells[3].append(f"{probe} {np.corrcoef(local[a, m, j], whole[a, m, j])[0, 1]:.2f}")
+            lines.append(f"| {res.case.example} {res.case.cv:.2f} | {out} | "
+                         + " | ".join(", ".join(c) for c in cells) + " |")
+    return "\n".join(lines)
+
+
 def crossing_time(series: np.ndarray, times_us: np.ndarray, level: float,
                   falling: bool = False) -> float:
     """First time (µs) the series rises to ``level`` (or, with ``falling``, first falls back
@@ -586,6 +617,10 @@ Relative errors: |Δmean| in reference stds, |var/var_ref − 1|.
 **Deviator in elastic steps** (all local derivatives of the probe's S11, S22 exactly 0)
 
 {elastic_table(results)}
+
+**Deviator in plastic steps** (the frozen derivative is radial: (3G/(3G+H)) (S/σeq) ∂σy/∂θ)
+
+{plastic_step_table(results)}
 
 **Pulse timing and S1** (thick; `taylor`'s S1 stencil runs, half the nominal peak)
 
