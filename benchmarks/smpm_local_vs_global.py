@@ -147,7 +147,6 @@ class Results:
     whole: xr.Dataset         # taylor statistics
     whole_runs: xr.Dataset    # taylor's stencil runs
     ref: xr.Dataset           # reference statistics
-    ref_runs: xr.Dataset
 
 
 def load(folder: Path, case: Case) -> Results:
@@ -156,8 +155,7 @@ def load(folder: Path, case: Case) -> Results:
     return Results(case, trees["taylor_local"]["statistics"].to_dataset(),
                    trees["taylor"]["statistics"].to_dataset(),
                    trees["taylor"]["runs"].to_dataset(),
-                   trees["reference"]["statistics"].to_dataset(),
-                   trees["reference"]["runs"].to_dataset())
+                   trees["reference"]["statistics"].to_dataset())
 
 
 def stat(ds: xr.Dataset, out: str, label: str) -> np.ndarray:
