@@ -360,7 +360,8 @@ def plastic_step_table(all_results: list[Results]) -> str:
                 continue
             local = np.asarray(res.local[f"{out}_gradient"].values, float)
             whole = np.asarray(res.whole[f"{out}_gradient"].values, float)
-            ratio = np.sqrt(((local * sigma) ** 2).sum(0) / ((whole * sigma) ** 2).sum(0))
+            with np.errstate(invalid="ignore", divide="ignore"):   # 0/0 before the shock
+                ratio = np.sqrt(((local * sigma) ** 2).sum(0) / ((whole * sigma) ** 2).sum(0))
             plastic = ~np.all(local == 0.0, axis=0) & (times_us > LATE_US)[:, None]
             a = [str(q) for q in res.local["parameter"].values].index("steel.jc.A")
             cells = [[], [], [], []]
