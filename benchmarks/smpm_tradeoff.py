@@ -374,10 +374,10 @@ def check_control_variate(main: Main, cfg: Config) -> list[str]:
         ratio = iid / main.ref.runs
         lines.append(
             f"(a) {q}: reference stderr of mean σy at H {se / 1e6:.3g} MPa with {main.ref.runs} "
-            f"runs; plain i.i.d. MC needs var/se² = {iid:,.0f} runs ({ratio:.1f}× more"
-            f"{'' if ratio >= 5 else ', short of 5×'}); plain scrambled Sobol' (its own "
+            f"runs; plain i.i.d. MC needs var/se² = {iid:,.0f} runs ({ratio:,.0f}× more: "
+            f"{'≥ 5×, met' if ratio >= 5 else 'short of 5×'}); plain scrambled Sobol' (its own "
             f"stderr {se_sobol / 1e6:.3g} MPa at {n_sobol}, scaled as n^-1/2) ≈ "
-            f"{sobol_needed:,.0f} runs ({sobol_needed / main.ref.runs:.1f}×); ρ² = "
+            f"{sobol_needed:,.0f} runs ({sobol_needed / main.ref.runs:,.0f}×); ρ² = "
             f"{main.rho2[q]:.4f}, 1/(1−ρ²) = {1 / max(1 - main.rho2[q], 1e-300):.3g}")
     return lines
 
@@ -445,7 +445,7 @@ def failure_study(folder: Path, cfg: Config, reuse: bool) -> list[str]:
         said = [w for w in got.statistics.attrs.get("warnings", "").split("\n")
                 if "fail" in w]
         lines.append(f"{name}: {failed.size} of {status.size} realizations failed "
-                     f"(rows {', '.join(map(str, failed))}; first message: {msg[:90]!r}); "
+                     f"(rows {', '.join(map(str, failed))}; first message: {msg[:160]!r}); "
                      f"study complete = {got.attrs.get('complete')}, failed_runs = "
                      f"{got.attrs.get('failed_runs')}; it says: "
                      f"{said[0][:220] if said else '(no failure warning)'}")
@@ -498,11 +498,11 @@ def sweep(folder: Path, cfg: Config, reuse: bool) -> list[SweepPoint]:
 def leaves(points: list[SweepPoint], label: str, q: str, which: int, level: float) -> str:
     """The smallest C.V. at which ``label``'s error (0 mean, 1 variance) of σy at H exceeds
     ``level`` and stays above the reference's own 2 standard errors there."""
-    for p in points:
+    for k, p in enumerate(points):
         err = errors(p.methods[label].stats[q], p.ref.stats[q], "flow_stress", "H")[which]
         noise = 2 * ref_rel_stderr(p.ref.stats[q], "flow_stress", "H")[which]
         if err > max(level, noise):
-            return f"{p.cv:g}"
+            return f"{p.cv:g}" if k else f"≤ {p.cv:g} (never within)"
     return f"> {points[-1].cv:g}"
 
 
@@ -524,7 +524,7 @@ def _plt():
 
 def draw_tradeoff(main: Main, q: str, path: Path) -> None:
     plt = _plt()
-    fig, axes = plt.subplots(1, 2, figsize=(9.5, 3.6))
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.6))
     se = ref_rel_stderr(main.ref.stats[q], "flow_stress", "H")
     for which, ax in enumerate(axes):
         for label, ests in main.curves.items():
@@ -538,15 +538,16 @@ def draw_tradeoff(main: Main, q: str, path: Path) -> None:
         ax.axhline(se[which], color="0.6", ls="--", lw=0.8, label="reference's own stderr")
         ax.set(xlabel="solver runs", ylabel=("|mean/mean_ref − 1|", "|var/var_ref − 1|")[which],
                title=f"σy at H, {q}: {('mean', 'variance')[which]}")
-    axes[1].legend(fontsize=6, ncol=2)
-    fig.tight_layout()
+    handles, labels = axes[1].get_legend_handles_labels()
+    fig.tight_layout(rect=(0, 0, 0.83, 1))
+    fig.legend(handles, labels, fontsize=7, loc="center right")
     fig.savefig(path, dpi=72)
     plt.close(fig)
 
 
 def draw_sweep(points: list[SweepPoint], q: str, path: Path) -> None:
     plt = _plt()
-    fig, axes = plt.subplots(1, 2, figsize=(9.5, 3.4))
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.4))
     cvs = [p.cv for p in points]
     for which, ax in enumerate(axes):
         for label in points[0].methods:
@@ -561,8 +562,9 @@ def draw_sweep(points: list[SweepPoint], q: str, path: Path) -> None:
         ax.set(xlabel="C.V. of every JC input", ylabel=("|mean/mean_ref − 1|",
                                                          "|var/var_ref − 1|")[which],
                title=f"σy at H, {q}: {('mean', 'variance')[which]}")
-    axes[0].legend(fontsize=6)
-    fig.tight_layout()
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.tight_layout(rect=(0, 0, 0.83, 1))
+    fig.legend(handles, labels, fontsize=7, loc="center right")
     fig.savefig(path, dpi=72)
     plt.close(fig)
 
@@ -616,13 +618,15 @@ def cost_table(main: Main, plain_s: float, local_s: float) -> str:
              f"{main.per_run:.2f} s; the seed's {SEED_MC_RUNS:,}-sample Monte Carlo at that rate "
              f"= {seed_mc:,.0f} s (our per-run time × {SEED_MC_RUNS:,}, stated as such).", "",
              "| method | solver runs | wall time (s, summed over its runs) | speed-up against "
-             f"{SEED_MC_RUNS:,} × per-run |", "|---|---|---|---|"]
+             f"{SEED_MC_RUNS:,} × per-run | in runs ({SEED_MC_RUNS:,} / runs) |",
+             "|---|---|---|---|---|"]
     rows = [("reference: control-variate MC", main.ref)]
     for label, ests in main.curves.items():
         rows += [(label, e) for e in ests]
     for label, e in rows:
         wall = e.wall if label != "taylor-local" else local_s
-        lines.append(f"| {label} | {e.runs} | {wall:.1f} | {seed_mc / wall:,.0f} |")
+        lines.append(f"| {label} | {e.runs} | {wall:.1f} | {seed_mc / wall:,.0f} | "
+                     f"{SEED_MC_RUNS / e.runs:,.0f} |")
     lines.append(f"\n`taylor-local`'s row uses its in-process timing (d), {local_s:.2f} s; a "
                  f"plain run in that process took {plain_s:.2f} s.")
     return "\n".join(lines)
@@ -729,8 +733,10 @@ control-variate MC are nested whole-replicate prefixes of the reference, `pce` i
 nested prefixes of the reference's samples (germ (x − μ)/σ of those points), plain random MC
 on prefixes of its own {cfg.random_samples} i.i.d. runs, LHS on its own runs
 ({', '.join(map(str, cfg.lhs_sizes))}). A sub-sample shares runs with the reference, so its
-error against it is the sub-sampling error (exact 0 at the full size; the largest shown
-sizes are half the reference). Seed-matched time {cfg.seed_time_us:g} µs (docs/mpm_scenes.md;
+error against it is the sub-sampling error, and plain Sobol' and `pce` at {cfg.ref_samples}
+use the reference's very runs (their error there is the estimators' difference only);
+control-variate prefixes stop at half the reference. Wall times are the workers' summed
+per-run times under the load of the moment; the speed-up in runs does not depend on load. Seed-matched time {cfg.seed_time_us:g} µs (docs/mpm_scenes.md;
 the seed-convention reading puts the seed's state at 8–10 µs). Peak: max |y| over time of
 each realization; `taylor-local` and the control surrogate use the nominal run's
 derivatives at its argmax time. Whole benchmark {elapsed:.0f} s wall on this machine; it ran
