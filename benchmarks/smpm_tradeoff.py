@@ -39,7 +39,7 @@ import statistics as pystats
 import sys
 import time
 import warnings as pywarnings
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -536,9 +536,18 @@ def draw_tradeoff(main: Main, q: str, path: Path) -> None:
                  for e in ests]
             ax.loglog(x, y, color=colour, marker=marker, ms=4, lw=0.9, label=label)
         ax.axhline(se[which], color="0.6", ls="--", lw=0.8, label="reference's own stderr")
-        ax.set(xlabel="solver runs", ylabel=("|mean/mean_ref − 1|", "|var/var_ref − 1|")[which],
-               title=f"σy at H, {q}: {('mean', 'variance')[which]}")
-    handles, labels = axes[1].get_legend_handles_labels()
+        _label_panel(ax, "solver runs", q, which)
+    _finish(plt, fig, axes[1], path)
+
+
+def _label_panel(ax, xlabel: str, q: str, which: int) -> None:
+    ax.set(xlabel=xlabel, ylabel=("|mean/mean_ref − 1|", "|var/var_ref − 1|")[which],
+           title=f"σy at H, {q}: {('mean', 'variance')[which]}")
+
+
+def _finish(plt, fig, legend_axis, path: Path) -> None:
+    """One legend for both panels, right of them (it hid the curves inside a panel)."""
+    handles, labels = legend_axis.get_legend_handles_labels()
     fig.tight_layout(rect=(0, 0, 0.83, 1))
     fig.legend(handles, labels, fontsize=7, loc="center right")
     fig.savefig(path, dpi=72)
@@ -559,14 +568,8 @@ def draw_sweep(points: list[SweepPoint], q: str, path: Path) -> None:
         ax.loglog(cvs, noise, color="0.6", ls="--", lw=0.8, label="reference's stderr")
         for level in (0.01, 0.05):
             ax.axhline(level, color="0.8", lw=0.6)
-        ax.set(xlabel="C.V. of every JC input", ylabel=("|mean/mean_ref − 1|",
-                                                         "|var/var_ref − 1|")[which],
-               title=f"σy at H, {q}: {('mean', 'variance')[which]}")
-    handles, labels = axes[0].get_legend_handles_labels()
-    fig.tight_layout(rect=(0, 0, 0.83, 1))
-    fig.legend(handles, labels, fontsize=7, loc="center right")
-    fig.savefig(path, dpi=72)
-    plt.close(fig)
+        _label_panel(ax, "C.V. of every JC input", q, which)
+    _finish(plt, fig, axes[0], path)
 
 
 # ------------------------------------------------------------------------------ tables

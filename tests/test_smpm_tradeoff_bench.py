@@ -108,6 +108,15 @@ def test_the_checks_and_tables_come_out(toy):
         assert table.count("\n") >= 2
 
 
+def test_the_figures_are_drawn(toy, tmp_path):
+    _, out = toy
+    bench.draw_tradeoff(out["main"], "peak", tmp_path / "peak.png")
+    bench.draw_sweep(out["points"], "100 µs", tmp_path / "sweep.png")
+    for name in ("peak.png", "sweep.png"):
+        # the docs keep figures small (< 150 kB each)
+        assert 0 < (tmp_path / name).stat().st_size < 150_000
+
+
 def test_a_failed_realization_is_recorded_and_the_studies_go_on(toy):
     _, out = toy
     assert len(out["failures"]) == 2
