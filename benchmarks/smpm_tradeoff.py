@@ -734,7 +734,8 @@ scrambled Sobol' points + 1 control run ({main.ref.runs} runs), 2 dask workers, 
 standard errors come from its {cfg.replicates} replicates. Runs reused: plain Sobol' MC and
 control-variate MC are nested whole-replicate prefixes of the reference, `pce` is fitted on
 nested prefixes of the reference's samples (germ (x − μ)/σ of those points), plain random MC
-on prefixes of its own {cfg.random_samples} i.i.d. runs, LHS on its own runs
+on prefixes of its own {cfg.random_samples} i.i.d. runs (a prefix of an i.i.d. sample is one;
+a random subset of the stratified Sobol' pool would not be), LHS on its own runs
 ({', '.join(map(str, cfg.lhs_sizes))}). A sub-sample shares runs with the reference, so its
 error against it is the sub-sampling error, and plain Sobol' and `pce` at {cfg.ref_samples}
 use the reference's very runs (their error there is the estimators' difference only);
