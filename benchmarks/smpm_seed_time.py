@@ -332,7 +332,7 @@ def fmt_rows(rows: list[Row]) -> str:
     for r in rows:
         flag = " **!**" if r.flagged else ""
         lines.append(f"| {r.output} {r.probe} {r.cv:.2f}{flag} | {r.seed[0]:.3f} / {r.seed[1]:.3f}"
-                     f" | {r.local[0]:.3f} / {r.mc[0]:.3f} ± {r.mc[1]:.3f} | {r.mean_rel:+.1%} "
+                     f" | {r.local[0]:.3f} / {r.mc[0]:.3f} ± {r.mc[1]:.1e} | {r.mean_rel:+.1%} "
                      f"| {r.seed[2]:.2e} / {r.seed[3]:.2e} | {r.local[1]:.2e} / {r.mc[2]:.2e} ± "
                      f"{r.mc[3]:.1e} | {r.var_rel:+.0%} |")
     return "\n".join(lines)
