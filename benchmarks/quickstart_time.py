@@ -2,7 +2,7 @@
 studies/quickstart.toml`, from a cold numba cache (what a newcomer meets) and a warm one.
 
 Each repeat runs the CLI in a fresh process with ``NUMBA_CACHE_DIR`` pointing at a new empty
-folder (cold: every kernel compiles, in each of the two dask workers) or at one folder reused
+folder (cold: every kernel compiles) or at one folder reused
 (warm), writing the result into a temporary folder. Medians of ``--repeats`` runs; the warm
 runs follow the cold ones, so the two are measured under the same load.
 

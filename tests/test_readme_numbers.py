@@ -59,7 +59,7 @@ def test_quickstart_is_what_the_readme_describes():
     assert all(i.name.startswith("steel.jc.") and i.kind == "normal" for i in study.space.inputs)
     # the study's literal 0.10 against the README's: one rounding each
     assert [i.cv for i in study.space.inputs] == pytest.approx([cv] * 5, rel=1e-15)
-    assert study.spec.execution.workers == 2
+    assert study.spec.execution.workers == 0      # README: in-process, one compile
 
 
 def test_execution_defaults_as_stated():
