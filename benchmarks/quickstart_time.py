@@ -47,8 +47,8 @@ def main() -> None:
         for k in range(args.repeats):
             warm.append(one_run(tmp / "cold0", tmp / f"warm{k}.nc"))
             print(f"warm {k}: {warm[-1]:.1f} s", flush=True)
-    body = (f"`uqflow run studies/quickstart.toml` (9 MPM runs of 8,400 particles on 2 dask "
-            f"workers, figures and the comparison report included), wall time of the whole "
+    body = (f"`uqflow run studies/quickstart.toml` (9 MPM runs of 8,400 particles in-process "
+            f"as the study says, figures and the comparison report included), wall time of the whole "
             f"command in a fresh process, median of {args.repeats}:\n\n"
             f"| numba cache | median | runs |\n|---|---|---|\n"
             f"| cold (empty `NUMBA_CACHE_DIR`) | {statistics.median(cold):.1f} s | "
