@@ -34,6 +34,7 @@ import xarray as xr
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _record import FIGURES, ROOT, write_section  # noqa: E402
+from _studies import write_normal_study  # noqa: E402
 
 RESOLUTION = 0.5
 MC_SAMPLES, MC_REPLICATES, MC_SEED = 64, 8, 1
@@ -96,27 +97,19 @@ def write_scene(example: str, folder: Path) -> Path:
 
 def write_study(case: Case, method: str, folder: Path) -> Path:
     outputs = case.local_outputs + ([] if method == "taylor_local" else case.history_outputs)
-    lines = [f'name = "{case.key}-{method}"', 'solver = "mpm"',
-             f'scene = "scene_{case.example}.toml"',
-             "outputs = " + repr(outputs).replace("'", '"'), ""]
-    for name, mean in case.inputs.items():
-        lines += ["[[inputs]]", f'name = "{name}"', 'distribution = "normal"',
-                  f"mean = {mean!r}", f"cv = {case.cv}", ""]
-    if method == "taylor_local":
-        lines += ["[method]", 'kind = "taylor-local"', "", "[execution]", "workers = 0"]
-    elif method == "taylor":
-        lines += ["[method]", 'kind = "taylor"', "order = 2", 'variance = "first-order"',
-                  "step_check = false", f"step = {case.step}", "", "[execution]", "workers = 0"]
-    else:
-        lines += ["[method]", 'kind = "monte-carlo"', f"samples = {MC_SAMPLES}",
-                  'rule = "sobol"', f"replicates = {MC_REPLICATES}", 'control = "taylor"',
-                  f"control_step = {case.step}", "", "[execution]", "workers = 2",
-                  f"seed = {MC_SEED}"]
-    lines += ["", "[output]", f'path = "{case.key}_{method}.nc"', ""]
-    path = folder / f"{case.key}_{method}.toml"
-    path.write_text("\n".join(lines))
-    return path
-
+    methods = {
+        "taylor_local": ({"kind": "taylor-local"}, {"workers": 0}),
+        "taylor": ({"kind": "taylor", "order": 2, "variance": "first-order",
+                    "step_check": False, "step": case.step}, {"workers": 0}),
+    }
+    method_table, execution = methods.get(method, (
+        {"kind": "monte-carlo", "samples": MC_SAMPLES, "rule": "sobol",
+         "replicates": MC_REPLICATES, "control": "taylor", "control_step": case.step},
+        {"workers": 2, "seed": MC_SEED}))
+    return write_normal_study(folder / f"{case.key}_{method}.toml", name=f"{case.key}-{method}",
+                              scene=f"scene_{case.example}.toml", outputs=outputs,
+                              means=case.inputs, cv=case.cv, method=method_table,
+                              execution=execution, result=f"{case.key}_{method}.nc")
 
 def run_all(folder: Path, reuse: bool) -> None:
     """Run every study (with ``reuse``, only those without a result file yet)."""

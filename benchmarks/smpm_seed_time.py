@@ -39,6 +39,7 @@ import scipy.optimize as so
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _record import ROOT, write_section  # noqa: E402
+from _studies import write_normal_study  # noqa: E402
 
 JC_GPA = {"A": 0.792, "B": 0.510, "C": 0.014, "n": 0.26}     # seed Table 5, stresses in GPa
 JC_PA = {"A": 792.0e6, "B": 510.0e6, "C": 0.014, "n": 0.26, "m": 1.03}
@@ -204,24 +205,16 @@ def study_key(conventions: str, cv: float, method: str) -> str:
 def write_study(conventions: str, cv: float, method: str, folder: Path) -> Path:
     key = study_key(conventions, cv, method)
     outputs = list(OUTPUTS) + (["plastic_strain"] if method == "nominal" else [])
-    lines = [f'name = "seed-time-{key}"', 'solver = "mpm"', f'scene = "scene_{conventions}.toml"',
-             "outputs = " + repr(outputs).replace("'", '"'), ""]
-    for name, mean in JC_PA.items():
-        lines += ["[[inputs]]", f'name = "steel.jc.{name}"', 'distribution = "normal"',
-                  f"mean = {mean!r}", f"cv = {cv}", ""]
-    if method == "taylor_local":
-        lines += ["[method]", 'kind = "taylor-local"', "", "[execution]", "workers = 0"]
-    elif method == "nominal":
-        lines += ["[method]", 'kind = "nominal"', "", "[execution]", "workers = 0"]
-    else:
-        lines += ["[method]", 'kind = "monte-carlo"', f"samples = {MC_SAMPLES}", 'rule = "sobol"',
-                  f"replicates = {MC_REPLICATES}", 'control = "taylor-local"', "",
-                  "[execution]", "workers = 2", f"seed = {MC_SEED}"]
-    lines += ["", "[output]", f'path = "{key}.nc"', ""]
-    path = folder / f"{key}.toml"
-    path.write_text("\n".join(lines))
-    return path
-
+    methods = {"taylor_local": ({"kind": "taylor-local"}, {"workers": 0}),
+               "nominal": ({"kind": "nominal"}, {"workers": 0})}
+    method_table, execution = methods.get(method, (
+        {"kind": "monte-carlo", "samples": MC_SAMPLES, "rule": "sobol",
+         "replicates": MC_REPLICATES, "control": "taylor-local"},
+        {"workers": 2, "seed": MC_SEED}))
+    return write_normal_study(folder / f"{key}.toml", name=f"seed-time-{key}",
+                              scene=f"scene_{conventions}.toml", outputs=outputs,
+                              means={f"steel.jc.{k}": v for k, v in JC_PA.items()}, cv=cv,
+                              method=method_table, execution=execution, result=f"{key}.nc")
 
 def run_all(folder: Path, reuse: bool) -> None:
     import uqflow

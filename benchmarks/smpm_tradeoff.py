@@ -48,6 +48,7 @@ import xarray as xr
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _record import FIGURES, ROOT, write_section  # noqa: E402
+from _studies import write_normal_study  # noqa: E402
 
 JC = {"A": 792.0e6, "B": 510.0e6, "C": 0.014, "n": 0.26, "m": 1.03}
 OUTPUTS = ["flow_stress", "S11", "S22"]
@@ -102,29 +103,14 @@ def write_scene(folder: Path, resolution: float, end_time: float | None) -> str:
     return name
 
 
-def _toml(value) -> str:
-    if isinstance(value, str):
-        return f'"{value}"'
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    return repr(value)
-
-
 def write_study(folder: Path, name: str, scene: str, cv: float, method: dict, workers: int,
                 seed: int, cv_overrides: dict | None = None) -> Path:
-    lines = [f'name = "{name}"', 'solver = "mpm"', f'scene = "{scene}"',
-             "outputs = " + repr(OUTPUTS).replace("'", '"'), ""]
-    for key, mean in JC.items():
-        c = (cv_overrides or {}).get(key, cv)
-        lines += ["[[inputs]]", f'name = "steel.jc.{key}"', 'distribution = "normal"',
-                  f"mean = {mean!r}", f"cv = {c!r}", ""]
-    lines += ["[method]"] + [f"{k} = {_toml(v)}" for k, v in method.items()]
-    lines += ["", "[execution]", f"workers = {workers}", f"seed = {seed}",
-              "max_failure_fraction = 0.5", "", "[output]", f'path = "{name}.nc"', ""]
-    path = folder / f"{name}.toml"
-    path.write_text("\n".join(lines))
-    return path
-
+    cvs = {f"steel.jc.{k}": (cv_overrides or {}).get(k, cv) for k in JC}
+    return write_normal_study(folder / f"{name}.toml", name=name, scene=scene, outputs=OUTPUTS,
+                              means={f"steel.jc.{k}": v for k, v in JC.items()}, cv=cvs,
+                              method=method, execution={"workers": workers, "seed": seed,
+                                                        "max_failure_fraction": 0.5},
+                              result=f"{name}.nc")
 
 @dataclass
 class Run:

@@ -94,6 +94,13 @@ class MethodOptions(BaseModel):
                              f"docs/study-files.md, Limits), got {value:,}")
         return value
 
+    def only_where(self, key: str, applies: bool, where: str) -> "MethodOptions":
+        """Refuse ``key`` set in the study file where it has no effect (an option silently
+        ignored would mislead): "'key' applies to <where> (drop the key)"."""
+        if key in self.model_fields_set and not applies:
+            raise ValueError(f"'{key}' applies to {where} (drop the key)")
+        return self
+
 
 def _has_upper_bound(info) -> bool:
     return any(getattr(m, "le", None) is not None or getattr(m, "lt", None) is not None

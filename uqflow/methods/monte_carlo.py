@@ -104,17 +104,14 @@ class MonteCarloOptions(SampleStatisticsOptions):
 
     @model_validator(mode="after")
     def _replicates_only_for_quasi_random(self):
-        if "replicates" in self.model_fields_set and self.rule not in QUASI_RANDOM_RULES:
-            raise ValueError(f"'replicates' applies to rule sobol or halton only; rule "
-                             f"'{self.rule}' has independent points (drop the key)")
-        return self
+        return self.only_where("replicates", self.rule in QUASI_RANDOM_RULES,
+                               f"rule sobol or halton only; rule '{self.rule}' has "
+                               f"independent points")
 
     @model_validator(mode="after")
     def _control_step_only_for_taylor(self):
-        if "control_step" in self.model_fields_set and self.control != "taylor":
-            raise ValueError(f"'control_step' applies to control = \"taylor\" only, not "
-                             f"\"{self.control}\" (drop the key)")
-        return self
+        return self.only_where("control_step", self.control == "taylor",
+                               f'control = "taylor" only, not "{self.control}"')
 
 
 @register_method("monte-carlo")

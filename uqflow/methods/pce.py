@@ -60,10 +60,8 @@ class PCEOptions(MethodOptions):
 
     @model_validator(mode="after")
     def _max_order_only_for_loo(self):
-        if "max_order" in self.model_fields_set and self.order != "loo":
-            raise ValueError(f"'max_order' applies to order = \"loo\" only; order = "
-                             f"{self.order} is fixed (drop the key)")
-        return self
+        return self.only_where("max_order", self.order == "loo",
+                               f'order = "loo" only; order = {self.order} is fixed')
 
     @property
     def top_order(self) -> int:
