@@ -3,6 +3,7 @@ of one scene, a method table and an execution table, as a user would write them.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 
@@ -31,4 +32,20 @@ def write_normal_study(path: Path, *, name: str, scene: str, outputs, means: dic
         lines += [f"[{table}]", *(f"{k} = {toml_value(v)}" for k, v in entries.items()), ""]
     lines += ["[output]", f"path = {toml_value(result)}", ""]
     path.write_text("\n".join(lines))
+    return path
+
+
+def write_scene_variant(source: str, path: Path, **keys) -> Path:
+    """A shipped scene (``studies/scenes/<source>``) with top-level ``keys`` set to new values
+    (``outputs`` and other arrays may span lines); each key must stand there exactly once."""
+    from _record import ROOT
+
+    text = (ROOT / "studies" / "scenes" / source).read_text()
+    for key, value in keys.items():
+        pattern = rf"(?ms)^{key} = \[.*?\]" if isinstance(value, (list, tuple)) else \
+            rf"(?m)^{key} = .*$"
+        text, found = re.subn(pattern, f"{key} = {toml_value(value)}", text)
+        if found != 1:
+            raise SystemExit(f"scene {source}: expected one '{key}' entry, found {found}")
+    path.write_text(text)
     return path

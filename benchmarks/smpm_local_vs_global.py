@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import re
 import sys
 import warnings
 from dataclasses import dataclass
@@ -34,7 +33,7 @@ import xarray as xr
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _record import FIGURES, ROOT, write_section  # noqa: E402
-from _studies import write_normal_study  # noqa: E402
+from _studies import write_normal_study, write_scene_variant  # noqa: E402
 
 RESOLUTION = 0.5
 MC_SAMPLES, MC_REPLICATES, MC_SEED = 64, 8, 1
@@ -82,18 +81,11 @@ METHODS = ("taylor_local", "taylor", "reference")
 
 def write_scene(example: str, folder: Path) -> Path:
     """The shipped small scene at RESOLUTION with the outputs the comparison needs."""
-    text = (ROOT / "studies" / "scenes" / f"mpm_contact_{example}_small.toml").read_text()
-    text, n_res = re.subn(r"(?m)^resolution = .*$", f"resolution = {RESOLUTION}", text)
     outputs = ["flow_stress", "flow_stress_total_rate", "S11", "S22", "plastic_strain"] \
         if example == "thin" else ["pressure"]
-    listed = "outputs = " + repr(outputs).replace("'", '"')
-    text, n_out = re.subn(r"(?ms)^outputs = \[.*?\]", listed, text)
-    if n_res != 1 or n_out != 1:
-        raise SystemExit(f"scene {example}: expected one 'resolution' and one 'outputs' line")
-    path = folder / f"scene_{example}.toml"
-    path.write_text(text)
-    return path
-
+    return write_scene_variant(f"mpm_contact_{example}_small.toml",
+                               folder / f"scene_{example}.toml", resolution=RESOLUTION,
+                               outputs=outputs)
 
 def write_study(case: Case, method: str, folder: Path) -> Path:
     outputs = case.local_outputs + ([] if method == "taylor_local" else case.history_outputs)

@@ -27,7 +27,6 @@ BENCHMARKS.md.
 from __future__ import annotations
 
 import argparse
-import re
 import sys
 import tomllib
 import warnings
@@ -39,7 +38,7 @@ import scipy.optimize as so
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _record import ROOT, write_section  # noqa: E402
-from _studies import write_normal_study  # noqa: E402
+from _studies import write_normal_study, write_scene_variant  # noqa: E402
 
 JC_GPA = {"A": 0.792, "B": 0.510, "C": 0.014, "n": 0.26}     # seed Table 5, stresses in GPa
 JC_PA = {"A": 792.0e6, "B": 510.0e6, "C": 0.014, "n": 0.26, "m": 1.03}
@@ -185,18 +184,10 @@ def log_rate_star(flow_stress_pa: np.ndarray, eps_p: np.ndarray) -> np.ndarray:
 def write_scene(conventions: str, folder: Path) -> Path:
     name = "mpm_contact_thin_small_seed.toml" if conventions == "seed" \
         else "mpm_contact_thin_small.toml"
-    text = (ROOT / "studies" / "scenes" / name).read_text()
-    listed = 'outputs = ["flow_stress", "flow_stress_total_rate", "S11", "S22", ' \
-             '"plastic_strain"]\n'
-    text, n_out = re.subn(r"(?ms)^outputs = \[.*?\]\n", listed, text)
     end = SEED_END_US if conventions == "seed" else LATE_US
-    text, n_end = re.subn(r"(?m)^end_time = .*$", f"end_time = {end * 1e-6!r}", text)
-    if n_out != 1 or n_end != 1:
-        raise SystemExit(f"scene {name}: expected one 'outputs' and one 'end_time' entry")
-    path = folder / f"scene_{conventions}.toml"
-    path.write_text(text)
-    return path
-
+    return write_scene_variant(name, folder / f"scene_{conventions}.toml",
+                               outputs=["flow_stress", "flow_stress_total_rate", "S11", "S22",
+                                        "plastic_strain"], end_time=end * 1e-6)
 
 def study_key(conventions: str, cv: float, method: str) -> str:
     return f"{conventions}_cv{cv:.2f}_{method}"

@@ -34,7 +34,6 @@ BENCHMARKS.md.
 from __future__ import annotations
 
 import argparse
-import re
 import statistics as pystats
 import sys
 import time
@@ -48,7 +47,7 @@ import xarray as xr
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _record import FIGURES, ROOT, write_section  # noqa: E402
-from _studies import write_normal_study  # noqa: E402
+from _studies import write_normal_study, write_scene_variant  # noqa: E402
 
 JC = {"A": 792.0e6, "B": 510.0e6, "C": 0.014, "n": 0.26, "m": 1.03}
 OUTPUTS = ["flow_stress", "S11", "S22"]
@@ -90,18 +89,12 @@ TOY = Config(resolution=0.125, sweep_resolution=0.125, sweep_cvs=(0.03, 0.3), re
 
 def write_scene(folder: Path, resolution: float, end_time: float | None) -> str:
     """The shipped small thin-plate scene at ``resolution`` with OUTPUTS only."""
-    text = (ROOT / "studies" / "scenes" / "mpm_contact_thin_small.toml").read_text()
-    text, n_res = re.subn(r"(?m)^resolution = .*$", f"resolution = {resolution}", text)
-    text, n_out = re.subn(r"(?ms)^outputs = \[.*?\]",
-                          "outputs = " + repr(OUTPUTS).replace("'", '"'), text)
-    if end_time is not None:
-        text, n_end = re.subn(r"(?m)^end_time = .*$", f"end_time = {end_time!r}", text)
-    if n_res != 1 or n_out != 1 or (end_time is not None and n_end != 1):
-        raise SystemExit("thin scene: expected one 'resolution', 'outputs', 'end_time' line")
     name = f"scene_r{resolution:g}.toml"
-    (folder / name).write_text(text)
+    keys = {"resolution": resolution, "outputs": list(OUTPUTS)}
+    if end_time is not None:
+        keys["end_time"] = end_time
+    write_scene_variant("mpm_contact_thin_small.toml", folder / name, **keys)
     return name
-
 
 def write_study(folder: Path, name: str, scene: str, cv: float, method: dict, workers: int,
                 seed: int, cv_overrides: dict | None = None) -> Path:
