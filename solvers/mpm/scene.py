@@ -21,6 +21,8 @@ import numpy as np
 from solvers.mpm.grid import SIDE_KINDS, SIDES, Grid
 from solvers.mpm.shapes import KINDS
 from uqflow.errors import SceneError
+from uqflow.scene_checks import (check_keys, integer, is_number, number, number_pair,
+                                 scene_error, table)
 
 TOP_KEYS = ("domain", "cell_size", "resolution", "particles_per_cell", "shape", "flip", "cfl",
             "bulk_viscosity", "gravity", "end_time", "output_interval", "outputs", "dt_min",
@@ -91,60 +93,8 @@ PROBE_KEYS = ("name", "point", "body", "radius")
 MIN_RADIUS_SPACINGS = 1.5
 
 
-def _is_number(v):
-    # TOML integers are unbounded in Python; one beyond float64 (|v| >= 2^1024) is no number
-    # a solver can use.
-    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) \
-        and not (isinstance(v, int) and abs(v) >= 2**1024)
-
-
-def _err(key, reason):
-    return SceneError(reason, key=f"scene.{key}")
-
-
-def _num(v, key, *, positive=False, lo=None, hi=None, nonnegative=False):
-    if not _is_number(v) or not math.isfinite(v):
-        raise _err(key, f"must be a finite number, got {v!r}")
-    v = float(v)
-    if positive and v <= 0:
-        raise _err(key, f"must be > 0, got {v!r}")
-    if nonnegative and v < 0:
-        raise _err(key, f"must be >= 0, got {v!r}")
-    if lo is not None and v < lo:
-        raise _err(key, f"must be >= {lo:g}, got {v!r}")
-    if hi is not None and v > hi:
-        raise _err(key, f"must be <= {hi:g}, got {v!r}")
-    return v
-
-
-def _int(v, key, lo, hi):
-    if not isinstance(v, (int, np.integer)) or isinstance(v, bool):
-        raise _err(key, f"must be an integer, got {v!r}")
-    if v < lo:
-        raise _err(key, f"must be >= {lo}, got {v!r}")
-    if v > hi:
-        raise _err(key, f"must be <= {hi:,}, got {v!r}")
-    return int(v)
-
-
-def _pair(v, key):
-    if (not isinstance(v, (list, tuple)) or len(v) != 2
-            or not all(_is_number(a) and math.isfinite(a) for a in v)):
-        raise _err(key, f"must be a pair of finite numbers [a, b], got {v!r}")
-    return float(v[0]), float(v[1])
-
-
-def _table(v, key):
-    if not isinstance(v, Mapping):
-        raise _err(key, f"must be a table, got {v!r}")
-    return v
-
-
-def _keys(tbl, allowed, key):
-    for k in tbl:
-        if k not in allowed:
-            raise _err(f"{key}.{k}" if key else k,
-                       f"unknown key (takes {', '.join(sorted(allowed))})")
+_is_number, _err, _num, _int = is_number, scene_error, number, integer
+_pair, _table, _keys = number_pair, table, check_keys
 
 
 def _names(v, key, known, what):
