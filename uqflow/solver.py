@@ -31,7 +31,7 @@ __all__ = ["Solver", "SolverError", "SceneError", "register_solver", "get_solver
            "solver_registry"]
 
 solver_registry = Registry("uqflow.solvers", "solver", builtins=("solvers.analytic", "solvers.gamut_bar",
-                                                               "solvers.mpm"))
+                                                               "solvers.mpm", "solvers.sph"))
 
 
 def register_solver(name: str):

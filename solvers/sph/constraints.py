@@ -1,0 +1,176 @@
+"""Linear constraints L u = p imposed by master–slave elimination or by a penalty (seed §2, §4).
+
+Master–slave (seed eq. 3-7, 27): each row r names the DOF it eliminates, ``slaves[r]``;
+with Phi_ss = L[:, slaves] and Phi_sm = L[:, masters],
+
+    u_s = T u_m + q,   T = -Phi_ss^-1 Phi_sm,   q = Phi_ss^-1 p,
+    u = P u_m + u_q,   P = [I; T] scattered into DOF order,   u_q = [0; q],
+    K^ u_m = f^,       K^ = P^T K P,   f^ = P^T (f - K u_q).
+
+Phi_ss is block diagonal over the connected components of its sparsity graph ("clusters":
+the slaves whose rows share a slave), so T is computed cluster by cluster with one small
+dense LU each, never as a global dense inverse. The cut-off variant (MS1, seed §4.2) drops
+|T_ij| below a threshold, and optionally every master farther than a radius from the row's
+point before the numbers are computed (the symbolic pattern of §4.2).
+
+Penalty: (K + w L^T L) u = f + w L^T p with w = relative weight × mean diag K.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg as la
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+#: a slave cluster whose Phi_ss has a reciprocal 1-norm condition below this cannot be
+#: solved to more than a few digits: refused
+MIN_CLUSTER_RCOND = 1e-13
+
+
+class ConstraintError(ValueError):
+    """A constraint set that leaves a slave unsolvable, naming the row."""
+
+
+@dataclass
+class Constraints:
+    rows: sp.csr_matrix      # L (m x ndof)
+    rhs: np.ndarray          # p (m,)
+    slaves: np.ndarray       # DOF eliminated by each row (distinct)
+    points: np.ndarray       # (m, 2) where each row is evaluated
+    label: np.ndarray        # (m,) text naming each row
+
+    def __post_init__(self):
+        self.rows = sp.csr_matrix(self.rows)
+        self.rhs = np.asarray(self.rhs, dtype=float)
+        self.slaves = np.asarray(self.slaves, dtype=np.int64)
+        if np.unique(self.slaves).size != self.slaves.size:
+            raise ConstraintError("two constraint rows eliminate the same DOF")
+
+    def without(self, drop) -> "Constraints":
+        keep = ~np.asarray(drop, dtype=bool)
+        return Constraints(self.rows[keep], self.rhs[keep], self.slaves[keep],
+                           self.points[keep], np.asarray(self.label)[keep])
+
+
+@dataclass
+class MasterSlave:
+    masters: np.ndarray
+    slaves: np.ndarray
+    T: sp.csr_matrix
+    q: np.ndarray
+    P: sp.csr_matrix
+    u_q: np.ndarray
+    K_hat: sp.csr_matrix
+    f_hat: np.ndarray
+    clusters: int
+    largest_cluster: int
+    time_transformation: float
+
+    @property
+    def nnz_T(self) -> int:
+        return int(self.T.nnz)
+
+    def expand(self, u_m: np.ndarray) -> np.ndarray:
+        return self.P @ u_m + self.u_q
+
+
+def slave_clusters(phi_ss: sp.csr_matrix) -> tuple[int, np.ndarray]:
+    """Connected components of the sparsity graph of Phi_ss (rows and columns are slaves)."""
+    graph = (abs(phi_ss) + abs(phi_ss).T).tocsr()
+    return connected_components(graph, directed=False)
+
+
+def relation_matrix(c: Constraints, masters: np.ndarray, master_points=None,
+                    threshold: float = 0.0, pattern_radius: float | None = None):
+    """T (ns x nm CSR), q, and the cluster count and largest size, per cluster."""
+    L = c.rows.tocsc()
+    phi_ss = L[:, c.slaves].tocsr()
+    phi_sm = L[:, masters].tocsr()
+    n_clusters, label = slave_clusters(phi_ss)
+    order = np.argsort(label, kind="stable")
+    bounds = np.searchsorted(label[order], np.arange(n_clusters + 1))
+    rows_out, cols_out, vals_out = [], [], []
+    q = np.zeros(c.slaves.size)
+    largest = 0
+    for k in range(n_clusters):
+        members = order[bounds[k]:bounds[k + 1]]
+        largest = max(largest, members.size)
+        block = phi_ss[members][:, members].toarray()
+        lu = la.lu_factor(block, check_finite=False)
+        rcond = _rcond(block, lu)
+        if not rcond > MIN_CLUSTER_RCOND:
+            first = members[0]
+            raise ConstraintError(
+                f"constraint '{c.label[first]}' at ({c.points[first, 0]:.6g}, "
+                f"{c.points[first, 1]:.6g}): its slave cluster of {members.size} rows is "
+                f"singular (reciprocal condition {rcond:.2g})")
+        sub = phi_sm[members]
+        used = np.unique(sub.indices)
+        q[members] = la.lu_solve(lu, c.rhs[members], check_finite=False)
+        if used.size == 0:
+            continue
+        dense = sub[:, used].toarray()
+        if pattern_radius is not None and master_points is not None:
+            # the symbolic pattern: only masters near some row of the cluster take part
+            d = np.hypot(c.points[members, 0][:, None] - master_points[used, 0][None, :],
+                         c.points[members, 1][:, None] - master_points[used, 1][None, :])
+            near = d.min(axis=0) <= pattern_radius
+            used, dense, d = used[near], dense[:, near], d[:, near]
+        t = -la.lu_solve(lu, dense, check_finite=False)
+        if pattern_radius is not None and master_points is not None:
+            t[d > pattern_radius] = 0.0
+        if threshold > 0.0:
+            t[np.abs(t) < threshold] = 0.0
+        r, col = np.nonzero(t)
+        rows_out.append(members[r])
+        cols_out.append(used[col])
+        vals_out.append(t[r, col])
+    cat = (lambda a, dt: np.concatenate(a) if a else np.zeros(0, dt))  # noqa: E731
+    T = sp.csr_matrix((cat(vals_out, float), (cat(rows_out, np.int64), cat(cols_out, np.int64))),
+                      shape=(c.slaves.size, masters.size))
+    return T, q, n_clusters, largest
+
+
+def _rcond(block, lu):
+    """LAPACK's estimate of the reciprocal 1-norm condition of the factored ``block``."""
+    norm = float(np.abs(block).sum(axis=0).max())
+    if norm == 0.0 or not np.all(np.isfinite(lu[0])):
+        return 0.0
+    rcond, info = la.lapack.dgecon(lu[0], norm, norm="1")
+    return float(rcond) if info == 0 else 0.0
+
+
+def master_slave(K, f, c: Constraints, dof_points=None, *, threshold: float = 0.0,
+                 pattern_radius: float | None = None) -> MasterSlave:
+    """The reduced system of seed eq. 6-7 for the constraints ``c``."""
+    t0 = time.perf_counter()
+    ndof = K.shape[0]
+    is_slave = np.zeros(ndof, dtype=bool)
+    is_slave[c.slaves] = True
+    masters = np.flatnonzero(~is_slave)
+    master_points = None if dof_points is None else np.asarray(dof_points)[masters]
+    T, q, n_clusters, largest = relation_matrix(c, masters, master_points, threshold,
+                                                pattern_radius)
+    identity = sp.csr_matrix((np.ones(masters.size), (masters, np.arange(masters.size))),
+                             shape=(ndof, masters.size))
+    scatter = sp.csr_matrix((np.ones(c.slaves.size), (c.slaves, np.arange(c.slaves.size))),
+                            shape=(ndof, c.slaves.size))
+    P = (identity + scatter @ T).tocsr()
+    u_q = scatter @ q
+    K = sp.csr_matrix(K)
+    K_hat = (P.T @ K @ P).tocsr()
+    f_hat = P.T @ (np.asarray(f, dtype=float) - K @ u_q)
+    return MasterSlave(masters, c.slaves, T, q, P, u_q, K_hat, f_hat, n_clusters, largest,
+                       time.perf_counter() - t0)
+
+
+def penalty_system(K, f, c: Constraints, relative_weight: float):
+    """(A, b, w): A = K + w L^T L, b = f + w L^T p, w = relative_weight × mean diag K."""
+    K = sp.csr_matrix(K)
+    w = float(relative_weight) * float(np.mean(K.diagonal()))
+    L = c.rows
+    return (K + w * (L.T @ L)).tocsr(), np.asarray(f, dtype=float) + w * (L.T @ c.rhs), w

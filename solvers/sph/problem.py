@@ -1,0 +1,283 @@
+"""One elastic problem on a discretised layout: stiffness, constraints, and a solve.
+
+The constraint points are the outer-boundary particles (essential conditions, seed eq.
+11-14) and the interface pairs (continuity u+ = u-, seed eq. 15-21). They are also the
+boundary quadrature of the integration correction: with ``integration = "vci"`` the test
+gradients get a constant per particle, xi_b, so that
+
+    sum_c V_c grad^psi_b(X_c) = sum_q w_q psi_b(X_q) n_q      (q: constraint points)
+
+— the discrete divergence theorem on each phase — and a homogeneous strain is reproduced
+exactly (the patch test) whatever the constraint method: a master–slave test function
+vanishes at every q, and the penalty method gets the matching consistency term, the
+point-quadrature form of Nitsche's -∮ v·σn. ``integration = "nodal"`` is the seed's plain
+particle integration; it fails the patch test near boundaries and interfaces (docs/sph.md,
+"Integration").
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from solvers.sph.constraints import Constraints, master_slave, penalty_system
+from solvers.sph.linear import condition_estimate, solve
+from solvers.sph.stiffness import block_diagonal, elasticity_matrices, lame, strain_operator
+from uqflow.errors import SolverError
+
+METHODS = ("master-slave", "master-slave-cutoff", "master-slave-local", "penalty")
+INTEGRATIONS = ("vci", "nodal")
+EIGENSTRAIN_MODES = ("in_plane", "dilatation_3d")
+
+
+@dataclass
+class Solution:
+    u: np.ndarray                 # parameters (2n,), interleaved; NaN on detached inclusions
+    displacement: np.ndarray      # (n, 2) interpolated displacement at the particles
+    strain: np.ndarray            # (n, 3) [xx, yy, xy engineering]
+    stress: np.ndarray            # (n, 3)
+    constraint_residual: float    # max |L u - p| over the rows imposed
+    pair_error: float             # max over intact pairs of |u+ - u-| / max |u|
+    timings: dict = field(default_factory=dict)   # this solve's: assembly (constraint rows),
+    #                                               transformation, solve
+    condition: float | None = None
+    solve_info: object = None
+
+
+def _traction_operator(normals: np.ndarray, D: np.ndarray) -> np.ndarray:
+    """(m, 2, 3): traction t = N D eps at points with unit ``normals``, Voigt [xx, yy, xy]."""
+    N = np.zeros((normals.shape[0], 2, 3))
+    N[:, 0, 0] = normals[:, 0]
+    N[:, 0, 2] = normals[:, 1]
+    N[:, 1, 1] = normals[:, 1]
+    N[:, 1, 2] = normals[:, 0]
+    return N @ D
+
+
+def _block_rows(blocks: np.ndarray) -> sp.csr_matrix:
+    """(2m x 3m) block-diagonal sparse matrix of (m, 2, 3) blocks."""
+    m = blocks.shape[0]
+    rows = np.repeat(np.arange(2 * m), 3)
+    cols = (3 * np.repeat(np.arange(m), 2)[:, None] + np.arange(3)).ravel()
+    return sp.csr_matrix((blocks.reshape(-1), (rows, cols)), shape=(2 * m, 3 * m))
+
+
+class ElasticProblem:
+    """Linear elasticity of one layout under one constraint method; ``solve`` per load."""
+
+    def __init__(self, disc, E, nu, state: str = "plane_strain", *, eigenstrain=None,
+                 eigenstrain_zz=None, method: str = "master-slave", integration: str = "vci",
+                 penalty: float = 1e4, cutoff_threshold: float = 1e-12,
+                 cutoff_radius: float | None = None, min_support: int = 5,
+                 linear_solver: str = "auto", stabilisation: float = 0.0):
+        if method not in METHODS:
+            raise ValueError(f"unknown constraint method {method!r} (known: {', '.join(METHODS)})")
+        if integration not in INTEGRATIONS:
+            raise ValueError(f"unknown integration {integration!r} "
+                             f"(known: {', '.join(INTEGRATIONS)})")
+        t0 = time.perf_counter()
+        self.disc, self.method, self.integration = disc, method, integration
+        self.penalty, self.linear_solver = float(penalty), linear_solver
+        self.cutoff_threshold, self.cutoff_radius = float(cutoff_threshold), cutoff_radius
+        lay = disc.layout
+        n = disc.n
+        E = np.broadcast_to(np.asarray(E, dtype=float), (n,))
+        nu = np.broadcast_to(np.asarray(nu, dtype=float), (n,))
+        self.D = elasticity_matrices(E, nu, state)
+        self.eigenstress = np.zeros((n, 3))
+        if eigenstrain is not None:
+            self.eigenstress = np.einsum("nij,nj->ni", self.D,
+                                         np.asarray(eigenstrain, dtype=float).reshape(n, 3))
+        if eigenstrain_zz is not None:
+            lam, _ = lame(E, nu, state)
+            self.eigenstress[:, :2] += (lam * np.asarray(eigenstrain_zz, dtype=float))[:, None]
+
+        self.boundary = np.asarray(lay.boundary)
+        self.pairs = np.asarray(lay.pairs).reshape(-1, 2)
+        self.pair_inclusion = np.asarray(lay.pair_inclusion)
+        nb, npair = self.boundary.size, self.pairs.shape[0]
+        slaves = np.concatenate([self.boundary, self.pairs[:, 0]])
+        if method == "master-slave-local":
+            # seed §4.3: a slave's row sees no other slave, so Phi_ss is diagonal
+            invisible = np.zeros(n, dtype=bool)
+            invisible[slaves] = True
+            points = disc.x[slaves]
+            slave_rows = disc.interpolation(points, disc.phase[slaves], invisible=invisible,
+                                            keep=slaves, min_support=min_support)
+        else:
+            slave_rows = disc.phi[slaves]
+        self.boundary_rows = slave_rows[:nb]
+        self.pair_matrix_rows = slave_rows[nb:]
+        self.pair_inclusion_rows = disc.phi[self.pairs[:, 1]]
+        # the interpolation operator of reported displacements: slaves by their own rows
+        self.report_rows = disc.phi.tolil()
+        self.report_rows[slaves] = slave_rows
+        self.report_rows = self.report_rows.tocsr()
+
+        # boundary quadrature: outer edge, then each side of every interface (outward normals)
+        pair_normal = np.asarray(lay.pair_normal, dtype=float).reshape(-1, 2)
+        self.quad_rows = sp.vstack([self.boundary_rows, self.pair_matrix_rows,
+                                    self.pair_inclusion_rows]).tocsr()
+        self.quad_normal = np.concatenate([np.asarray(lay.boundary_normal, dtype=float).reshape(-1, 2),
+                                           -pair_normal, pair_normal])
+        self.quad_weight = np.concatenate([np.asarray(lay.boundary_weight, dtype=float),
+                                           np.asarray(lay.pair_weight, dtype=float),
+                                           np.asarray(lay.pair_weight, dtype=float)])
+        self.quad_particle = np.concatenate([self.boundary, self.pairs[:, 0], self.pairs[:, 1]])
+
+        test = None
+        if integration == "vci":
+            test = self._corrected_test_operator()
+        self.test = disc.B if test is None else test
+        self.K = disc.stiffness(self.D, test)
+        if stabilisation > 0.0:
+            self.K = (self.K + self._stabilisation(stabilisation)).tocsr()
+        self.f = self.test.T @ (self.eigenstress * disc.volume[:, None]).reshape(-1)
+        # stress at each quadrature point: its own particle's on the outer edge; on an
+        # interface the mean of the two sides', so the interface term -sum w (v+ - v-) {t}
+        # vanishes on every test function continuous at the pair (Nitsche's average flux)
+        n_q = self.quad_particle.size
+        rows3 = lambda idx: disc.B[(3 * idx[:, None] + np.arange(3)).ravel()]  # noqa: E731
+        stress_at = lambda idx: block_diagonal(self.D[idx]) @ rows3(idx)  # noqa: E731
+        pair_mean = 0.5 * (stress_at(self.pairs[:, 0]) + stress_at(self.pairs[:, 1]))
+        stress_q = sp.vstack([stress_at(self.boundary), pair_mean, pair_mean]).tocsr()
+        eigen_q = np.concatenate([self.eigenstress[self.boundary],
+                                  np.tile(0.5 * (self.eigenstress[self.pairs[:, 0]]
+                                                 + self.eigenstress[self.pairs[:, 1]]), (2, 1))])
+        normals = _traction_operator(self.quad_normal, np.broadcast_to(np.eye(3), (n_q, 3, 3)))
+        self.traction = (_block_rows(normals) @ stress_q).tocsr()
+        self.eigen_traction = np.einsum("qij,qj->qi", normals, eigen_q).reshape(-1)
+        #: one-off costs (s): neighbour search, and shape functions plus stiffness
+        self.setup_timings = {"neighbours": disc.timings["neighbours"],
+                              "assembly": disc.timings["shape_functions"]
+                              + time.perf_counter() - t0}
+
+    # -- integration ---------------------------------------------------------------------
+
+    def _corrected_test_operator(self) -> sp.csr_matrix:
+        """B^ with grad^psi_b = grad psi_b + xi_b psi_b (docs/sph.md, "Integration")."""
+        d = self.disc
+        boundary_sum = np.stack([self.quad_rows.T @ (self.quad_weight * self.quad_normal[:, k])
+                                 for k in range(2)], 1)
+        volume_sum = np.stack([d.gx.T @ d.volume, d.gy.T @ d.volume], 1)
+        psi_sum = d.phi.T @ d.volume
+        xi = (boundary_sum - volume_sum) / psi_sum[:, None]
+        gx = (d.gx + d.phi @ sp.diags(xi[:, 0])).tocsr()
+        gy = (d.gy + d.phi @ sp.diags(xi[:, 1])).tocsr()
+        return strain_operator(gx, gy)
+
+    def _stabilisation(self, beta: float) -> sp.csr_matrix:
+        """beta * sum_c mu_c V_c / h^2 |u_c - (phi u)_c|^2: the parameters' departure from their
+        own interpolant. It is zero on every linear field (phi reproduces them), so the patch
+        test still holds, and it stiffens the checkerboard modes that particle integration
+        leaves without energy (docs/sph.md, "Zero-energy modes")."""
+        d = self.disc
+        mu = self.D[:, 2, 2]
+        R = (sp.identity(d.n, format="csr") - d.phi).tocsr()
+        scalar = R.T @ sp.diags(beta * mu * d.volume / d.h ** 2) @ R
+        return sp.kron(scalar, sp.identity(2, format="csr"), format="csr")
+
+    # -- constraints ---------------------------------------------------------------------
+
+    def constraints(self, boundary_values, intact) -> tuple[Constraints, np.ndarray]:
+        """The rows imposed: every prescribed boundary component and both components of every
+        intact pair; and, per quadrature point and component, whether it is imposed."""
+        d = self.disc
+        bv = np.asarray(boundary_values, dtype=float).reshape(-1, 2)
+        intact = np.asarray(intact, dtype=bool)
+        b_on = np.isfinite(bv)
+        p_on = np.repeat(intact[:, None], 2, axis=1)
+        rows = sp.vstack([d.dof_matrix(self.boundary_rows),
+                          d.dof_matrix(self.pair_matrix_rows) - d.dof_matrix(self.pair_inclusion_rows)]).tocsr()
+        on = np.concatenate([b_on.ravel(), p_on.ravel()])
+        rhs = np.concatenate([np.where(b_on, bv, 0.0).ravel(), np.zeros(p_on.size)])
+        slave_particle = np.concatenate([self.boundary, self.pairs[:, 0]])
+        slaves = (2 * slave_particle[:, None] + np.arange(2)).ravel()
+        points = np.repeat(d.x[slave_particle], 2, axis=0)
+        kinds = np.concatenate([np.repeat([f"boundary particle {i}" for i in self.boundary], 2),
+                                np.repeat([f"pair {k}" for k in range(self.pairs.shape[0])], 2)])
+        comp = np.tile(["x", "y"], slave_particle.size)
+        label = np.char.add(np.char.add(kinds.astype(str), " "), comp)
+        sel = np.flatnonzero(on)
+        c = Constraints(rows=rows[sel], rhs=rhs[sel], slaves=slaves[sel], points=points[sel],
+                        label=label[sel])
+        quad_on = np.concatenate([b_on, p_on, p_on])
+        return c, quad_on
+
+    # -- solve ---------------------------------------------------------------------------
+
+    def solve(self, boundary_values, intact=None, detached=None,
+              condition: bool = False) -> Solution:
+        d = self.disc
+        npair = self.pairs.shape[0]
+        intact = np.ones(npair, dtype=bool) if intact is None else np.asarray(intact, dtype=bool)
+        n_incl = len(getattr(d.layout, "inclusions", ())) or (int(self.pair_inclusion.max()) + 1
+                                                             if npair else 0)
+        detached = np.zeros(n_incl, dtype=bool) if detached is None else np.asarray(detached)
+        intact = intact & ~detached[self.pair_inclusion] if npair else intact
+        counts = np.bincount(self.pair_inclusion[intact], minlength=n_incl) if npair else []
+        for k in range(n_incl):
+            if not detached[k] and counts[k] < 2:
+                raise SolverError(f"inclusion {k} keeps {counts[k]} intact pair(s): its rigid "
+                                  f"{'motion' if counts[k] == 0 else 'rotation'} is unconstrained "
+                                  f"(detach it)")
+        t0 = time.perf_counter()
+        c, quad_on = self.constraints(boundary_values, intact)
+        K, f = self.K, self.f.copy()
+        if self.method == "penalty" and self.integration == "vci":
+            # Nitsche's consistency term in point quadrature, on the imposed components only
+            # (the seed's plain penalty, with nodal integration, has none)
+            weight = (self.quad_weight[:, None] * quad_on).ravel()
+            Q = d.dof_matrix(self.quad_rows)
+            K = (K - Q.T @ sp.diags(weight) @ self.traction).tocsr()
+            f = f - Q.T @ (weight * self.eigen_traction)
+        free = np.ones(d.ndof, dtype=bool)
+        removed = np.flatnonzero(np.isin(d.phase, np.flatnonzero(detached) + 1))
+        free[2 * removed] = free[2 * removed + 1] = False
+        keep = np.flatnonzero(free)
+        if removed.size:
+            K = K[keep][:, keep].tocsr()
+            f = f[keep]
+            c = Constraints(rows=c.rows[:, keep], rhs=c.rhs,
+                            slaves=np.searchsorted(keep, c.slaves), points=c.points,
+                            label=c.label)
+        dof_points = np.repeat(d.x, 2, axis=0)[keep]
+        t1 = time.perf_counter()
+        if self.method == "penalty":
+            A, b, _ = penalty_system(K, f, c, self.penalty)
+            t2 = time.perf_counter()
+            x, info = solve(A, b, self.linear_solver)
+            u_free = x
+        else:
+            threshold = self.cutoff_threshold if self.method == "master-slave-cutoff" else 0.0
+            radius = self.cutoff_radius if self.method == "master-slave-cutoff" else None
+            ms = master_slave(K, f, c, dof_points, threshold=threshold, pattern_radius=radius)
+            A = ms.K_hat
+            t2 = time.perf_counter()
+            x, info = solve(ms.K_hat, ms.f_hat, self.linear_solver, nearly_symmetric=True)
+            u_free = ms.expand(x)
+        t3 = time.perf_counter()
+        u = np.full(d.ndof, np.nan)
+        u[keep] = u_free
+        u_calc = np.where(np.isfinite(u), u, 0.0)
+        U = u_calc.reshape(-1, 2)
+        disp = self.report_rows @ U
+        strain = d.strain(u_calc)
+        stress = np.einsum("nij,nj->ni", self.D, strain) - self.eigenstress
+        if removed.size:
+            disp[removed] = np.nan
+            strain[removed] = np.nan
+            stress[removed] = np.nan
+        residual = float(np.max(np.abs(c.rows @ u_free - c.rhs))) if c.rhs.size else 0.0
+        pair_error = 0.0
+        if intact.any():
+            jump = (self.pair_matrix_rows @ U - self.pair_inclusion_rows @ U)[intact]
+            scale = float(np.nanmax(np.abs(disp))) or 1.0
+            pair_error = float(np.max(np.abs(jump))) / scale
+        cond = condition_estimate(A) if condition else None
+        return Solution(u, disp, strain, stress, residual, pair_error,
+                        {"assembly": t1 - t0, "transformation": t2 - t1, "solve": t3 - t2},
+                        cond, info)

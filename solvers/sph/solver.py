@@ -1,0 +1,292 @@
+"""The corrected-SPH composite solver as a uqflow Solver (seed 001; docs/sph.md)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+import numpy as np
+import xarray as xr
+
+from solvers.sph import exact
+from solvers.sph.constraints import ConstraintError
+from solvers.sph.interpolation import InterpolationError
+from solvers.sph.layouts import (Box, Disk, Ellipse, LayoutError, polar_layout, random_layout,
+                                 regular_layout)
+from solvers.sph.linear import LinearSolveError
+from solvers.sph.loading import run_tension
+from solvers.sph.problem import ElasticProblem
+from solvers.sph.scene import Config, parse
+from solvers.sph.stiffness import Discretisation
+from uqflow.errors import SceneError, SolverError
+from uqflow.solver import Solver, register_solver
+
+UNITS = {"matrix.E": "Pa", "matrix.nu": "", "inclusion.E": "Pa", "inclusion.nu": "",
+         "interface.strength": "Pa", "load.eigenstrain": ""}
+FIELDS = ("matrix.E", "inclusion.E", "interface.strength")
+#: random sequential addition: placements tried per inclusion before giving up
+ATTEMPTS_PER_INCLUSION = 2_000
+
+
+def _ellipse(spec) -> Ellipse:
+    return Ellipse(spec.centre[0], spec.centre[1], spec.semi_axes[0], spec.semi_axes[1],
+                   math.radians(spec.angle_deg))
+
+
+@register_solver("sph")
+class SPHSolver(Solver):
+    """Quasi-static corrected SPH of a particulate composite with master–slave constraints."""
+
+    def __init__(self, cfg: Config):
+        self.cfg = cfg
+        self.layout = self._layout(None)
+        self.disc = self._discretise(self.layout)
+        self._template = self._make_template()
+
+    # -- construction ----------------------------------------------------------------------
+
+    @classmethod
+    def from_scene(cls, scene: Mapping) -> "SPHSolver":
+        return cls(parse(scene))
+
+    def _support_diameter(self) -> float:
+        # the solver's support radius 2h, h = ratio * sqrt(spacing^2 / pi), before the layout
+        return 2.0 * self.cfg.smoothing_ratio * self.cfg.spacing / math.sqrt(math.pi)
+
+    def _layout(self, seed):
+        c = self.cfg
+        try:
+            if c.layout == "polar":
+                return polar_layout(c.inclusions[0].semi_axes[0], c.outer_radius, c.spacing)
+            box = Box(-0.5 * c.width, -0.5 * c.height, 0.5 * c.width, 0.5 * c.height)
+            if c.layout == "random":
+                r = c.random
+                rng = np.random.default_rng(r.layout_seed if seed is None else seed)
+                return random_layout(box, c.spacing, r.count,
+                                     (r.semi_axes_min, r.semi_axes_max), rng,
+                                     min_gap=self._support_diameter(),
+                                     max_attempts=ATTEMPTS_PER_INCLUSION * r.count)
+            layout = regular_layout(box, c.spacing, tuple(_ellipse(s) for s in c.inclusions),
+                                    gap=c.gap)
+            self._check_clearance(layout)
+            return layout
+        except LayoutError as e:
+            raise SceneError(str(e), key=f"scene.{e.key}") from None
+
+    def _check_clearance(self, layout):
+        """Inclusions one support apart from each other and from the edge: the seed's
+        assumption (its eq. 20) that boundary and interface relations do not couple."""
+        gap = self._support_diameter()
+        for k, e in enumerate(layout.inclusions):
+            if e.distance_lower_bound(layout.domain) < gap:
+                raise SceneError(f"closer than one support ({gap:.4g} m) to the plate's edge",
+                                 key=f"scene.inclusions[{k}]")
+            for j in range(k):
+                if e.distance_lower_bound(layout.inclusions[j]) < gap:
+                    raise SceneError(f"closer than one support ({gap:.4g} m) to inclusions[{j}]",
+                                     key=f"scene.inclusions[{k}]")
+
+    def _discretise(self, layout):
+        try:
+            return Discretisation(layout, self.cfg.smoothing_ratio, self.cfg.kernel)
+        except InterpolationError as e:
+            raise SceneError(str(e), key="scene.smoothing_ratio") from None
+
+    def describe(self) -> str:
+        c = self.cfg
+        return (f"sph/{c.layout} {self.layout.x.shape[0]} particles, {c.constraints}, "
+                f"{c.loading}")
+
+    # -- contract --------------------------------------------------------------------------
+
+    def nominal(self) -> dict[str, float]:
+        c = self.cfg
+        return {"matrix.E": c.matrix[0], "matrix.nu": c.matrix[1], "inclusion.E": c.inclusion[0],
+                "inclusion.nu": c.inclusion[1], "interface.strength": c.interface_strength,
+                "load.eigenstrain": c.eigenstrain}
+
+    def parameter_units(self) -> dict[str, str]:
+        return dict(UNITS)
+
+    def field_points(self, name: str) -> np.ndarray:
+        """Particles of the matrix (``matrix.E``) or of the inclusions (``inclusion.E``), or the
+        interface pairs (``interface.strength``), of the nominal layout (m)."""
+        lay = self.layout
+        if name == "matrix.E":
+            return lay.x[lay.phase == 0]
+        if name == "inclusion.E":
+            return lay.x[lay.phase > 0]
+        if name == "interface.strength":
+            return lay.x[np.asarray(lay.pairs)[:, 0]]
+        return super().field_points(name)
+
+    def outputs(self) -> xr.Dataset:
+        return self._template.copy(deep=True)
+
+    def _make_template(self) -> xr.Dataset:
+        c = self.cfg
+        nan = np.nan
+        data = {"volume_fraction": ((), nan, "1"), "particles": ((), nan, "1"),
+                "constraint_residual": ((), nan, "m"), "pair_error": ((), nan, "1"),
+                "time_neighbours": ((), nan, "s"), "time_assembly": ((), nan, "s"),
+                "time_transformation": ((), nan, "s"), "time_solve": ((), nan, "s")}
+        coords = {}
+        fixed = c.layout != "random"
+        if fixed:
+            n, npair = self.layout.x.shape[0], np.asarray(self.layout.pairs).shape[0]
+            data.update({"x": (("particle", "component"), np.full((n, 2), nan), "m"),
+                         "displacement": (("particle", "component"), np.full((n, 2), nan), "m"),
+                         "stress": (("particle", "voigt"), np.full((n, 3), nan), "Pa")})
+            coords.update({"particle": np.arange(n), "component": ["x", "y"],
+                           "voigt": ["xx", "yy", "xy"]})
+            if c.loading == "tension":
+                data["pair_break_step"] = (("pair",), np.full(npair, nan), "1")
+                coords["pair"] = np.arange(npair)
+        if c.loading == "tension":
+            n_incl = len(self.layout.inclusions)
+            data.update({"strain": (("step",), np.full(c.steps, nan), "1"),
+                         "macro_stress": (("step",), np.full(c.steps, nan), "Pa"),
+                         "intact_pairs": (("step",), np.full(c.steps, nan), "1"),
+                         "detached_inclusions": (("step",), np.full(c.steps, nan), "1"),
+                         "effective_modulus": ((), nan, "Pa"),
+                         "inclusion_detach_strain": (("inclusion",), np.full(n_incl, nan), "1")})
+            coords.update({"step": np.arange(1, c.steps + 1), "inclusion": np.arange(n_incl)})
+        return xr.Dataset({k: xr.Variable(d, v, {"units": u}) for k, (d, v, u) in data.items()},
+                          coords=coords)
+
+    # -- one realization -------------------------------------------------------------------
+
+    def _parameters(self, params):
+        p = self.nominal()
+        for name, value in params.items():
+            if name not in p:
+                raise SolverError(f"unknown parameter '{name}' (known: {', '.join(p)})")
+            try:
+                p[name] = float(value)
+            except (TypeError, ValueError):
+                raise SolverError(f"parameter '{name}' is not a number: {value!r}") from None
+        for phase in ("matrix", "inclusion"):
+            if not p[f"{phase}.E"] > 0:
+                raise SolverError(f"{phase}.E = {p[f'{phase}.E']!r} is not > 0")
+            if not 0.0 < p[f"{phase}.nu"] < 0.5:
+                raise SolverError(f"{phase}.nu = {p[f'{phase}.nu']!r} is not in (0, 0.5)")
+        if not p["interface.strength"] > 0:
+            raise SolverError(f"interface.strength = {p['interface.strength']!r} is not > 0")
+        return p
+
+    def run(self, params: Mapping[str, float] | None = None, fields=None,
+            seed: int | None = None) -> xr.Dataset:
+        c = self.cfg
+        p = self._parameters(dict(params or {}))
+        if c.layout == "random" and seed is not None:
+            try:
+                layout = self._layout(seed)
+                disc = self._discretise(layout)
+            except SceneError as e:
+                raise SolverError(f"layout of seed {seed}: {e}") from None
+        else:
+            layout, disc = self.layout, self.disc
+        inside = layout.phase > 0
+        E = np.where(inside, p["inclusion.E"], p["matrix.E"])
+        nu = np.where(inside, p["inclusion.nu"], p["matrix.nu"])
+        strength = np.full(np.asarray(layout.pairs).shape[0], p["interface.strength"])
+        if fields is not None:
+            E[~inside] = _field(fields, "matrix.E", layout.x[~inside], p["matrix.E"], "Pa")
+            E[inside] = _field(fields, "inclusion.E", layout.x[inside], p["inclusion.E"], "Pa")
+            strength = _field(fields, "interface.strength",
+                              layout.x[np.asarray(layout.pairs)[:, 0]], p["interface.strength"],
+                              "Pa", default=strength)
+        eigen, eigen_zz = None, None
+        if c.loading == "eigenstrain":
+            eps = p["load.eigenstrain"]
+            eigen = np.zeros((layout.x.shape[0], 3))
+            eigen[inside, :2] = eps
+            if c.eigenstrain_mode == "dilatation_3d":
+                eigen_zz = np.where(inside, eps, 0.0)
+        radius = None if c.cutoff_radius is None else c.cutoff_radius * disc.radius
+        try:
+            problem = ElasticProblem(disc, E, nu, c.state, eigenstrain=eigen,
+                                     eigenstrain_zz=eigen_zz, method=c.constraints,
+                                     integration=c.integration, penalty=c.penalty,
+                                     cutoff_threshold=c.cutoff_threshold, cutoff_radius=radius,
+                                     min_support=c.min_support, linear_solver=c.linear_solver,
+                                     stabilisation=c.stabilisation)
+            if c.loading == "tension":
+                out = self._tension(problem, layout, strength)
+            else:
+                out = self._eigenstrain(problem, layout, p)
+        except (ConstraintError, LinearSolveError, InterpolationError) as e:
+            raise SolverError(str(e)) from None
+        ds = self._template.copy(deep=True)
+        out["volume_fraction"] = layout.volume_fraction
+        out["particles"] = layout.x.shape[0]
+        for name, value in out.items():
+            if name in ds:
+                var = ds.variables[name]
+                var.values = np.asarray(value, dtype=float).reshape(var.shape)
+        if c.layout != "random":
+            ds["x"].values = layout.x
+        return ds
+
+    def _timings(self, timings):
+        return {f"time_{k}": v for k, v in timings.items()}
+
+    def _tension(self, problem, layout, strength):
+        c = self.cfg
+        h = run_tension(problem, layout, strength, c.step, c.steps)
+        detach = np.where(h.inclusion_detach_step > 0,
+                          h.strain[np.maximum(h.inclusion_detach_step, 1) - 1], np.nan)
+        out = {"strain": h.strain, "macro_stress": h.macro_stress,
+               "intact_pairs": h.intact_pairs, "detached_inclusions": h.detached_inclusions,
+               "effective_modulus": h.effective_modulus, "inclusion_detach_strain": detach,
+               "constraint_residual": float(h.constraint_residual.max()),
+               "pair_error": float(h.pair_error.max()),
+               "pair_break_step": np.where(h.pair_break_step > 0, h.pair_break_step, np.nan),
+               "displacement": h.last.displacement, "stress": h.last.stress}
+        out.update(self._timings(h.timings))
+        return out
+
+    def _eigenstrain(self, problem, layout, p):
+        c = self.cfg
+        boundary = np.asarray(layout.boundary)
+        if c.edge == "fixed":
+            values = np.zeros((boundary.size, 2))
+        else:
+            values = exact.eshelby_displacement(
+                layout.x[boundary], radius=c.inclusions[0].semi_axes[0],
+                centre=c.inclusions[0].centre, eigenstrain=p["load.eigenstrain"],
+                E_inclusion=p["inclusion.E"], nu_inclusion=p["inclusion.nu"],
+                E_matrix=p["matrix.E"], nu_matrix=p["matrix.nu"],
+                variant=_variant(c))
+        sol = problem.solve(values)
+        timings = dict(problem.setup_timings)
+        for k, v in sol.timings.items():
+            timings[k] = timings.get(k, 0.0) + v
+        out = {"displacement": sol.displacement, "stress": sol.stress,
+               "constraint_residual": sol.constraint_residual, "pair_error": sol.pair_error}
+        out.update(self._timings(timings))
+        return out
+
+
+def _variant(c: Config) -> str:
+    if c.state == "plane_stress":
+        return "plane_stress"
+    return "plane_strain_3d" if c.eigenstrain_mode == "dilatation_3d" else "plane_strain"
+
+
+def _field(fields, name, points, mean, unit, default=None):
+    """The realization's field ``name`` at ``points``, or ``default``/``mean`` where no field
+    drives it; SolverError where a value is not finite and > 0."""
+    try:
+        driven = name in fields
+    except TypeError:
+        driven = False
+    if not driven:
+        return np.full(points.shape[0], float(mean)) if default is None else default
+    vals = np.asarray(fields.values(name, points, mean, 0.0, np.inf), dtype=float).reshape(-1)
+    bad = ~(np.isfinite(vals) & (vals > 0))
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise SolverError(f"{name} is not > 0 at point {i} ({points[i, 0]:.6g}, "
+                          f"{points[i, 1]:.6g}) m: {vals[i]!r} {unit}")
+    return vals
