@@ -1,0 +1,89 @@
+"""Measurements of the seed's Example 1 shared by the tests, the figures and the docs table
+(`python -m solvers.sph.verification` prints the table of docs/sph.md § 9)."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from solvers.sph.exact import eshelby_constant, eshelby_radial
+from solvers.sph.layouts import polar_layout
+from solvers.sph.problem import ElasticProblem
+from solvers.sph.stiffness import Discretisation
+
+#: the seed's Example 1 (R = 20, eps* = 0.01; inclusion E = 1000, nu = 0.28; matrix 900, 0.33)
+RADIUS, OUTER, EIGENSTRAIN = 20.0, 60.0, 0.01
+INCLUSION, MATRIX = (1000.0, 0.28), (900.0, 0.33)
+
+
+def example1_problem(spacing=2.0, method="master-slave", variant="plane_strain", **extra):
+    layout = polar_layout(RADIUS, OUTER, spacing)
+    disc = Discretisation(layout, extra.pop("smoothing_ratio", 2.0))
+    inside = layout.phase > 0
+    E = np.where(inside, INCLUSION[0], MATRIX[0])
+    nu = np.where(inside, INCLUSION[1], MATRIX[1])
+    eigen = np.zeros((layout.n, 3))
+    eigen[inside, :2] = EIGENSTRAIN
+    zz = np.where(inside, EIGENSTRAIN, 0.0) if variant == "plane_strain_3d" else None
+    state = "plane_stress" if variant == "plane_stress" else "plane_strain"
+    problem = ElasticProblem(disc, E, nu, state, eigenstrain=eigen, eigenstrain_zz=zz,
+                             method=method, **extra)
+    return layout, problem
+
+
+def example1_errors(spacing=2.0, method="master-slave", variant="plane_strain",
+                    condition=False, **extra) -> dict:
+    """Radial-displacement error (max over particles, relative to u_r(R)), the radial strain
+    on both sides of the interface, the pair error (seed eq. 25), the x/y-axis symmetry error
+    (eq. 26), the constraint residual, the condition estimate and the wall time."""
+    t0 = time.perf_counter()
+    layout, problem = example1_problem(spacing, method, variant, **extra)
+    C = eshelby_constant(EIGENSTRAIN, *INCLUSION, *MATRIX, variant)
+    edge = layout.x[layout.boundary]
+    r_edge = np.hypot(edge[:, 0], edge[:, 1])
+    values = edge * (eshelby_radial(r_edge, RADIUS, C)[0] / r_edge)[:, None]
+    sol = problem.solve(values, condition=condition)
+    x = layout.x
+    r = np.hypot(x[:, 0], x[:, 1])
+    safe = np.where(r > 0, r, 1.0)
+    u_r = np.where(r > 0, (sol.displacement * x).sum(axis=1) / safe, 0.0)
+    exact = eshelby_radial(r, RADIUS, C)[0]
+    n = x / safe[:, None]
+    e = sol.strain
+    e_rr = e[:, 0] * n[:, 0] ** 2 + e[:, 1] * n[:, 1] ** 2 + e[:, 2] * n[:, 0] * n[:, 1]
+    m_side, i_side = layout.pairs[:, 0], layout.pairs[:, 1]
+    on_x = (np.abs(x[:, 1]) == 0.0) & (x[:, 0] > 0)
+    on_y = (np.abs(x[:, 0]) == 0.0) & (x[:, 1] > 0)
+    # the layout is bitwise D4-symmetric: each x-axis particle has its twin on the y axis
+    keys = {round(float(v), 12): i for i, v in zip(np.flatnonzero(on_y), x[on_y, 1])}
+    twins = [(i, keys[round(float(v), 12)]) for i, v in zip(np.flatnonzero(on_x), x[on_x, 0])]
+    sym = max(abs(u_r[i] - u_r[j]) for i, j in twins) / (C * RADIUS)
+    return {"spacing": spacing, "particles": layout.n, "method": method,
+            "radial_error": float(np.abs(u_r - exact).max() / (C * RADIUS)),
+            "C": C, "strain_inside": float(np.mean(e_rr[i_side])),
+            "strain_outside": float(np.mean(e_rr[m_side])),
+            "pair_error": sol.pair_error, "symmetry_error": float(sym),
+            "constraint_residual": sol.constraint_residual, "condition": sol.condition,
+            "seconds": time.perf_counter() - t0}
+
+
+def example1_table(spacing=2.0):
+    rows = [example1_errors(spacing, "master-slave", condition=True),
+            example1_errors(spacing, "master-slave-local", condition=True)]
+    for threshold in (1e-10, 1e-6, 1e-3):
+        rows.append(dict(example1_errors(spacing, "master-slave-cutoff", condition=True,
+                                         cutoff_threshold=threshold), threshold=threshold))
+    for w in (1e2, 1e4, 1e6):
+        rows.append(dict(example1_errors(spacing, "penalty", condition=True, penalty=w),
+                         penalty=w))
+    return rows
+
+
+if __name__ == "__main__":
+    print("| method | parameter | radial error | pair error | symmetry error | condition |")
+    print("|---|---|---|---|---|---|")
+    for row in example1_table():
+        p = row.get("threshold", row.get("penalty", ""))
+        print(f"| {row['method']} | {p} | {row['radial_error']:.2e} | {row['pair_error']:.1e} "
+              f"| {row['symmetry_error']:.1e} | {row['condition']:.1e} |")
