@@ -95,10 +95,34 @@ def relation_matrix(c: Constraints, masters: np.ndarray, master_points=None,
     bounds = np.searchsorted(label[order], np.arange(n_clusters + 1))
     rows_out, cols_out, vals_out = [], [], []
     q = np.zeros(c.slaves.size)
-    largest = 0
-    for k in range(n_clusters):
+    sizes = np.diff(bounds)
+    largest = int(sizes.max()) if sizes.size else 0
+    # single-slave clusters (all of them under master-slave-local): one division per row
+    alone = order[bounds[:-1][sizes == 1]]
+    if alone.size:
+        diag = phi_ss[alone, alone].A1 if hasattr(phi_ss[alone, alone], "A1") \
+            else np.asarray(phi_ss[alone, alone]).ravel()
+        bad = ~(np.abs(diag) > MIN_CLUSTER_RCOND * np.abs(phi_sm[alone]).max(axis=1).toarray().ravel())
+        if bad.any():
+            first = alone[np.flatnonzero(bad)[0]]
+            raise ConstraintError(
+                f"constraint '{c.label[first]}' at ({c.points[first, 0]:.6g}, "
+                f"{c.points[first, 1]:.6g}): its slave has a zero coefficient in its own row")
+        q[alone] = c.rhs[alone] / diag
+        sub = sp.diags(-1.0 / diag) @ phi_sm[alone]
+        if pattern_radius is not None and master_points is not None:
+            sub = sub.tocoo()
+            far = np.hypot(*(c.points[alone][sub.row] - master_points[sub.col]).T) > pattern_radius
+            sub.data[far] = 0.0
+        sub = sp.coo_matrix(sub)
+        if threshold > 0.0:
+            sub.data[np.abs(sub.data) < threshold] = 0.0
+        nz = sub.data != 0.0
+        rows_out.append(alone[sub.row[nz]])
+        cols_out.append(sub.col[nz])
+        vals_out.append(sub.data[nz])
+    for k in np.flatnonzero(sizes > 1):
         members = order[bounds[k]:bounds[k + 1]]
-        largest = max(largest, members.size)
         block = phi_ss[members][:, members].toarray()
         lu = la.lu_factor(block, check_finite=False)
         rcond = _rcond(block, lu)

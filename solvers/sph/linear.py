@@ -38,32 +38,51 @@ class SolveInfo:
     min_pivot_ratio: float = np.nan
 
 
+class Factor:
+    """A factorised (direct) or preconditioned (iterative) system, solved for many b."""
+
+    def __init__(self, A, solver: str = "auto", nearly_symmetric: bool = False):
+        if solver not in SOLVERS:
+            raise ValueError(f"unknown linear solver {solver!r} (known: {', '.join(SOLVERS)})")
+        self.A = sp.csc_matrix(A)
+        n = self.A.shape[0]
+        self.method = solver if solver != "auto" else ("direct" if n <= AUTO_ITERATIVE_ABOVE
+                                                       else "iterative")
+        t0 = time.perf_counter()
+        self.pivot_ratio = np.nan
+        if self.method == "direct":
+            self.lu, self.pivot_ratio = _factorise(self.A, nearly_symmetric)
+        else:
+            ilu = spla.spilu(self.A, drop_tol=1e-5, fill_factor=20)
+            self.preconditioner = spla.LinearOperator(self.A.shape, ilu.solve)
+        self.build_seconds = time.perf_counter() - t0
+
+    def solve(self, b):
+        """x with A x = b, and a SolveInfo (its time excludes the factorisation,
+        ``build_seconds``)."""
+        b = np.asarray(b, dtype=float)
+        t0 = time.perf_counter()
+        if self.method == "direct":
+            x, iterations = self.lu.solve(b), 0
+        else:
+            x, iterations = _gmres(self.A, b, self.preconditioner)
+        if not np.all(np.isfinite(x)):
+            raise LinearSolveError(f"{self.method} solve of {b.size} unknowns gave non-finite "
+                                   f"values (first at unknown "
+                                   f"{int(np.flatnonzero(~np.isfinite(x))[0])})")
+        residual = float(np.linalg.norm(self.A @ x - b)) / (float(np.linalg.norm(b)) or 1.0)
+        return x, SolveInfo(self.method, iterations, residual, time.perf_counter() - t0,
+                            self.pivot_ratio)
+
+
 def solve(A, b, solver: str = "auto", nearly_symmetric: bool = False):
     """x with A x = b, and a SolveInfo. ``nearly_symmetric``: order for A + A^T and prefer
     diagonal pivots (the master–slave reduced systems: 4x faster factorisations than COLAMD
     on Example 1; the penalty systems factor faster with COLAMD — docs/sph.md § 5)."""
-    if solver not in SOLVERS:
-        raise ValueError(f"unknown linear solver {solver!r} (known: {', '.join(SOLVERS)})")
-    A = sp.csc_matrix(A)
-    b = np.asarray(b, dtype=float)
-    if solver == "auto":
-        solver = "direct" if A.shape[0] <= AUTO_ITERATIVE_ABOVE else "iterative"
-    t0 = time.perf_counter()
-    if solver == "direct":
-        x, ratio = _direct(A, b, nearly_symmetric)
-        iterations = 0
-    else:
-        x, iterations = _iterative(A, b)
-        ratio = np.nan
-    bnorm = float(np.linalg.norm(b)) or 1.0
-    residual = float(np.linalg.norm(A @ x - b)) / bnorm
-    if not np.all(np.isfinite(x)):
-        raise LinearSolveError(f"{solver} solve of {A.shape[0]} unknowns gave non-finite values "
-                               f"(first at unknown {int(np.flatnonzero(~np.isfinite(x))[0])})")
-    return x, SolveInfo(solver, iterations, residual, time.perf_counter() - t0, ratio)
+    return Factor(A, solver, nearly_symmetric).solve(b)
 
 
-def _direct(A, b, nearly_symmetric=False):
+def _factorise(A, nearly_symmetric=False):
     options = ({"permc_spec": "MMD_AT_PLUS_A", "diag_pivot_thresh": 0.1,
                 "options": {"SymmetricMode": True}} if nearly_symmetric
                else {"permc_spec": "COLAMD"})
@@ -78,12 +97,10 @@ def _direct(A, b, nearly_symmetric=False):
         raise LinearSolveError(f"the system of {A.shape[0]} unknowns is singular to working "
                                f"precision: pivot ratio {ratio:.2g} at unknown {where} (a free "
                                f"rigid mode?)")
-    return lu.solve(b), ratio
+    return lu, ratio
 
 
-def _iterative(A, b):
-    ilu = spla.spilu(A, drop_tol=1e-5, fill_factor=20)
-    M = spla.LinearOperator(A.shape, ilu.solve)
+def _gmres(A, b, M):
     count = [0]
 
     def tick(_):

@@ -17,14 +17,16 @@ particle integration; it fails the patch test near boundaries and interfaces (do
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.linalg import splu
 
 from solvers.sph.constraints import Constraints, master_slave, penalty_system
-from solvers.sph.linear import condition_estimate, solve
+from solvers.sph.linear import Factor, condition_estimate
 from solvers.sph.stiffness import block_diagonal, elasticity_matrices, lame, strain_operator
 from uqflow.errors import SolverError
 
@@ -79,6 +81,7 @@ class ElasticProblem:
             raise ValueError(f"unknown integration {integration!r} "
                              f"(known: {', '.join(INTEGRATIONS)})")
         t0 = time.perf_counter()
+        self._system = None               # (pattern key, factorised system) of the last solve
         self.disc, self.method, self.integration = disc, method, integration
         self.penalty, self.linear_solver = float(penalty), linear_solver
         self.cutoff_threshold, self.cutoff_radius = float(cutoff_threshold), cutoff_radius
@@ -207,6 +210,47 @@ class ElasticProblem:
         quad_on = np.concatenate([b_on, p_on, p_on])
         return c, quad_on
 
+    def _build(self, c, quad_on, detached) -> dict:
+        """The factorised system of one constraint pattern (reused while no pair breaks)."""
+        d = self.disc
+        K, f = self.K, self.f.copy()
+        if self.method == "penalty" and self.integration == "vci":
+            # Nitsche's consistency term in point quadrature, on the imposed components only
+            # (the seed's plain penalty, with nodal integration, has none)
+            weight = (self.quad_weight[:, None] * quad_on).ravel()
+            Q = d.dof_matrix(self.quad_rows)
+            K = (K - Q.T @ sp.diags(weight) @ self.traction).tocsr()
+            f = f - Q.T @ (weight * self.eigen_traction)
+        free = np.ones(d.ndof, dtype=bool)
+        removed = np.flatnonzero(np.isin(d.phase, np.flatnonzero(detached) + 1))
+        free[2 * removed] = free[2 * removed + 1] = False
+        keep = np.flatnonzero(free)
+        if removed.size:
+            K = K[keep][:, keep].tocsr()
+            f = f[keep]
+            c = Constraints(rows=c.rows[:, keep], rhs=c.rhs,
+                            slaves=np.searchsorted(keep, c.slaves), points=c.points,
+                            label=c.label)
+        out = {"keep": keep, "removed": removed, "K": K, "f": f}
+        t0 = time.perf_counter()
+        if self.method == "penalty":
+            A, _, w = penalty_system(K, f, c, self.penalty)
+            out.update(w=w, transformation=time.perf_counter() - t0)
+            out.update(factor=Factor(A, self.linear_solver))
+            return out
+        threshold = self.cutoff_threshold if self.method == "master-slave-cutoff" else 0.0
+        radius = self.cutoff_radius if self.method == "master-slave-cutoff" else None
+        dof_points = np.repeat(d.x, 2, axis=0)[keep]
+        ms = master_slave(K, f, c, dof_points, threshold=threshold, pattern_radius=radius)
+        out["transformation"] = time.perf_counter() - t0
+        rows = c.rows.tocsc()[:, c.slaves].tocsc()
+        out.update(ms=ms, factor=Factor(ms.K_hat, self.linear_solver, nearly_symmetric=True),
+                   scatter=sp.csr_matrix((np.ones(c.slaves.size),
+                                          (c.slaves, np.arange(c.slaves.size))),
+                                         shape=(keep.size, c.slaves.size)),
+                   phi_ss=functools.cache(lambda: splu(rows)))
+        return out
+
     # -- solve ---------------------------------------------------------------------------
 
     def solve(self, boundary_values, intact=None, detached=None,
@@ -226,39 +270,33 @@ class ElasticProblem:
                                   f"(detach it)")
         t0 = time.perf_counter()
         c, quad_on = self.constraints(boundary_values, intact)
-        K, f = self.K, self.f.copy()
-        if self.method == "penalty" and self.integration == "vci":
-            # Nitsche's consistency term in point quadrature, on the imposed components only
-            # (the seed's plain penalty, with nodal integration, has none)
-            weight = (self.quad_weight[:, None] * quad_on).ravel()
-            Q = d.dof_matrix(self.quad_rows)
-            K = (K - Q.T @ sp.diags(weight) @ self.traction).tocsr()
-            f = f - Q.T @ (weight * self.eigen_traction)
-        free = np.ones(d.ndof, dtype=bool)
-        removed = np.flatnonzero(np.isin(d.phase, np.flatnonzero(detached) + 1))
-        free[2 * removed] = free[2 * removed + 1] = False
-        keep = np.flatnonzero(free)
-        if removed.size:
-            K = K[keep][:, keep].tocsr()
-            f = f[keep]
+        key = (quad_on.tobytes(), detached.tobytes())
+        built = self._system is None or self._system[0] != key
+        if built:
+            self._system = (key, self._build(c, quad_on, detached))
+        system = self._system[1]
+        keep = system["keep"]
+        if keep.size < d.ndof:
             c = Constraints(rows=c.rows[:, keep], rhs=c.rhs,
                             slaves=np.searchsorted(keep, c.slaves), points=c.points,
                             label=c.label)
-        dof_points = np.repeat(d.x, 2, axis=0)[keep]
         t1 = time.perf_counter()
         if self.method == "penalty":
-            A, b, _ = penalty_system(K, f, c, self.penalty)
+            b = system["f"] + system["w"] * (c.rows.T @ c.rhs)
             t2 = time.perf_counter()
-            x, info = solve(A, b, self.linear_solver)
-            u_free = x
+            u_free, info = system["factor"].solve(b)
         else:
-            threshold = self.cutoff_threshold if self.method == "master-slave-cutoff" else 0.0
-            radius = self.cutoff_radius if self.method == "master-slave-cutoff" else None
-            ms = master_slave(K, f, c, dof_points, threshold=threshold, pattern_radius=radius)
-            A = ms.K_hat
+            ms = system["ms"]
+            if not built:
+                # same constraint pattern, new prescribed values: only q and f^ change
+                ms.q = system["phi_ss"]().solve(c.rhs)
+                ms.u_q = system["scatter"] @ ms.q
+                ms.f_hat = ms.P.T @ (system["f"] - system["K"] @ ms.u_q)
             t2 = time.perf_counter()
-            x, info = solve(ms.K_hat, ms.f_hat, self.linear_solver, nearly_symmetric=True)
+            x, info = system["factor"].solve(ms.f_hat)
             u_free = ms.expand(x)
+        A = system["factor"].A
+        removed = system["removed"]
         t3 = time.perf_counter()
         u = np.full(d.ndof, np.nan)
         u[keep] = u_free
@@ -279,5 +317,8 @@ class ElasticProblem:
             pair_error = float(np.max(np.abs(jump))) / scale
         cond = condition_estimate(A) if condition else None
         return Solution(u, disp, strain, stress, residual, pair_error,
-                        {"assembly": t1 - t0, "transformation": t2 - t1, "solve": t3 - t2},
+                        {"assembly": t1 - t0 - (system["transformation"] + system["factor"].build_seconds
+                                                if built else 0.0),
+                         "transformation": t2 - t1 + (system["transformation"] if built else 0.0),
+                         "solve": t3 - t2 + (system["factor"].build_seconds if built else 0.0)},
                         cond, info)
