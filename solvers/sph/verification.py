@@ -87,3 +87,36 @@ if __name__ == "__main__":
         p = row.get("threshold", row.get("penalty", ""))
         print(f"| {row['method']} | {p} | {row['radial_error']:.2e} | {row['pair_error']:.1e} "
               f"| {row['symmetry_error']:.1e} | {row['condition']:.1e} |")
+
+
+def rigid_rotation(x, u):
+    """Least-squares rigid rotation (radians) of displacements ``u`` at points ``x``."""
+    p = x - x.mean(axis=0)
+    v = u - u.mean(axis=0)
+    return float(np.sum(p[:, 0] * v[:, 1] - p[:, 1] * v[:, 0]) / np.sum(p * p))
+
+
+def example2_rotations(layout, inclusion: int, kept_pairs, methods, pull=0.05e-6,
+                       integration="vci", spacing_ratio=2.0):
+    """Rotation of inclusion ``inclusion`` held only by ``kept_pairs`` (indices into its own
+    pairs) under the seed's Example 2 load, per (method, penalty) in ``methods``; relative
+    to the plate's strain so it reads as an angle per unit strain."""
+    from solvers.sph.loading import tension_boundary_values
+    disc = Discretisation(layout, spacing_ratio)
+    inside = layout.phase > 0
+    E = np.where(inside, 150e6, 1e6)
+    nu = np.where(inside, 0.3, 0.4)
+    own = np.flatnonzero(layout.pair_inclusion == inclusion)
+    intact = np.ones(layout.pairs.shape[0], dtype=bool)
+    intact[own] = False
+    intact[own[np.asarray(kept_pairs, dtype=int)]] = True
+    members = layout.phase == inclusion + 1
+    strain = 2.0 * pull / (layout.x[:, 1].max() - layout.x[:, 1].min())
+    out = {}
+    for method, penalty in methods:
+        problem = ElasticProblem(disc, E, nu, method=method, penalty=penalty or 1e4,
+                                 integration=integration)
+        sol = problem.solve(tension_boundary_values(layout, pull), intact)
+        out[(method, penalty)] = rigid_rotation(layout.x[members],
+                                                sol.displacement[members]) / strain
+    return out
