@@ -37,6 +37,7 @@ SHRUNK_COUNTS = {"samples": 16, "realizations": 2, "min_samples": 8, "trace_poin
                  "resamples": 50}
 MPM_RESOLUTION_FACTOR = 0.25
 GAMUT_BAR_CYCLES = 3      # the fewest levels whose loops still fit n' and K' with a margin
+SPH_STEPS = 8              # load steps of an sph tension scene (each a solve)
 
 
 def expected_exit(path: Path) -> int:
@@ -96,6 +97,8 @@ def _shrink_scene(scene: dict, solver: str) -> dict:
     scene = dict(scene)
     if solver == "mpm":
         scene["resolution"] = scene.get("resolution", 1.0) * MPM_RESOLUTION_FACTOR
+    elif solver == "sph" and scene.get("loading", "tension") == "tension":
+        scene["steps"] = min(scene.get("steps", 1), SPH_STEPS)
     elif solver == "gamut_bar" and scene.get("loading") == "cyclic":
         scene["cycles"] = min(scene.get("cycles", 10), GAMUT_BAR_CYCLES)
     return scene

@@ -389,9 +389,13 @@ def random_layout(box: Box, spacing: float, count: int, semi_axes_range, rng,
             continue
         e = Ellipse(rng.uniform(box.x0 + reach, box.x1 - reach),
                     rng.uniform(box.y0 + reach, box.y1 - reach), a, b, angle)
-        if e.distance_lower_bound(box) < min_gap:
+        # circles around and inside each ellipse settle most candidates without sampling
+        near = [o for o in placed
+                if math.hypot(e.cx - o.cx, e.cy - o.cy) <= max(e.a, e.b) + max(o.a, o.b) + min_gap]
+        if any(math.hypot(e.cx - o.cx, e.cy - o.cy) < min(e.a, e.b) + min(o.a, o.b) + min_gap
+               for o in near):
             continue
-        if any(e.distance_lower_bound(o) < min_gap for o in placed):
+        if any(e.distance_lower_bound(o) < min_gap for o in near):
             continue
         placed.append(e)
     return regular_layout(box, spacing, placed)

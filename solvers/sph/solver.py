@@ -149,7 +149,9 @@ class SPHSolver(Solver):
                          "intact_pairs": (("step",), np.full(c.steps, nan), "1"),
                          "detached_inclusions": (("step",), np.full(c.steps, nan), "1"),
                          "effective_modulus": ((), nan, "Pa"),
-                         "inclusion_detach_strain": (("inclusion",), np.full(n_incl, nan), "1")})
+                         "modulus_lower_bound": ((), nan, "Pa"),
+                         "modulus_upper_bound": ((), nan, "Pa"),
+                         "inclusion_detach_step": (("inclusion",), np.full(n_incl, nan), "1")})
             coords.update({"step": np.arange(1, c.steps + 1), "inclusion": np.arange(n_incl)})
         return xr.Dataset({k: xr.Variable(d, v, {"units": u}) for k, (d, v, u) in data.items()},
                           coords=coords)
@@ -213,6 +215,7 @@ class SPHSolver(Solver):
                                      stabilisation=c.stabilisation)
             if c.loading == "tension":
                 out = self._tension(problem, layout, strength)
+                out.update(_bounds(layout, E, nu, c.state))
             else:
                 out = self._eigenstrain(problem, layout, p)
         except (ConstraintError, LinearSolveError, InterpolationError) as e:
@@ -234,15 +237,17 @@ class SPHSolver(Solver):
     def _tension(self, problem, layout, strength):
         c = self.cfg
         h = run_tension(problem, layout, strength, c.step, c.steps)
-        detach = np.where(h.inclusion_detach_step > 0,
-                          h.strain[np.maximum(h.inclusion_detach_step, 1) - 1], np.nan)
         out = {"strain": h.strain, "macro_stress": h.macro_stress,
                "intact_pairs": h.intact_pairs, "detached_inclusions": h.detached_inclusions,
-               "effective_modulus": h.effective_modulus, "inclusion_detach_strain": detach,
+               "effective_modulus": h.effective_modulus,
+               "inclusion_detach_step": h.inclusion_detach_step,
                "constraint_residual": float(h.constraint_residual.max()),
                "pair_error": float(h.pair_error.max()),
-               "pair_break_step": np.where(h.pair_break_step > 0, h.pair_break_step, np.nan),
-               "displacement": h.last.displacement, "stress": h.last.stress}
+               "pair_break_step": h.pair_break_step,
+               # a detached inclusion carries no stress and its rigid position is undetermined:
+               # reported as 0 (results hold no NaN: uqflow counts a NaN output as a failure)
+               "displacement": np.nan_to_num(h.last.displacement, nan=0.0),
+               "stress": np.nan_to_num(h.last.stress, nan=0.0)}
         out.update(self._timings(h.timings))
         return out
 
@@ -266,6 +271,20 @@ class SPHSolver(Solver):
                "constraint_residual": sol.constraint_residual, "pair_error": sol.pair_error}
         out.update(self._timings(timings))
         return out
+
+
+def _bounds(layout, E, nu, state) -> dict:
+    """Hashin–Shtrikman bounds of the in-plane Young's modulus for this run's volume fraction;
+    with moduli varying over the particles (fields), the lower bound takes each phase's
+    softest and the upper its stiffest (HS bounds grow with the phase moduli)."""
+    inside = layout.phase > 0
+    lo = exact.hashin_shtrikman_2d(layout.volume_fraction, E[inside].min(),
+                                   nu[inside].mean(), E[~inside].min(), nu[~inside].mean(),
+                                   state)["E_2D"][0]
+    hi = exact.hashin_shtrikman_2d(layout.volume_fraction, E[inside].max(),
+                                   nu[inside].mean(), E[~inside].max(), nu[~inside].mean(),
+                                   state)["E_2D"][1]
+    return {"modulus_lower_bound": float(lo), "modulus_upper_bound": float(hi)}
 
 
 def _variant(c: Config) -> str:
