@@ -16,6 +16,7 @@ from solvers.sph.layouts import (Box, Disk, Ellipse, LayoutError, polar_layout, 
 from solvers.sph.linear import LinearSolveError
 from solvers.sph.loading import run_tension
 from solvers.sph.problem import ElasticProblem
+from solvers.sph.report import report as _report
 from solvers.sph.scene import Config, parse
 from solvers.sph.stiffness import Discretisation
 from uqflow.errors import SceneError, SolverError
@@ -71,7 +72,9 @@ class SPHSolver(Solver):
             self._check_clearance(layout)
             return layout
         except LayoutError as e:
-            raise SceneError(str(e), key=f"scene.{e.key}") from None
+            # a random layout's ellipses come from [random], not from inclusions[k]
+            key = "random" if c.layout == "random" and e.key.startswith("inclusions") else e.key
+            raise SceneError(str(e), key=f"scene.{key}") from None
 
     def _check_clearance(self, layout):
         """Inclusions one support apart from each other and from the edge: the seed's
@@ -91,6 +94,9 @@ class SPHSolver(Solver):
             return Discretisation(layout, self.cfg.smoothing_ratio, self.cfg.kernel)
         except InterpolationError as e:
             raise SceneError(str(e), key="scene.smoothing_ratio") from None
+
+    #: ``uqflow report`` on sph results: HS bounds, stress–strain envelope, P(full debond)
+    report = staticmethod(_report)
 
     def describe(self) -> str:
         c = self.cfg
