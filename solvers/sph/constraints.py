@@ -19,6 +19,7 @@ Penalty: (K + w L^T L) u = f + w L^T p with w = relative weight × mean diag K.
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -124,7 +125,10 @@ def relation_matrix(c: Constraints, masters: np.ndarray, master_points=None,
     for k in np.flatnonzero(sizes > 1):
         members = order[bounds[k]:bounds[k + 1]]
         block = phi_ss[members][:, members].toarray()
-        lu = la.lu_factor(block, check_finite=False)
+        with warnings.catch_warnings():
+            # a singular block is reported below, with the row that names it
+            warnings.simplefilter("ignore", la.LinAlgWarning)
+            lu = la.lu_factor(block, check_finite=False)
         rcond = _rcond(block, lu)
         if not rcond > MIN_CLUSTER_RCOND:
             first = members[0]
