@@ -89,6 +89,7 @@ def test_penalty_error_falls_as_one_over_the_weight():
     errors = []
     for w in (1e2, 1e4, 1e6):
         A, b, w_abs = penalty_system(K, np.zeros(n), c, w)
+        # a mean of equal entries times w: one rounding, eps
         assert w_abs == pytest.approx(w * 2.0, rel=1e-15)
         assert abs(A - A.T).max() == 0.0
         u = solve(A, b)[0]

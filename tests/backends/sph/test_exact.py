@@ -48,6 +48,7 @@ def test_the_solution_is_in_equilibrium_with_continuous_traction(variant):
 def test_limits_of_the_constant():
     lam, mu = lame(1000.0, 0.3, "plane_strain")
     same = eshelby_constant(0.01, 1000.0, 0.3, 1000.0, 0.3)
+    # the same few operations in another order: ~10 eps
     assert same == pytest.approx((lam + mu) * 0.01 / (lam + 2 * mu), rel=1e-14)
     assert eshelby_constant(0.01, 1000.0, 0.3, 1e15, 0.3) < 1e-12     # rigid matrix
     assert np.isfinite(eshelby_constant(0.01, 1000.0, 0.4999999, 900.0, 0.33))
@@ -59,6 +60,7 @@ def test_cartesian_displacement_points_radially():
     u = eshelby_displacement(p, 20.0, eigenstrain=0.01, E_inclusion=1000.0, nu_inclusion=0.28,
                              E_matrix=900.0, nu_matrix=0.33)
     C = eshelby_constant(*SEED)
+    # inside, u = (C r / r) p: a product and a quotient of exact values, a few eps
     assert np.allclose(u[0], C * p[0], rtol=1e-15)
     assert np.array_equal(u[1], [0.0, 0.0])
     assert np.allclose(u[2], C * 400.0 / 2500.0 * p[2], rtol=1e-14)
@@ -68,8 +70,10 @@ def test_hashin_shtrikman_bounds_behave():
     for f in (0.0, 1.0):
         b = hashin_shtrikman_2d(f, 150e6, 0.3, 1e6, 0.4)
         for lo, hi in b.values():
+            # Walpole sums of one phase: cancellation of ~1e3-size terms, 1e3 eps
             assert lo == pytest.approx(hi, rel=1e-12)
     same = hashin_shtrikman_2d(0.3, 1e6, 0.4, 1e6, 0.4)["E_2D"]
+    # equal phases: the same sums, cancellation bounded by 1e3 eps
     assert same[0] == pytest.approx(1e6 / (1 - 0.16), rel=1e-12) == same[1]
     rng = np.random.default_rng(0)
     for _ in range(50):

@@ -42,6 +42,7 @@ def test_a_plain_lattice_gives_full_half_and_quarter_cells():
     assert np.allclose(v[edge_x ^ edge_y], 0.5, rtol=8 * EPS)
     assert np.allclose(v[edge_x & edge_y], 0.25, rtol=8 * EPS)
     assert lay.boundary.size == 2 * (10 + 8)
+    # 36 exact unit weights
     assert lay.boundary_weight.sum() == pytest.approx(36.0, rel=1e-15)
 
 
@@ -55,7 +56,9 @@ def test_pairs_sit_on_their_ellipse_with_outward_normals_and_the_perimeter():
     assert np.abs(e.level(lay.x[m]) - 1.0).max() < 1e-13
     assert np.allclose(np.hypot(*lay.pair_normal.T), 1.0, rtol=1e-15)
     assert np.all(np.sum(lay.pair_normal * (lay.x[m] - (e.cx, e.cy)), axis=1) > 0)
+    # n equal shares of the perimeter summed: n eps with n ~ 40
     assert lay.pair_weight.sum() == pytest.approx(4 * 7.0 * ellipe(1 - (3 / 7) ** 2), rel=1e-12)
+    # ellipe(0) = pi/2 to rounding: a few eps
     assert Ellipse(0, 0, 5, 5).perimeter == pytest.approx(10 * math.pi, rel=1e-15)
 
 
@@ -75,7 +78,9 @@ def test_symmetric_geometry_gives_bitwise_symmetric_particles(lay):
 def test_polar_boundary_is_the_outer_ring():
     lay = polar_layout(20.0, 60.0, 2.0)
     r = np.hypot(*lay.x[lay.boundary].T)
+    # hypot of exactly mirrored cos/sin points: a few eps
     assert np.allclose(r, 60.0, rtol=1e-15)
+    # n equal shares summed: n eps with n ~ 190
     assert lay.boundary_weight.sum() == pytest.approx(120 * math.pi, rel=1e-14)
 
 

@@ -74,6 +74,7 @@ def test_a_random_layout_follows_the_realization_seed():
     assert a.volume_fraction.item() == b.volume_fraction.item()
     assert np.array_equal(a.macro_stress.values, b.macro_stress.values)
     assert a.volume_fraction.item() != c.volume_fraction.item()
+    # the height is a difference of lattice coordinates: rounding of ~1e-16 relative
     assert np.allclose(a.strain.values, 2 * 0.05e-6 * np.arange(1, 4) / 100e-6, rtol=1e-12)
 
 
