@@ -27,6 +27,8 @@ import xarray as xr
 
 from uqflow import progress as progress_mod
 from uqflow.errors import ResultFileError, StudyError, UqflowError
+from uqflow.levels import (SEED_KEY_VARIABLE, AlignedSolver, level_array,
+                           same_level_runs)
 from uqflow.realization import (STATUS_FAILED, STATUS_PENDING, add_field_value_variables,
                                 batch_arguments, empty_runs, is_sensitivity_variable,
                                 realization_prefix, run_batch, store_batch)
@@ -65,9 +67,11 @@ def _worker_solver(solver_class, scene: dict):
     return _SOLVERS[key]
 
 
-def _work(solver_class, scene, names, outputs, arguments, budget):
-    return run_batch(_worker_solver(solver_class, scene), names, outputs=outputs,
-                     budget=budget, **arguments)
+def _work(solver_class, scene, names, outputs, arguments, budget, align=None):
+    solver = _worker_solver(solver_class, scene)
+    if align:
+        solver = AlignedSolver(solver, align)
+    return run_batch(solver, names, outputs=outputs, budget=budget, **arguments)
 
 
 # --- on the client --------------------------------------------------------------------------
@@ -166,12 +170,21 @@ def _prepare(study: Study, resume: bool, path: Path):
 def _planned_runs(study: Study) -> xr.Dataset:
     seed = np.random.SeedSequence(study.spec.execution.seed)
     design = study.method.plan(study.space, study.fields or None, seed)
+    return _runs_of(design, study)
+
+
+def _runs_of(design: xr.Dataset, study: Study) -> xr.Dataset:
+    """Pending runs of ``design``, with their realization seeds."""
     runs = add_field_value_variables(empty_runs(design, study.solver.outputs()[study.outputs]),
                                      study.fields, study.solver)
-    # A seed per realization, spawned by index: reproducible without the rest of the design.
+    # A seed per realization, spawned by index (by seed_key where a design couples rows: the
+    # same sample at two levels draws the same layout): reproducible without the rest of the
+    # design.
+    keys = runs[SEED_KEY_VARIABLE].values if SEED_KEY_VARIABLE in runs else \
+        runs["realization"].values
     runs["realization_seed"] = ("realization", np.array(
         [np.random.SeedSequence(study.spec.execution.seed, spawn_key=(int(i),))
-         .generate_state(1)[0] for i in runs["realization"].values], dtype=np.uint32))
+         .generate_state(1)[0] for i in keys], dtype=np.uint32))
     return runs
 
 
@@ -180,6 +193,10 @@ def _check_stored_design(stored: xr.Dataset, fresh: xr.Dataset, study: Study,
     """The partial result must hold this study's design (a prefix of it, if it stopped
     early) and every variable a run writes: another uqflow version may plan differently."""
     n = stored.sizes.get("realization", 0)
+    if study.method.extends and n > fresh.sizes["realization"]:
+        # rows the method added after its plan: the plan must open the stored design
+        n = fresh.sizes["realization"]
+        stored = realization_prefix(stored, n)
     prefix = realization_prefix(fresh, n)
     problem = None
     if not 0 < n <= fresh.sizes["realization"]:
@@ -264,6 +281,22 @@ class _Execution:
         self.stopper = _Stopper(study.method, design, runs,
                                 int(attrs.get("planned_realizations", self.n_total)))
         self.names = [str(p) for p in runs["parameter"].values]
+        self.levels = level_array(runs)
+
+    def add(self, more: xr.Dataset) -> np.ndarray:
+        """Append the method's new rows ``more`` (a design) as pending runs; their indices."""
+        n = self.runs.sizes["realization"]
+        new = _runs_of(more, self.study).assign_coords(
+            realization=np.arange(n, n + more.sizes["realization"]))
+        self.runs = xr.concat([self.runs, new], dim="realization", data_vars="minimal",
+                              coords="minimal", compat="override", join="override",
+                              combine_attrs="override")
+        self.design = _design_of(self.runs, self.study)
+        self.n_total = self.runs.sizes["realization"]
+        self.levels = level_array(self.runs)
+        self.stopper = _Stopper(self.study.method, self.design, self.runs, self.n_total)
+        self.bar.total = self.n_total
+        return np.arange(n, self.n_total)
 
     def record(self, indices: np.ndarray, result: dict) -> str | None:
         """Store a task's results; the reason to stop, if any."""
@@ -335,17 +368,27 @@ def run_study(study: Study, *, workers: int | None = None, scheduler: str | None
         execution = _Execution(study, runs, design, attrs, checkpoint, bar)
         stop_reason = "enough" if execution.stopper.advance() else None
         try:
-            if stop_reason is None and pending.size:
-                if in_process:
-                    stop_reason = _run_in_process(execution, pending)
-                else:
-                    stop_reason = _run_on_dask(execution, client, pending,
-                                               workers if scheduler is None else 2,
-                                               ex.checkpoint_interval / 2)
+            while stop_reason is None:
+                if pending.size:
+                    if in_process:
+                        stop_reason = _run_in_process(execution, pending)
+                    else:
+                        stop_reason = _run_on_dask(execution, client, pending,
+                                                   workers if scheduler is None else 2,
+                                                   ex.checkpoint_interval / 2)
+                if stop_reason is not None or execution.stopper.keep is not None:
+                    break
+                # Every row so far has finished: a method that re-plans may add rows.
+                more = study.method.extend(execution.design, execution.runs)
+                if more is None:
+                    break
+                pending = execution.add(more)
+                checkpoint.write(execution.runs)
         except KeyboardInterrupt:
             if checkpoint.dirty:
-                checkpoint.write(runs)  # Ctrl-C keeps everything finished so far
+                checkpoint.write(execution.runs)  # Ctrl-C keeps everything finished so far
             raise
+        runs, design = execution.runs, execution.design
         if checkpoint.dirty and not in_process:
             checkpoint.write(runs)  # closing a cluster takes seconds: save first
         bar.close()
@@ -380,8 +423,10 @@ def _run_in_process(execution: _Execution, pending: np.ndarray) -> str | None:
         horizon = execution.stopper.horizon()
         end = pending.size if horizon is None else \
             max(int(np.searchsorted(pending, horizon)), start + 1)
-        chunk = pending[start:min(end, start + cap)]
-        result = run_batch(study.solver, execution.names, outputs=study.outputs,
+        chunk = same_level_runs(pending[start:min(end, start + cap)], execution.levels)[0]
+        solver = study.solver if execution.levels is None else \
+            study.levels.aligned_solver(int(execution.levels[chunk[0]]))
+        result = run_batch(solver, execution.names, outputs=study.outputs,
                            budget=execution.checkpoint.seconds_until_due(),
                            **batch_arguments(runs, chunk, study.fields))
         start += len(result["status"])
@@ -436,14 +481,19 @@ def _run_on_dask(execution: _Execution, client, pending: np.ndarray, workers: in
     active: dict = {}
 
     def submit(indices):
-        arguments = batch_arguments(runs, indices, study.fields)
-        if fields is not None:
-            arguments["fields"] = fields
-        # Lower realizations first: the stop points are prefixes of the design.
-        future = client.submit(_work, study.solver_class, study.scene, execution.names,
-                               study.outputs, arguments, budget, pure=False,
-                               priority=-int(indices[0]))
-        active[future] = indices
+        for part in same_level_runs(indices, execution.levels):
+            arguments = batch_arguments(runs, part, study.fields)
+            if fields is not None:
+                arguments["fields"] = fields
+            scene, align = study.scene, None
+            if execution.levels is not None:
+                level = int(execution.levels[part[0]])
+                scene, align = study.levels.scenes[level], study.levels.alignments[level]
+            # Lower realizations first: the stop points are prefixes of the design.
+            future = client.submit(_work, study.solver_class, scene, execution.names,
+                                   study.outputs, arguments, budget, align, pure=False,
+                                   priority=-int(part[0]))
+            active[future] = part
 
     size = _batch_size(study, pending.size, workers)
     for i in range(0, pending.size, size):

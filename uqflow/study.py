@@ -26,6 +26,7 @@ from pydantic import (AfterValidator, BaseModel, BeforeValidator, ConfigDict, Fi
 
 from uqflow.errors import SceneError, StudyError
 from uqflow.inputs import DISTRIBUTIONS, InputSpace, RandomInput
+from uqflow.levels import Levels, LevelsSpec, resolve_levels
 from uqflow.methods import PropagationMethod, get_method
 from uqflow.methods.base import MAX_REALIZATIONS
 from uqflow.solver import Solver, get_solver
@@ -164,6 +165,7 @@ class StudySpec(_Strict):
     correlation: CorrelationSpec | None = None
     fields: list[dict[str, Any]] = Field(default_factory=list)
     method: MethodSpec
+    levels: LevelsSpec | None = None
     execution: ExecutionSpec = Field(default_factory=ExecutionSpec)
     output: OutputSpec = Field(default_factory=OutputSpec)
 
@@ -195,6 +197,8 @@ class Study:
     fields: list = field(default_factory=list)
     #: the other files the study reads, by the key naming them: {"scene": (path, sha256)}
     read_files: dict[str, tuple[str, str]] = field(default_factory=dict)
+    #: fidelity levels (``[levels]``); ``scene`` and ``solver`` are then the finest level's
+    levels: Levels | None = None
 
     @property
     def name(self) -> str:
@@ -464,6 +468,9 @@ def _resolve(spec: StudySpec, path: Path, text: str, label: str) -> Study:
                          "run)", key="inputs")
     method.check(space, fields)
     method.check_solver(solver, outputs, space.names)
+    levels = _levels(spec, method, scene, solver_class, outputs, scene_label or label)
+    if levels is not None:
+        scene, solver = levels.scenes[-1], levels.solvers[-1]
 
     out = spec.output.path or f"results/{spec.name}.nc"
     output_path = (folder / out).resolve() if not Path(out).is_absolute() else Path(out)
@@ -471,7 +478,26 @@ def _resolve(spec: StudySpec, path: Path, text: str, label: str) -> Study:
         raise StudyError(f"a result file ends in .nc, got '{out}'", key="output.path")
     return Study(spec=spec, path=path, text=text, solver_class=solver_class, scene=scene,
                  solver=solver, space=space, method=method, outputs=outputs,
-                 output_path=output_path, fields=fields, read_files=read_files)
+                 output_path=output_path, fields=fields, read_files=read_files,
+                 levels=levels)
+
+
+def _levels(spec: StudySpec, method, scene: dict, solver_class, outputs: list[str],
+            scene_label: str) -> Levels | None:
+    """The study's fidelity levels, checked against what its method does with them."""
+    uses = getattr(method, "uses_levels", False)
+    if spec.levels is None:
+        if uses:
+            raise StudyError(f"method '{spec.method.kind}' runs the solver at several "
+                             f"fidelities: add a [levels] table (key, values)", key="levels")
+        return None
+    if not uses:
+        raise StudyError(f"method '{spec.method.kind}' does not use fidelity levels: drop "
+                         f"[levels], or use kind = \"multilevel\" or \"multifidelity\"",
+                         key="levels")
+    levels = resolve_levels(spec.levels, scene, solver_class, outputs, scene_label)
+    method.check_levels(levels)
+    return levels
 
 
 def _random_fields(spec: StudySpec, solver: Solver, label: str) -> list:

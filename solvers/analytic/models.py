@@ -228,6 +228,36 @@ class ExponentialDecay:
         return {"y": (gradient, hessian)}
 
 
+class EulerDecay:
+    """y' = -k y, y(0) = 1, by explicit Euler with ``steps`` steps over ``time``: y(T) =
+    (1 - k T / steps)^steps, and the path on the step grid. A model with levels: its bias
+    against e^(-kT) is O(1/steps), the variance of two levels' difference O(1/steps^2), its
+    cost O(steps) — the setting of multilevel Monte Carlo with E[e^(-kT)] known."""
+
+    options = ("steps", "time")
+
+    def __init__(self, scene):
+        steps = scene.get("steps", 16)
+        if not isinstance(steps, int) or isinstance(steps, bool) or not 1 <= steps <= MAX_TIMES:
+            raise SceneError(f"must be an integer in 1..{MAX_TIMES:,}, got {steps!r}",
+                             key="scene.steps")
+        self.steps = steps
+        self.time = _number(scene, "time", 1.0, positive=True)
+        self.parameters = {"k": 1.0}
+        self.units = {"k": "1/s"}
+        self.outputs = {"y": ((), ""), "path": (("t",), "")}
+        self.coords = {"t": ("t", np.linspace(0.0, self.time, steps + 1), {"units": "s"})}
+
+    def __call__(self, p, fields):
+        kh = p["k"] * self.time / self.steps
+        if not abs(1.0 - kh) <= 1.0:
+            # explicit Euler's stability limit: past it the error grows at every step
+            raise SolverError(f"diverged: Euler step unstable from step 1 (k h = {kh:.4g} "
+                              f"outside [0, 2]; {self.steps} steps)")
+        path = (1.0 - kh) ** np.arange(self.steps + 1)
+        return {"y": path[-1], "path": path}
+
+
 class RandomEBar:
     """End displacement u(L) = (F/A) ∫ 1/E(x) dx of a bar pulled by F, E constant or a field."""
 
@@ -300,6 +330,7 @@ MODELS = {
     "power": PowerLaw,
     "exponential_decay": ExponentialDecay,
     "random_E_bar": RandomEBar,
+    "euler_decay": EulerDecay,
     "faulty": Faulty,
 }
 

@@ -6,6 +6,7 @@ from uqflow.methods.base import (MethodOptions, PropagationMethod, get_method, m
 from uqflow.methods import kl_weibull, monte_carlo, nominal, sobol, taylor  # noqa: E402,F401
 from uqflow.methods import taylor_local  # noqa: E402,F401
 from uqflow.methods import pce  # noqa: E402,F401
+from uqflow.methods import multifidelity, multilevel  # noqa: E402,F401
 
 __all__ = ["PropagationMethod", "MethodOptions", "register_method", "get_method",
            "method_registry", "make_design"]

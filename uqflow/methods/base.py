@@ -156,6 +156,27 @@ class PropagationMethod(abc.ABC):
     def analyze(self, design: xr.Dataset, runs: xr.Dataset) -> xr.Dataset:
         """Statistics of the outputs in ``runs`` (failed realizations have NaN outputs)."""
 
+    #: whether the method runs the solver at the study's fidelity levels (``[levels]``)
+    uses_levels: ClassVar[bool] = False
+    #: whether the method adds realizations after seeing runs (``extend``)
+    extends: ClassVar[bool] = False
+
+    def check_levels(self, levels) -> None:
+        """Take the study's ``uqflow.levels.Levels`` (raise ``StudyError`` if unusable);
+        called at load time for a method with ``uses_levels``."""
+
+    def extend(self, design: xr.Dataset, runs: xr.Dataset) -> xr.Dataset | None:
+        """More realizations to run, as a design of new rows, or None when done.
+
+        Asked by the executor only when every realization so far has finished, with the whole
+        design and runs so far, again after the new rows finish, until it answers None. The
+        answer must depend on the design and the runs alone (their outputs and statuses, and
+        values frozen in them such as a pilot's wall times), never on worker count, batches
+        or a resume: a killed study resumed asks the same questions of the same runs.
+        The default adds nothing.
+        """
+        return None
+
     def stop_points(self, n_planned: int) -> np.ndarray:
         """Realization counts (increasing, each <= ``n_planned``) at which ``enough`` is asked.
 
@@ -198,10 +219,14 @@ def make_design(space: InputSpace, values: np.ndarray, **variables) -> xr.Datase
     )
 
 
+#: design variables of the methods that sample fidelity levels (uqflow.methods.fidelity_sampling)
+FIDELITY_DESIGN_VARIABLES = ("level", "group", "sample", "seed_key", "round")
+
+
 def output_names(runs: xr.Dataset) -> list[str]:
     """The solver outputs stored in ``runs`` (everything with a ``realization`` dim but ours)."""
     skip = {"inputs", "status", "message", "wall_time", "realization_seed", "clipped_points",
-            "with_sensitivities"}
+            "with_sensitivities", *FIDELITY_DESIGN_VARIABLES}
     return [v for v in runs.data_vars if v not in skip and "realization" in runs[v].dims
             and not v.startswith(("germ_", "field_"))]
 

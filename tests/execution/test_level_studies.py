@@ -1,0 +1,205 @@
+"""Studies with fidelity levels end to end: coupled rows on their level's solver, rounds added
+by the method, 1 and 2 workers and a resumed study giving the same numbers, failures at one
+level, alignment of outputs across levels, and the study-file errors."""
+
+import numpy as np
+import pytest
+import xarray as xr
+
+import uqflow
+from uqflow.errors import StudyError
+from uqflow.execute import run_study
+from uqflow.store import read_runs, write_result
+from uqflow.study import load_study
+
+from ._common import comparable
+
+K_INPUT = """
+[[inputs]]
+name = "k"
+distribution = "uniform"
+lower = {low}
+upper = {high}
+"""
+
+
+def level_study(write_study, name, method="multilevel", steps=(4, 8, 16), target=0.01,
+                extra="", levels_extra="", outputs='["y"]', execution="workers = 0",
+                low=0.5, high=1.5, costs=True):
+    cost_line = f"costs = {[float(s) for s in steps]}\n" if costs else ""
+    body = (f"\n[levels]\nkey = \"steps\"\nvalues = {list(steps)}\n{levels_extra}\n")
+    scene = '{ model = "euler_decay" }'
+    path = write_study(name=name, scene=scene, inputs=K_INPUT.format(low=low, high=high),
+                       body=body, execution=execution + "\nseed = 5",
+                       method=f'kind = "{method}"\ntarget_rmse = {target}\npilot = 8\n'
+                              f'{cost_line}{extra}')
+    text = path.read_text().replace('solver = "analytic"',
+                                    f'solver = "analytic"\noutputs = {outputs}')
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize("method", ["multilevel", "multifidelity"])
+def test_rows_run_on_their_level_with_shared_inputs_and_seeds(write_study, method):
+    outcome = run_study(load_study(level_study(write_study, method, method)),
+                        show_progress=False)
+    runs = outcome.runs
+    assert (runs["status"].values == "ok").all()
+    assert runs["round"].values.max() >= 1          # the method added rows after the pilot
+    steps = np.array([4, 8, 16])[runs["level"].values]
+    k = runs["inputs"].values[:, 0]
+    # each row's output is the Euler value at its own level's step count: same formula
+    np.testing.assert_array_equal(runs["y"].values, (1.0 - k / steps) ** steps)
+    for key in np.unique(runs["seed_key"].values):
+        same = runs["seed_key"].values == key
+        assert np.unique(runs["inputs"].values[same, 0]).size == 1
+        assert np.unique(runs["realization_seed"].values[same]).size == 1
+
+
+@pytest.mark.parametrize("method", ["multilevel", "multifidelity"])
+def test_one_and_two_workers_give_identical_results(write_study, method):
+    paths = [run_study(load_study(level_study(write_study, f"{method}{w}", method,
+                                              execution=f"workers = {w}\nbatch = 7")),
+                       show_progress=False).path for w in (0, 2)]
+    (runs0, stats0), (runs2, stats2) = map(comparable, paths)
+    xr.testing.assert_identical(runs0, runs2)
+    xr.testing.assert_identical(stats0, stats2)
+
+
+def _cut(path, keep_rounds, finished_in_last):
+    """The checkpoint of a study killed in round ``keep_rounds - 1``: later rounds absent,
+    the last kept round finished for its first ``finished_in_last`` rows only."""
+    runs, attrs = read_runs(path)
+    rounds = runs["round"].values
+    runs = runs.isel(realization=np.flatnonzero(rounds < keep_rounds))
+    last = np.flatnonzero(runs["round"].values == keep_rounds - 1)[finished_in_last:]
+    runs["status"].values[last] = "pending"
+    runs["message"].values[last] = ""
+    runs["wall_time"].values[last] = np.nan
+    runs["y"].values[last] = np.nan
+    attrs.update(complete=0)
+    attrs.pop("runs_sha256", None)
+    write_result(path, runs, None, attrs)
+
+
+@pytest.mark.parametrize("method", ["multilevel", "multifidelity"])
+@pytest.mark.parametrize("keep_rounds, finished", [(1, 5), (None, 3), (None, 10**9)])
+def test_a_killed_study_resumes_to_the_uninterrupted_numbers(write_study, method, keep_rounds,
+                                                             finished):
+    # killed in the pilot, or in the last round (None) before or after it finished
+    whole = run_study(load_study(level_study(write_study, "whole", method)),
+                      show_progress=False)
+    last = int(whole.runs["round"].values.max())
+    assert last >= 1
+    keep_rounds = keep_rounds or last + 1
+    cut = run_study(load_study(level_study(write_study, "cut", method)), show_progress=False)
+    _cut(cut.path, keep_rounds, finished)
+    resumed = run_study(load_study(level_study(write_study, "cut", method)), resume=True,
+                        show_progress=False)
+    assert resumed.resumed > 0
+    (runs_w, stats_w), (runs_c, stats_c) = comparable(whole.path), comparable(cut.path)
+    xr.testing.assert_identical(runs_w.drop_vars("message"), runs_c.drop_vars("message"))
+    xr.testing.assert_identical(stats_w, stats_c)
+
+
+def test_measured_costs_come_from_the_pilot_and_are_reported(write_study):
+    outcome = run_study(load_study(level_study(write_study, "measured", costs=False)),
+                        show_progress=False)
+    stats = outcome.statistics
+    runs = outcome.runs
+    pilot = runs["round"].values == 0
+    for level in range(3):
+        mine = pilot & (runs["level"].values == level)
+        assert stats["level_run_cost"].values[level] == np.median(runs["wall_time"].values[mine])
+    assert stats["level_run_cost"].attrs["units"] == "s"
+
+
+def test_a_level_that_fails_for_some_inputs_is_recorded_and_its_pairs_dropped(write_study):
+    # one Euler step is unstable for k > 2: level 0 fails for a quarter of k ~ U(0.5, 2.5)
+    path = level_study(write_study, "failing", steps=(1, 2, 4), low=0.5, high=2.5,
+                       target=0.02,
+                       execution="workers = 0\nmax_failure_fraction = 0.5")
+    outcome = run_study(load_study(path), show_progress=False)
+    runs, stats = outcome.runs, outcome.statistics
+    failed = runs["status"].values == "failed"
+    assert failed.any() and np.all(runs["level"].values[failed] == 0)
+    assert np.all(runs["inputs"].values[failed, 0] > 2.0)
+    assert all("Euler step unstable" in m for m in runs["message"].values[failed])
+    # level 0's failures leave correction 0 and correction 1 (whose coarse run is level 0)
+    dropped = stats["level_failed_pairs"].values
+    assert dropped[0] > 0 and dropped[1] > 0 and dropped[2] == 0
+    assert dropped.sum() == failed.sum()
+    assert any("failed pairs dropped per level" in w for w in outcome.warnings)
+    assert np.isfinite(stats["y"].values).all()
+
+
+def test_mfmc_drops_a_failed_sample_from_every_model(write_study):
+    path = level_study(write_study, "mf_failing", "multifidelity", steps=(1, 2, 4), low=0.5,
+                       high=2.5, target=0.02,
+                       execution="workers = 0\nmax_failure_fraction = 0.5")
+    outcome = run_study(load_study(path), show_progress=False)
+    runs, stats = outcome.runs, outcome.statistics
+    bad = set(runs["sample"].values[runs["status"].values == "failed"].tolist())
+    assert bad and stats.attrs["dropped_samples"] == len(bad)
+    used = stats["model_samples"].values
+    drawn = [int((runs["level"].values == lv).sum()) for lv in (2, 1, 0)]
+    assert all(u <= d for u, d in zip(used, drawn))
+    assert any("dropped from every model" in w for w in outcome.warnings)
+
+
+def test_interpolated_levels_put_coarse_paths_on_the_finest_grid(write_study):
+    path = level_study(write_study, "aligned", steps=(4, 16), outputs='["y", "path"]',
+                       levels_extra='align = "interpolate"', extra='allocate_on = ["y"]')
+    runs = run_study(load_study(path), show_progress=False).runs
+    assert runs["path"].sizes["t"] == 17
+    coarse = np.flatnonzero(runs["level"].values == 0)[0]
+    k = runs["inputs"].values[coarse, 0]
+    own = (1.0 - k / 4) ** np.arange(5)
+    # np.interp and xarray's linear interpolation: one rounding of a convex combination each
+    np.testing.assert_allclose(runs["path"].values[coarse],
+                               np.interp(np.linspace(0, 1, 17), np.linspace(0, 1, 5), own),
+                               rtol=4 * np.finfo(float).eps, atol=0)
+
+
+@pytest.mark.parametrize("change, key, match", [
+    (lambda t: t.replace('kind = "multilevel"', 'kind = "monte-carlo"\nsamples = 8')
+     .replace("target_rmse = 0.01\npilot = 8\ncosts = [4.0, 8.0, 16.0]\n", ""),
+     "levels", "does not use fidelity levels"),
+    (lambda t: t.replace("values = [4, 8, 16]", "values = [0, 8, 16]"), "levels.values",
+     "steps = 0 \\(level 0\\) gives a bad scene: scene.steps"),
+    (lambda t: t.replace("values = [4, 8, 16]", "values = [4, 4, 16]"), "levels.values",
+     "must differ"),
+    (lambda t: t.replace('outputs = ["y"]', 'outputs = ["y", "path"]')
+     .replace("pilot = 8", 'pilot = 8\nallocate_on = ["y"]'), "levels.align",
+     "'path' on other 't' coordinates .* set levels.align = .interpolate."),
+    (lambda t: t.replace("costs = [4.0, 8.0, 16.0]", "costs = [4.0, 8.0]"), "method.costs",
+     "2 values for 3 levels"),
+    (lambda t: t.replace("target_rmse = 0.01", "target_rel_rmse = 0.01\ntarget_rmse = 0.01"),
+     "method", "exactly one of target_rmse and target_rel_rmse"),
+    (lambda t: t.replace('key = "steps"', 'key = "model.name"'), "levels.key",
+     "scene key 'model' is not a table"),
+])
+def test_level_errors_name_the_key(write_study, change, key, match):
+    path = level_study(write_study, "bad")
+    path.write_text(change(path.read_text()))
+    with pytest.raises(StudyError, match=match) as info:
+        load_study(path)
+    assert info.value.key.startswith(key)
+
+
+def test_a_multilevel_study_needs_levels(write_study):
+    path = level_study(write_study, "nolevels")
+    text = path.read_text()
+    path.write_text(text[:text.index("[levels]")] + text[text.index("[method]"):])
+    with pytest.raises(StudyError, match="add a \\[levels\\] table") as info:
+        load_study(path)
+    assert info.value.key == "levels"
+
+
+def test_results_open_with_the_level_table(write_study):
+    outcome = run_study(load_study(level_study(write_study, "table")), show_progress=False)
+    stats = uqflow.open_result(outcome.path)["statistics"].to_dataset()
+    assert stats["level_value"].values.tolist() == [4.0, 8.0, 16.0]
+    assert stats["level_samples"].dims == ("level",)
+    assert stats["y_level_variance"].dims == ("level",)
+    assert set(stats["statistic"].values) >= {"mean", "variance", "stderr", "bias", "rmse"}

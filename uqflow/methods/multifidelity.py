@@ -1,0 +1,174 @@
+"""Multifidelity Monte Carlo (Peherstorfer, Willcox & Gunzburger 2016): the finest level is
+the high-fidelity model, the coarser levels its cheaper correlated models.
+
+Every model runs on one sample sequence, model i on samples 0 .. m_i - 1 with m_1 (finest)
+the smallest. A pilot runs ``pilot`` samples on every model and measures (or takes) the costs;
+per allocating point the correlations rho_i and std s_1 give the optimal ratios r_i and the
+subset of models that pays (the ordering and cost conditions of PWG 2016, Thm. 3.4, checked
+over every subset that keeps the level order), and m_1 from the target variance eps^2:
+Var[s] = s_1^2 / m_1 (1 - sum (1/r_{i-1} - 1/r_i) rho_i^2). The counts are the largest over
+the points, re-planned with all samples after each round (counts only grow).
+
+Estimates per point: the MFMC mean and its plug-in variance (``stderr``), the variance as the
+MFMC estimate of E[f^2] minus mean^2 plus Var[mean] (first-order bias corrected), the
+equivalent plain-MC count s_1^2 / Var[s] at the finest level and its cost over this study's
+(``{out}_cost_ratio``); per model: ``model_samples``, ``{out}_correlation``,
+``{out}_weight`` (alpha_i). A sample with a failed run at any model is dropped from every
+model (the estimator needs nested samples), counted and warned about. The estimator is
+unbiased for fixed alpha; alpha estimated from the samples adds an O(1/m_1) bias, and the
+pilot both allocates and estimates (stated in docs/multilevel.md).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import xarray as xr
+from scipy import stats as sps
+
+from uqflow.levels import LEVEL_VARIABLE
+from uqflow.methods.base import finish_statistics, output_names, register_method
+from uqflow.methods.fidelity_sampling import FidelitySampling, flat, output_shape
+from uqflow.methods.multilevel_estimators import mfmc_allocation, mfmc_estimate
+
+#: all models draw from one stream: the same sample k at every level
+STREAM = 0
+
+
+def pointwise_correlation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Correlation of the columns of ``a`` and ``b`` (n, points), point by point (NaN where
+    either is constant)."""
+    da, db = a - a.mean(axis=0), b - b.mean(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return (da * db).sum(axis=0) / np.sqrt((da**2).sum(axis=0) * (db**2).sum(axis=0))
+
+
+@register_method("multifidelity")
+class Multifidelity(FidelitySampling):
+    """Multifidelity Monte Carlo over the study's [levels], finest = high fidelity."""
+
+    def pilot_design(self) -> xr.Dataset:
+        n = self.options.pilot
+        return self.rows([(lv, self.model_of(lv), STREAM, 0, n)
+                          for lv in reversed(range(self.n_levels))], 0)
+
+    def model_of(self, level: int) -> int:
+        """Model index (0 = high fidelity = finest level) of ``level``."""
+        return self.n_levels - 1 - level
+
+    def samples(self, runs: xr.Dataset):
+        """Per model, the rows of samples 0.. in order, the usable sample count (a prefix
+        without a failed sample), and the number of samples dropped for failures."""
+        level = runs[LEVEL_VARIABLE].values
+        sample = runs["sample"].values
+        status = runs["status"].values
+        bad = set(sample[status != "ok"].tolist())
+        rows, drawn = [], []
+        for model in range(self.n_levels):
+            mine = np.flatnonzero(level == self.n_levels - 1 - model)
+            mine = mine[np.argsort(sample[mine], kind="stable")]
+            drawn.append(mine.size)
+            rows.append(mine[[s not in bad for s in sample[mine]]])
+        return rows, np.array(drawn), len(bad)
+
+    def estimates(self, runs: xr.Dataset, name: str, rows, power: int = 1):
+        values = [flat(runs, name, r) ** power for r in rows]
+        counts = [v.shape[0] for v in values]
+        return mfmc_estimate(values, counts)
+
+    # --- re-planning ------------------------------------------------------------------------
+
+    def extend(self, design, runs):
+        rounds = int(runs["round"].values.max())
+        if rounds >= self.options.max_rounds:
+            return None
+        rows, drawn, _ = self.samples(runs)
+        c = self.run_costs(runs)
+        w = np.array([c[self.n_levels - 1 - m] for m in range(self.n_levels)])
+        wanted = np.zeros(self.n_levels, dtype=np.int64)
+        means = {name: self.estimates(runs, name, rows)["mean"] for name in
+                 self.allocating(runs)}
+        for name, eps2 in self.variance_targets(means).items():
+            values = [flat(runs, name, r) for r in rows]
+            shared = min(v.shape[0] for v in values)
+            y = np.stack([v[:shared] for v in values])                    # (models, n, points)
+            s = y.std(axis=1, ddof=1)
+            rho = np.stack([pointwise_correlation(y[0], y[m]) for m in range(self.n_levels)])
+            for p in range(y.shape[2]):
+                if not s[0, p] > 0 or not np.isfinite(eps2[p]) or not eps2[p] > 0:
+                    continue
+                r = np.nan_to_num(rho[:, p], nan=0.0)
+                got = mfmc_allocation(float(s[0, p]), r, w, float(eps2[p]))
+                if got is not None:
+                    wanted = np.maximum(wanted, got)
+        wanted = np.minimum(wanted, self.options.max_samples)
+        # nested: a model that is used runs at least the samples of the models before it
+        for m in range(1, self.n_levels):
+            if wanted[m] > 0:
+                wanted[m] = max(wanted[m], wanted[:m].max())
+        if not np.any(wanted > drawn):
+            return None
+        blocks = [(self.n_levels - 1 - m, m, STREAM, int(drawn[m]), int(max(wanted[m],
+                                                                            drawn[m])))
+                  for m in range(self.n_levels)]
+        return self.rows(blocks, rounds + 1)
+
+    # --- statistics -------------------------------------------------------------------------
+
+    def analyze(self, design, runs):
+        rows, drawn, dropped = self.samples(runs)
+        counts = np.array([r.size for r in rows])
+        c = self.run_costs(runs)
+        w = np.array([c[self.n_levels - 1 - m] for m in range(self.n_levels)])
+        z = float(sps.norm.ppf(0.5 + self.options.confidence / 2))
+        data, warnings = {}, []
+        for name in output_names(runs):
+            dims, shape = output_shape(runs, name)
+            first = self.estimates(runs, name, rows)
+            second = self.estimates(runs, name, rows, power=2)
+            mean, var_mean = first["mean"], first["variance"]
+            stderr = np.sqrt(var_mean)
+            variance = second["mean"] - mean**2 + var_mean
+            std = np.sqrt(np.maximum(variance, 0.0))
+            stat = np.stack([mean, variance, std, stderr, mean - z * stderr, mean + z * stderr])
+            data[name] = (("statistic", *dims), stat.reshape(len(stat), *shape))
+            values = [flat(runs, name, r) for r in rows]
+            shared = min(v.shape[0] for v in values)
+            rho = np.stack([pointwise_correlation(values[0][:shared], v[:shared])
+                            for v in values])
+            with np.errstate(invalid="ignore", divide="ignore"):
+                equivalent = first["sigma"] ** 2 / var_mean
+                ratio = equivalent * w[0] / float(np.dot(drawn, w))
+            data[f"{name}_correlation"] = (("model", *dims), rho.reshape(len(rho), *shape))
+            data[f"{name}_weight"] = (("model", *dims), np.stack(
+                [np.ones(first["mean"].shape), *first["alpha"]]).reshape(len(rows), *shape))
+            data[f"{name}_equivalent_runs"] = (dims, equivalent.reshape(shape))
+            data[f"{name}_cost_ratio"] = (dims, ratio.reshape(shape))
+        if dropped:
+            warnings.append(f"{dropped} samples with a failed run at some level were dropped "
+                            f"from every model (the estimator needs the same samples at each "
+                            f"model); the statistics use the others, which biases them if "
+                            f"failures depend on the inputs")
+        targets = self.variance_targets({k: data[k][1].reshape(6, -1)[0]
+                                         for k in self.allocating(runs)})
+        for name, eps2 in targets.items():
+            stderr = data[name][1].reshape(6, -1)[3]
+            short = np.flatnonzero(stderr**2 > eps2 * (1 + 1e-9))
+            if short.size:
+                k = int(short[np.argmax(stderr[short])])
+                warnings.append(f"{name}: stderr {stderr[k]:.3g} (point {k}) is above the "
+                                f"target {np.sqrt(eps2[k]):.3g}: max_samples or max_rounds "
+                                f"reached")
+        coords = {"statistic": ["mean", "variance", "std", "stderr", "ci_low", "ci_high"],
+                  "model": np.arange(self.n_levels)}
+        coords.update({d: runs[d] for name in output_names(runs)
+                       for d in output_shape(runs, name)[0] if d in runs.coords})
+        stats = xr.Dataset(data, coords=coords)
+        stats = stats.assign_coords(
+            model_level=("model", np.arange(self.n_levels)[::-1]),
+            level_value=("model", np.asarray(self.level_values, dtype=float)[::-1]))
+        stats["model_samples"] = ("model", counts)
+        stats["model_run_cost"] = ("model", w, {"units": "s" if self.options.costs ==
+                                                "measured" else "stated"})
+        stats.attrs.update(rounds=int(runs["round"].values.max()) + 1,
+                           total_cost=float(np.dot(drawn, w)), dropped_samples=dropped)
+        return finish_statistics(stats, design, runs, self.name, warnings)
