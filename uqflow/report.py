@@ -24,6 +24,7 @@ import xarray as xr
 from scipy import stats as sps
 
 from uqflow.errors import StudyError
+from uqflow.report_levels import LEVEL_METHODS, level_lines, levels_figure, method_cell
 from uqflow.store import open_result
 
 __all__ = ["open_result", "summary_table", "write_figures", "figure_folder", "FigureWarning"]
@@ -217,6 +218,8 @@ def summary_table(tree: xr.DataTree) -> str:
         # Which error the interval rests on decides how far it can be trusted: say it.
         lines.append(f"standard error and interval of the mean: {stats.attrs['stderr_note']}")
     lines += _control_lines(stats, outs)
+    if method in LEVEL_METHODS:
+        lines += [""] + level_lines(stats, method, outs, lambda o: _focus(stats, o))
     lines.append("")
     lines.append(_cost_line(stats, attrs, method))
     failure = _first_failure(runs)
@@ -261,6 +264,9 @@ def _method_column(stats: xr.Dataset, method: str):
             return ", ".join(shown)
 
         return "S1/ST per input (largest ST first)", top
+    if method in LEVEL_METHODS:
+        return "how sure, what it saved", lambda out, focus, at: method_cell(stats, method,
+                                                                             out, focus)
     if method == "pce":
         def fit(out, focus, at):
             if f"{out}_loo_error" not in stats or f"{out}_order" not in stats:
@@ -675,7 +681,7 @@ def _method_name(method: str) -> str:
 
 
 _FIGURES = [("histogram", _histogram), ("band", _band), ("convergence", _convergence),
-            ("sobol", _sobol), ("contributions", _contributions)]
+            ("sobol", _sobol), ("contributions", _contributions), ("levels", levels_figure)]
 
 
 def solver_report(trees: list, folder: Path, figures: bool = True,

@@ -203,3 +203,21 @@ def test_results_open_with_the_level_table(write_study):
     assert stats["level_samples"].dims == ("level",)
     assert stats["y_level_variance"].dims == ("level",)
     assert set(stats["statistic"].values) >= {"mean", "variance", "stderr", "bias", "rmse"}
+
+
+@pytest.mark.parametrize("method, table", [("multilevel", "levels (cost per run"),
+                                           ("multifidelity", "models (0 = high fidelity")])
+def test_report_prints_the_level_table_and_draws_the_levels_figure(write_study, tmp_path,
+                                                                   method, table):
+    from uqflow.report import summary_table, write_figures
+
+    outcome = run_study(load_study(level_study(write_study, f"rep_{method}", method)),
+                        show_progress=False)
+    tree = uqflow.open_result(outcome.path)
+    text = summary_table(tree)
+    assert table in text and "cheaper than plain MC at the finest level" in text
+    stats = outcome.statistics
+    counts = stats["level_samples" if method == "multilevel" else "model_samples"].values
+    assert all(str(int(n)) in text for n in counts)
+    written = write_figures(tree, tmp_path / "figs")
+    assert [p.name for p in written] == (["y_levels.png"] if method == "multilevel" else [])
