@@ -233,3 +233,14 @@ def test_the_bias_estimate_follows_the_exact_bias_and_warns_when_too_coarse():
                                                                      MLMC_STEPS], pilot=10),
                              MLMC_STEPS), MLMC_STEPS, 0)
     assert "add a finer level" not in fine.attrs["warnings"]
+
+
+def test_the_shipped_euler_studies_state_the_exact_means():
+    from pathlib import Path
+
+    folder = Path(__file__).resolve().parents[2] / "studies" / "multilevel"
+    mlmc, mfmc = ((folder / f).read_text() for f in ("euler_mlmc.toml", "euler_mfmc.toml"))
+    # six decimals as written: the quadrature is exact to ~1e-13
+    assert f"E[e^-k] = {exact_mean():.6f}" in mlmc and f"{exact_mean():.6f}" in mfmc
+    assert f"is {exact_mean(128):.6f} (128 steps)" in mlmc
+    assert f"is {exact_mean(64):.6f} (64 steps)" in mfmc
