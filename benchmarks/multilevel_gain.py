@@ -38,10 +38,11 @@ JC = {"steel.jc.A": 792.0e6, "steel.jc.B": 510.0e6, "steel.jc.C": 0.014,
 
 
 def _mpm_scene(folder: Path) -> str:
-    # the quickstart's plate with averaged probes (docs/mpm.md "Probes"): comparable across
+    # the quickstart's plate with probes averaged over 15 mm (1.5 particle spacings at the
+    # coarsest level, the least the MPM accepts; docs/mpm.md "Probes"): comparable across
     # resolutions, where a nearest-particle probe jumps between material points
     text = (ROOT / "studies" / "scenes" / "quickstart_thin_plate.toml").read_text()
-    text = text.replace('body = "plate"\n', 'body = "plate"\nradius = 0.006\n')
+    text = text.replace('body = "plate"\n', 'body = "plate"\nradius = 0.015\n')
     text = text.replace('outputs = ["flow_stress", "S11", "S22"]', 'outputs = ["flow_stress"]')
     path = folder / "mpm_levels_scene.toml"
     path.write_text(text)
@@ -71,7 +72,7 @@ CASES = {
         target=0.002, pilot=16, plain=48,
         quantities={"failure stress": lambda runs: runs["failure_stress"].values}),
     "sph": dict(
-        solver="sph", scene=None, key="resolution", values=[0.5, 0.71, 1.0],
+        solver="sph", scene=None, key="resolution", values=[0.5, 0.75, 1.0],
         outputs=["effective_modulus"],
         inputs={"matrix.E": ("lognormal", 1e6, 0.10), "inclusion.E": ("lognormal", 150e6, 0.10)},
         target=0.003, pilot=8, plain=24,
@@ -84,8 +85,17 @@ CASES = {
 
 
 def _sph_scene(folder: Path) -> str:
+    # Example 3's materials on a 150 µm plate with 3 ellipses kept 23 µm apart (a gap in
+    # metres: the same ellipses at every resolution, docs/sph.md § 6); one load step gives the
+    # effective modulus
     text = (ROOT / "studies" / "scenes" / "sph_example3.toml").read_text()
     text = text.replace("steps = 40", "steps = 1")
+    text = text.replace("width = 100e-6", "width = 150e-6").replace("height = 100e-6",
+                                                                      "height = 150e-6")
+    text = text.replace("random = { count = 9, semi_axes_min = [6e-6, 3e-6], semi_axes_max = "
+                        "[10e-6, 6e-6], layout_seed = 3 }",
+                        "random = { count = 3, semi_axes_min = [8e-6, 6e-6], semi_axes_max = "
+                        "[12e-6, 9e-6], layout_seed = 3, min_gap = 23e-6 }")
     path = folder / "sph_levels_scene.toml"
     path.write_text(text)
     return str(path)

@@ -38,7 +38,7 @@ KEYS = frozenset({
     "eigenstrain_mode", "edge", "step", "steps"})
 MATERIAL_KEYS = frozenset({"E", "nu"})
 INCLUSION_KEYS = frozenset({"centre", "semi_axes", "angle_deg"})
-RANDOM_KEYS = frozenset({"count", "semi_axes_min", "semi_axes_max", "layout_seed"})
+RANDOM_KEYS = frozenset({"count", "semi_axes_min", "semi_axes_max", "layout_seed", "min_gap"})
 
 
 @dataclass(frozen=True)
@@ -54,6 +54,8 @@ class RandomSpec:
     semi_axes_min: tuple[float, float]
     semi_axes_max: tuple[float, float]
     layout_seed: int
+    #: the gap random sequential addition keeps (m); None: one support diameter
+    min_gap: float | None = None
 
 
 @dataclass(frozen=True)
@@ -142,8 +144,10 @@ def _random(v):
     if not all(h >= x for h, x in zip(hi, lo)):
         raise scene_error("random.semi_axes_max", f"must be >= semi_axes_min {list(lo)!r}, "
                                                   f"got {list(hi)!r}")
+    gap = number(tbl["min_gap"], "random.min_gap", positive=True) if "min_gap" in tbl else None
     return RandomSpec(integer(tbl["count"], "random.count", 1, MAX_INCLUSIONS), lo, hi,
-                      integer(tbl.get("layout_seed", 0), "random.layout_seed", 0, 2**63 - 1))
+                      integer(tbl.get("layout_seed", 0), "random.layout_seed", 0, 2**63 - 1),
+                      gap)
 
 
 def parse(scene: Mapping) -> Config:

@@ -48,7 +48,15 @@ class SPHSolver(Solver):
 
     @classmethod
     def from_scene(cls, scene: Mapping) -> "SPHSolver":
-        return cls(parse(scene))
+        cfg = parse(scene)
+        gap = cfg.random.min_gap if cfg.random is not None else None
+        if gap is not None:
+            support = 2.0 * cfg.smoothing_ratio * cfg.spacing / math.sqrt(math.pi)
+            if gap < support:
+                raise SceneError(f"{gap:.4g} m is below one support diameter ({support:.4g} m "
+                                 f"at spacing {cfg.spacing:.4g} m): supports of two inclusions "
+                                 f"would meet", key="scene.random.min_gap")
+        return cls(cfg)
 
     def _support_diameter(self) -> float:
         # the solver's support radius 2h, h = ratio * sqrt(spacing^2 / pi), before the layout
@@ -65,7 +73,9 @@ class SPHSolver(Solver):
                 rng = np.random.default_rng(r.layout_seed if seed is None else seed)
                 return random_layout(box, c.spacing, r.count,
                                      (r.semi_axes_min, r.semi_axes_max), rng,
-                                     min_gap=self._support_diameter(),
+                                     # a gap in metres draws the same ellipses at every
+                                     # resolution (levels of a study stay coupled)
+                                     min_gap=r.min_gap or self._support_diameter(),
                                      max_attempts=ATTEMPTS_PER_INCLUSION * r.count)
             layout = regular_layout(box, c.spacing, tuple(_ellipse(s) for s in c.inclusions),
                                     gap=c.gap)
