@@ -29,7 +29,8 @@ from uqflow import progress as progress_mod
 from uqflow.errors import ResultFileError, StudyError, UqflowError
 from uqflow.levels import (SEED_KEY_VARIABLE, AlignedSolver, level_array,
                            same_level_runs)
-from uqflow.realization import (STATUS_FAILED, STATUS_PENDING, add_field_value_variables,
+from uqflow.realization import (SENSITIVITY_DIM, STATUS_FAILED, STATUS_PENDING,
+                                add_field_value_variables,
                                 batch_arguments, empty_runs, is_sensitivity_variable,
                                 realization_prefix, run_batch, store_batch)
 from uqflow.store import check_writable, now, read_runs, versions, write_result
@@ -286,8 +287,10 @@ class _Execution:
     def add(self, more: xr.Dataset) -> np.ndarray:
         """Append the method's new rows ``more`` (a design) as pending runs; their indices."""
         n = self.runs.sizes["realization"]
-        new = _runs_of(more, self.study).assign_coords(
-            realization=np.arange(n, n + more.sizes["realization"]))
+        # added rows run without sensitivities: the first rows' sensitivity runs stay as they
+        # are (a dim of its own, not concatenated)
+        new = _runs_of(more, self.study).drop_dims(SENSITIVITY_DIM, errors="ignore") \
+            .assign_coords(realization=np.arange(n, n + more.sizes["realization"]))
         self.runs = xr.concat([self.runs, new], dim="realization", data_vars="minimal",
                               coords="minimal", compat="override", join="override",
                               combine_attrs="override")

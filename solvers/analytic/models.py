@@ -257,6 +257,17 @@ class EulerDecay:
         path = (1.0 - kh) ** np.arange(self.steps + 1)
         return {"y": path[-1], "path": path}
 
+    def derivatives(self, p):
+        h = self.time / self.steps
+        j = np.arange(self.steps + 1, dtype=float)
+        base = 1.0 - p["k"] * h
+        # j (1 - kh)^(j-1) with the j = 0 (and j = 1 for the second) terms exactly 0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            first = np.where(j >= 1, -j * h * base ** np.maximum(j - 1, 0), 0.0)
+            second = np.where(j >= 2, j * (j - 1) * h**2 * base ** np.maximum(j - 2, 0), 0.0)
+        return {"y": (first[-1:], second[-1:, None]),
+                "path": (first[:, None], second[:, None, None])}
+
 
 class RandomEBar:
     """End displacement u(L) = (F/A) ∫ 1/E(x) dx of a bar pulled by F, E constant or a field."""

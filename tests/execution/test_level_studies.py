@@ -56,9 +56,10 @@ def test_rows_run_on_their_level_with_shared_inputs_and_seeds(write_study, metho
         assert np.unique(runs["realization_seed"].values[same]).size == 1
 
 
-@pytest.mark.parametrize("method", ["multilevel", "multifidelity"])
-def test_one_and_two_workers_give_identical_results(write_study, method):
-    paths = [run_study(load_study(level_study(write_study, f"{method}{w}", method,
+@pytest.mark.parametrize("method, extra", [("multilevel", ""), ("multifidelity", ""),
+                                           ("multifidelity", 'surrogate = "taylor-local"')])
+def test_one_and_two_workers_give_identical_results(write_study, method, extra):
+    paths = [run_study(load_study(level_study(write_study, f"{method}{w}", method, extra=extra,
                                               execution=f"workers = {w}\nbatch = 7")),
                        show_progress=False).path for w in (0, 2)]
     (runs0, stats0), (runs2, stats2) = map(comparable, paths)
@@ -82,19 +83,25 @@ def _cut(path, keep_rounds, finished_in_last):
     write_result(path, runs, None, attrs)
 
 
-@pytest.mark.parametrize("method", ["multilevel", "multifidelity"])
+@pytest.mark.parametrize("method, extra, target", [
+    ("multilevel", "", 0.01), ("multifidelity", "", 0.01),
+    # the surrogate meets 0.01 with the pilot alone: a target that takes a second round
+    ("multifidelity", 'surrogate = "taylor-local"', 1e-4)])
 @pytest.mark.parametrize("keep_rounds, finished", [(1, 5), (None, 3), (None, 10**9)])
-def test_a_killed_study_resumes_to_the_uninterrupted_numbers(write_study, method, keep_rounds,
-                                                             finished):
+def test_a_killed_study_resumes_to_the_uninterrupted_numbers(write_study, method, extra,
+                                                             target, keep_rounds, finished):
     # killed in the pilot, or in the last round (None) before or after it finished
-    whole = run_study(load_study(level_study(write_study, "whole", method)),
+    whole = run_study(load_study(level_study(write_study, "whole", method, extra=extra,
+                                             target=target)),
                       show_progress=False)
     last = int(whole.runs["round"].values.max())
     assert last >= 1
     keep_rounds = keep_rounds or last + 1
-    cut = run_study(load_study(level_study(write_study, "cut", method)), show_progress=False)
+    cut = run_study(load_study(level_study(write_study, "cut", method, extra=extra,
+                                           target=target)), show_progress=False)
     _cut(cut.path, keep_rounds, finished)
-    resumed = run_study(load_study(level_study(write_study, "cut", method)), resume=True,
+    resumed = run_study(load_study(level_study(write_study, "cut", method, extra=extra,
+                                               target=target)), resume=True,
                         show_progress=False)
     assert resumed.resumed > 0
     (runs_w, stats_w), (runs_c, stats_c) = comparable(whole.path), comparable(cut.path)
@@ -221,3 +228,15 @@ def test_report_prints_the_level_table_and_draws_the_levels_figure(write_study, 
     assert all(str(int(n)) in text for n in counts)
     written = write_figures(tree, tmp_path / "figs")
     assert [p.name for p in written] == (["y_levels.png"] if method == "multilevel" else [])
+
+
+def test_a_surrogate_needs_local_derivatives(write_study):
+    path = write_study(name="nosens", scene='{ model = "random_E_bar" }',
+                       inputs='\n[[inputs]]\nname = "bar.E"\ndistribution = "normal"\n'
+                              'mean = 200e9\ncv = 0.1\n',
+                       body='\n[levels]\nkey = "points"\nvalues = [10, 100]\n',
+                       method='kind = "multifidelity"\ntarget_rel_rmse = 0.01\n'
+                              'surrogate = "taylor-local"')
+    with pytest.raises(StudyError, match="no local") as info:
+        load_study(path)
+    assert info.value.key == "method.surrogate"

@@ -70,6 +70,12 @@ def evaluate(design, steps):
     runs["y"].values[:] = euler(k, n)
     runs["status"].values[:] = STATUS_OK
     runs["wall_time"].values[:] = 0.0
+    if "sensitivity_realization" in runs.coords:     # the surrogate's run: the model's own
+        for j, row in enumerate(runs["sensitivity_realization"].values):
+            solver = AnalyticSolver.from_scene({"model": "euler_decay", "steps": int(n[row])})
+            got = solver.run_with_sensitivities({"k": float(k[row])}, ["k"], ["y"])
+            runs["y__gradient"].values[j] = got["y__gradient"].values
+            runs["y__hessian"].values[j] = got["y__hessian"].values
     return runs
 
 
@@ -81,7 +87,8 @@ def drive(method, steps, seed):
         more = more.assign_coords(realization=np.arange(n, n + more.sizes["realization"]))
         glue = dict(dim="realization", data_vars="minimal", coords="minimal",
                     compat="override", join="override")
-        runs = xr.concat([runs, evaluate(more, steps)], **glue)
+        runs = xr.concat([runs, evaluate(more, steps).drop_dims("sensitivity_run",
+                                                                errors="ignore")], **glue)
         design = xr.concat([design, more], **glue)
     return method.analyze(design, runs)
 
@@ -244,3 +251,49 @@ def test_the_shipped_euler_studies_state_the_exact_means():
     assert f"E[e^-k] = {exact_mean():.6f}" in mlmc and f"{exact_mean():.6f}" in mfmc
     assert f"is {exact_mean(128):.6f} (128 steps)" in mlmc
     assert f"is {exact_mean(64):.6f} (64 steps)" in mfmc
+
+
+def test_a_free_surrogate_is_a_control_variate_with_its_exact_mean():
+    r, factor = mfmc_ratios(np.array([1.0, 0.9]), np.array([64.0, 0.0]))
+    assert r[1] == math.inf and factor == pytest.approx(1 - 0.81, rel=1e-14)
+    rng = np.random.default_rng(2)
+    f = rng.normal(size=(50, 1))
+    g = 0.8 * f + 0.2 * rng.normal(size=(50, 1))
+    got = mfmc_estimate([f, g], [50, math.inf], exact_mean=np.array([0.0]))
+    alpha = np.cov(f[:, 0], g[:, 0])[0, 1] / np.var(g[:, 0], ddof=1)
+    # the classic control variate, the same few sums: rounding only
+    assert got["mean"][0] == pytest.approx(f.mean() - alpha * g.mean(), rel=1e-12)
+
+
+SURROGATE_STEPS = [8, 64]
+SURROGATE_EPS = 1e-4
+
+
+def test_multifidelity_with_the_taylor_surrogate_reaches_the_rmse_at_near_optimal_cost():
+    costs = [float(s) for s in SURROGATE_STEPS]
+    results = [drive(with_levels(Multifidelity(target_rmse=SURROGATE_EPS, costs=costs,
+                                               pilot=16, surrogate="taylor-local"),
+                                 SURROGATE_STEPS), SURROGATE_STEPS, seed) for seed in SEEDS]
+    assert all(r.attrs["surrogate"] == "taylor-local" for r in results)
+    means = np.array([r["y"].sel(statistic="mean").item() for r in results])
+    truth = exact_mean(SURROGATE_STEPS[-1])
+    assert math.sqrt(np.mean((means - truth) ** 2)) <= 1.5 * SURROGATE_EPS
+    se = np.std(means, ddof=1) / math.sqrt(len(means))
+    assert abs(means.mean() - truth) < 4 * se
+    # the optimum with the exact sigma and correlations: the finest level, the coarse one
+    # and the Taylor polynomial of the finest level around k = 1 (free)
+    fine = AnalyticSolver.from_scene({"model": "euler_decay", "steps": 64})
+    d = fine.run_with_sensitivities({"k": 1.0}, ["k"], ["y"])
+    g1, h1 = d["y__gradient"].values[0], d["y__hessian"].values[0, 0]
+    f = [lambda k: euler(k, 64), lambda k: euler(k, 8),
+         lambda k: euler(1.0, 64) + g1 * (k - 1) + 0.5 * h1 * (k - 1) ** 2]
+    m = [expect(g) for g in f]
+    sd = [math.sqrt(expect(lambda k, g=g: g(k) ** 2) - mi**2) for g, mi in zip(f, m)]
+    rho = [(expect(lambda k, g=g: f[0](k) * g(k)) - m[0] * mi) / (sd[0] * si)
+           for g, mi, si in zip(f, m, sd)]
+    optimum = mfmc_best(sd[0], np.array(rho), np.array([64.0, 8.0, 0.0]),
+                        SURROGATE_EPS**2)[3] + 64.0        # + the surrogate's own run
+    spent = np.array([r.attrs["total_cost"] for r in results])
+    assert np.all(spent <= 3 * optimum) and np.all(spent >= optimum / 3)
+    # the surrogate takes the place of the coarse level where it is better correlated
+    assert results[0]["y_correlation"].values[-1] == pytest.approx(rho[2], abs=1e-3)

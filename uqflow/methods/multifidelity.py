@@ -21,17 +21,26 @@ pilot both allocates and estimates (stated in docs/multilevel.md).
 
 from __future__ import annotations
 
+import math
+from typing import Literal
+
 import numpy as np
 import xarray as xr
+from pydantic import Field
 from scipy import stats as sps
 
 from uqflow.levels import LEVEL_VARIABLE
+from uqflow.methods import control_variate as cv
 from uqflow.methods.base import finish_statistics, output_names, register_method
-from uqflow.methods.fidelity_sampling import FidelitySampling, flat, output_shape
+from uqflow.methods.fidelity_sampling import (FidelityOptions, FidelitySampling, flat,
+                                              output_shape)
 from uqflow.methods.multilevel_estimators import mfmc_allocation, mfmc_estimate
+from uqflow.realization import SENSITIVITY_FLAG
 
 #: all models draw from one stream: the same sample k at every level
 STREAM = 0
+#: the surrogate's run (at the input means) has a seed key of its own
+SURROGATE_STREAM = 1
 
 
 def pointwise_correlation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -42,14 +51,81 @@ def pointwise_correlation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         return (da * db).sum(axis=0) / np.sqrt((da**2).sum(axis=0) * (db**2).sum(axis=0))
 
 
+class MultifidelityOptions(FidelityOptions):
+    surrogate: Literal["none", "taylor-local"] = Field(
+        "none", description="add the second-order Taylor polynomial of the finest level from "
+                            "one run with the solver's local derivatives, as a free model "
+                            "whose mean is known")
+
+
 @register_method("multifidelity")
 class Multifidelity(FidelitySampling):
     """Multifidelity Monte Carlo over the study's [levels], finest = high fidelity."""
 
+    Options = MultifidelityOptions
+
+    @property
+    def surrogate(self) -> bool:
+        return self.options.surrogate == "taylor-local"
+
+    def check(self, space, fields):
+        super().check(space, fields)
+        if self.surrogate:
+            cv.check_space("taylor-local", 0.1, space)
+
+    def check_solver(self, solver, outputs, parameter_names):
+        super().check_solver(solver, outputs, parameter_names)
+        if self.surrogate:
+            try:
+                cv.check_solver("taylor-local", solver, outputs, parameter_names)
+            except Exception as err:
+                from uqflow.errors import StudyError
+
+                if not isinstance(err, StudyError):
+                    raise
+                raise StudyError(err.reason.replace("control = \"taylor\"", "no surrogate")
+                                 .replace("use control", "use surrogate"),
+                                 key="method.surrogate") from None
+
     def pilot_design(self) -> xr.Dataset:
         n = self.options.pilot
-        return self.rows([(lv, self.model_of(lv), STREAM, 0, n)
-                          for lv in reversed(range(self.n_levels))], 0)
+        design = self.rows([(lv, self.model_of(lv), STREAM, 0, n)
+                            for lv in reversed(range(self.n_levels))], 0)
+        if not self.surrogate:
+            return design
+        # the surrogate's one run at the input means, first (control_variate's layout), at
+        # the finest level
+        head = self.rows([(self.n_levels - 1, -1, SURROGATE_STREAM, 0, 1)], 0)
+        head["inputs"].values[:] = self._space.means
+        head[SENSITIVITY_FLAG].values[:] = True
+        head = head.assign_coords({cv.ROLE: ("realization", np.array(["control"], dtype=object))})
+        design = xr.concat([head, design.assign_coords(realization=design.realization + 1)],
+                           dim="realization", data_vars="minimal", coords="minimal",
+                           compat="override", join="override")
+        active = np.flatnonzero(self._space.stds > 0)
+        design.attrs.update(control="taylor-local", control_runs=1, normal_inputs=int(
+            all(self._space.inputs[k].kind == "normal" for k in active)))
+        return design
+
+    def rows(self, blocks, round_):
+        design = super().rows(blocks, round_)
+        if self.surrogate:
+            n = design.sizes["realization"]
+            design[SENSITIVITY_FLAG] = ("realization", np.zeros(n, dtype=bool))
+            design = design.assign_coords({cv.ROLE: ("realization",
+                                                     np.full(n, "sample", dtype=object))})
+        return design
+
+    def surrogates(self, design, runs):
+        """The Taylor surrogate of every output, or None (none asked, or its run failed:
+        then the method goes on without it, and says so)."""
+        if not self.surrogate:
+            return None
+        try:
+            return cv.build_surrogates(design, runs)
+        except cv.ControlFailed as exc:
+            self._surrogate_failure = str(exc)
+            return None
 
     def model_of(self, level: int) -> int:
         """Model index (0 = high fidelity = finest level) of ``level``."""
@@ -61,19 +137,41 @@ class Multifidelity(FidelitySampling):
         level = runs[LEVEL_VARIABLE].values
         sample = runs["sample"].values
         status = runs["status"].values
-        bad = set(sample[status != "ok"].tolist())
+        model_row = runs["group"].values >= 0          # not the surrogate's run
+        bad = set(sample[(status != "ok") & model_row].tolist())
         rows, drawn = [], []
         for model in range(self.n_levels):
-            mine = np.flatnonzero(level == self.n_levels - 1 - model)
+            mine = np.flatnonzero((level == self.n_levels - 1 - model) & model_row)
             mine = mine[np.argsort(sample[mine], kind="stable")]
             drawn.append(mine.size)
             rows.append(mine[[s not in bad for s in sample[mine]]])
         return rows, np.array(drawn), len(bad)
 
-    def estimates(self, runs: xr.Dataset, name: str, rows, power: int = 1):
-        values = [flat(runs, name, r) ** power for r in rows]
+    def model_values(self, runs: xr.Dataset, name: str, rows, surrogate=None):
+        """Each model's values (n_i, points) on its samples, finest first; the surrogate's,
+        if any, last, at every sample drawn (it costs nothing)."""
+        values = [flat(runs, name, r) for r in rows]
+        if surrogate is not None:
+            widest = rows[int(np.argmax([r.size for r in rows]))]
+            values.append(surrogate[name](runs["inputs"].values[widest]))
+        return values
+
+    def estimates(self, runs: xr.Dataset, name: str, rows, power: int = 1, surrogate=None):
+        values = [v ** power for v in self.model_values(runs, name, rows)]
         counts = [v.shape[0] for v in values]
-        return mfmc_estimate(values, counts)
+        if surrogate is None:
+            return mfmc_estimate(values, counts)
+        g = self.model_values(runs, name, rows, surrogate)[-1] ** power
+        sg = surrogate[name]
+        # E[g] and E[g^2] = Var g + E[g]^2 are closed-form (docs/control_variates.md)
+        exact = sg.mean if power == 1 else sg.variance + sg.mean**2
+        return mfmc_estimate(values + [g], counts + [math.inf], exact_mean=exact)
+
+    def model_costs(self, runs):
+        """Cost per run of each model, finest first; 0 for the surrogate."""
+        c = self.run_costs(runs)
+        w = [c[self.n_levels - 1 - m] for m in range(self.n_levels)]
+        return np.array(w + ([0.0] if self.surrogate else []))
 
     # --- re-planning ------------------------------------------------------------------------
 
@@ -82,17 +180,19 @@ class Multifidelity(FidelitySampling):
         if rounds >= self.options.max_rounds:
             return None
         rows, drawn, _ = self.samples(runs)
-        c = self.run_costs(runs)
-        w = np.array([c[self.n_levels - 1 - m] for m in range(self.n_levels)])
-        wanted = np.zeros(self.n_levels, dtype=np.int64)
-        means = {name: self.estimates(runs, name, rows)["mean"] for name in
-                 self.allocating(runs)}
+        surrogate = self.surrogates(design, runs)
+        w = self.model_costs(runs)
+        if surrogate is None:
+            w = w[:self.n_levels]
+        wanted = np.zeros(w.size, dtype=np.int64)
+        means = {name: self.estimates(runs, name, rows, surrogate=surrogate)["mean"]
+                 for name in self.allocating(runs)}
         for name, eps2 in self.variance_targets(means).items():
-            values = [flat(runs, name, r) for r in rows]
+            values = self.model_values(runs, name, rows, surrogate)
             shared = min(v.shape[0] for v in values)
             y = np.stack([v[:shared] for v in values])                    # (models, n, points)
             s = y.std(axis=1, ddof=1)
-            rho = np.stack([pointwise_correlation(y[0], y[m]) for m in range(self.n_levels)])
+            rho = np.stack([pointwise_correlation(y[0], y[m]) for m in range(len(values))])
             for p in range(y.shape[2]):
                 if not s[0, p] > 0 or not np.isfinite(eps2[p]) or not eps2[p] > 0:
                     continue
@@ -100,7 +200,7 @@ class Multifidelity(FidelitySampling):
                 got = mfmc_allocation(float(s[0, p]), r, w, float(eps2[p]))
                 if got is not None:
                     wanted = np.maximum(wanted, got)
-        wanted = np.minimum(wanted, self.options.max_samples)
+        wanted = np.minimum(wanted[:self.n_levels], self.options.max_samples)
         # nested: a model that is used runs at least the samples of the models before it
         for m in range(1, self.n_levels):
             if wanted[m] > 0:
@@ -116,31 +216,39 @@ class Multifidelity(FidelitySampling):
 
     def analyze(self, design, runs):
         rows, drawn, dropped = self.samples(runs)
+        self._surrogate_failure = None
+        surrogate = self.surrogates(design, runs)
         counts = np.array([r.size for r in rows])
-        c = self.run_costs(runs)
-        w = np.array([c[self.n_levels - 1 - m] for m in range(self.n_levels)])
+        w = self.model_costs(runs)
+        # what was spent: every model's runs, and the surrogate's one run at the finest level
+        spent = float(np.dot(drawn, w[:self.n_levels])) + (w[0] if self.surrogate else 0.0)
+        if surrogate is None:
+            w = w[:self.n_levels]
+        models = w.size
         z = float(sps.norm.ppf(0.5 + self.options.confidence / 2))
         data, warnings = {}, []
+        if self._surrogate_failure:
+            warnings.append(f"the Taylor surrogate is left out: {self._surrogate_failure}")
         for name in output_names(runs):
             dims, shape = output_shape(runs, name)
-            first = self.estimates(runs, name, rows)
-            second = self.estimates(runs, name, rows, power=2)
+            first = self.estimates(runs, name, rows, surrogate=surrogate)
+            second = self.estimates(runs, name, rows, power=2, surrogate=surrogate)
             mean, var_mean = first["mean"], first["variance"]
             stderr = np.sqrt(var_mean)
             variance = second["mean"] - mean**2 + var_mean
             std = np.sqrt(np.maximum(variance, 0.0))
             stat = np.stack([mean, variance, std, stderr, mean - z * stderr, mean + z * stderr])
             data[name] = (("statistic", *dims), stat.reshape(len(stat), *shape))
-            values = [flat(runs, name, r) for r in rows]
+            values = self.model_values(runs, name, rows, surrogate)
             shared = min(v.shape[0] for v in values)
             rho = np.stack([pointwise_correlation(values[0][:shared], v[:shared])
                             for v in values])
             with np.errstate(invalid="ignore", divide="ignore"):
                 equivalent = first["sigma"] ** 2 / var_mean
-                ratio = equivalent * w[0] / float(np.dot(drawn, w))
+                ratio = equivalent * w[0] / spent
             data[f"{name}_correlation"] = (("model", *dims), rho.reshape(len(rho), *shape))
             data[f"{name}_weight"] = (("model", *dims), np.stack(
-                [np.ones(first["mean"].shape), *first["alpha"]]).reshape(len(rows), *shape))
+                [np.ones(first["mean"].shape), *first["alpha"]]).reshape(models, *shape))
             data[f"{name}_equivalent_runs"] = (dims, equivalent.reshape(shape))
             data[f"{name}_cost_ratio"] = (dims, ratio.reshape(shape))
         if dropped:
@@ -159,16 +267,21 @@ class Multifidelity(FidelitySampling):
                                 f"target {np.sqrt(eps2[k]):.3g}: max_samples or max_rounds "
                                 f"reached")
         coords = {"statistic": ["mean", "variance", "std", "stderr", "ci_low", "ci_high"],
-                  "model": np.arange(self.n_levels)}
+                  "model": np.arange(models)}
         coords.update({d: runs[d] for name in output_names(runs)
                        for d in output_shape(runs, name)[0] if d in runs.coords})
         stats = xr.Dataset(data, coords=coords)
+        free = models - self.n_levels       # 1 with the surrogate: level -1, no value
         stats = stats.assign_coords(
-            model_level=("model", np.arange(self.n_levels)[::-1]),
-            level_value=("model", np.asarray(self.level_values, dtype=float)[::-1]))
-        stats["model_samples"] = ("model", counts)
+            model_level=("model", np.concatenate([np.arange(self.n_levels)[::-1],
+                                                  [-1] * free])),
+            level_value=("model", np.concatenate([np.asarray(self.level_values,
+                                                             dtype=float)[::-1],
+                                                  [np.nan] * free])))
+        stats["model_samples"] = ("model", np.concatenate([counts, [0] * free]))
         stats["model_run_cost"] = ("model", w, {"units": "s" if self.options.costs ==
                                                 "measured" else "stated"})
         stats.attrs.update(rounds=int(runs["round"].values.max()) + 1,
-                           total_cost=float(np.dot(drawn, w)), dropped_samples=dropped)
+                           total_cost=spent, dropped_samples=dropped,
+                           surrogate=self.options.surrogate if free else "none")
         return finish_statistics(stats, design, runs, self.name, warnings)

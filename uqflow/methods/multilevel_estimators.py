@@ -116,7 +116,9 @@ def mfmc_ratios(rho: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, float] | No
             return None
     if k == 1:
         return np.ones(1), 1.0
-    r = np.sqrt(w[0] * (rho2[:k] - rho2[1:k + 1]) / (w * (1.0 - rho2[1])))
+    with np.errstate(divide="ignore"):
+        # a free model (w = 0: a surrogate evaluated at will) gets r = inf: its exact mean
+        r = np.sqrt(w[0] * (rho2[:k] - rho2[1:k + 1]) / (w * (1.0 - rho2[1])))
     factor = 1.0 - float(np.sum((1.0 / r[:-1] - 1.0 / r[1:]) * rho2[1:k]))
     return r, factor
 
@@ -136,7 +138,8 @@ def mfmc_best(sigma: float, rho: np.ndarray, w: np.ndarray,
                 continue
             r, factor = got
             m1 = sigma**2 * factor / variance_target
-            cost = m1 * float(np.dot(np.asarray(w)[chosen], r))
+            wc = np.asarray(w, dtype=float)[chosen]
+            cost = m1 * float(np.sum(wc[wc > 0] * r[wc > 0]))
             if cost < best_cost:
                 best, best_cost = (chosen, r, m1, cost), cost
     return best
@@ -147,15 +150,22 @@ def mfmc_allocation(sigma: float, rho: np.ndarray, w: np.ndarray,
     """Whole sample counts per model (0 for a model left out) of ``mfmc_best``."""
     chosen, r, m1, _ = mfmc_best(sigma, rho, w, variance_target)
     counts = np.zeros(len(w), dtype=np.int64)
-    counts[chosen] = np.ceil(np.maximum(m1 * r, 1.0)).astype(np.int64)
+    finite = np.isfinite(r)          # a free model is never run
+    counts[np.asarray(chosen)[finite]] = np.ceil(np.maximum(m1 * r[finite], 1.0)).astype(
+        np.int64)
     return counts
 
 
-def mfmc_estimate(values: list[np.ndarray], counts: list[int]) -> dict:
+def mfmc_estimate(values: list[np.ndarray], counts: list[int],
+                  exact_mean: np.ndarray | None = None) -> dict:
     """The MFMC mean and its variance per point from ``values[i]`` (n_i, points), model i's
     outputs on samples 0..n_i-1, and the nested counts ``counts`` (m_1 <= m_2 <= ...; a model
     whose count does not exceed the previous one's adds nothing and is skipped). alpha_i and
-    the moments are estimated on the m_1 samples every model shares."""
+    the moments are estimated on the m_1 samples every model shares.
+
+    With ``exact_mean`` the last model is a free surrogate whose mean is known (infinitely
+    many samples): its count is ``math.inf`` and its term alpha (E[g] - mean of g over the
+    previous model's samples); ``values[-1]`` must then cover those samples."""
     m1 = counts[0]
     f1 = values[0][:m1]
     s1 = f1.std(axis=0, ddof=1)
@@ -164,6 +174,8 @@ def mfmc_estimate(values: list[np.ndarray], counts: list[int]) -> dict:
     prev = m1
     alphas = []
     for y, m in zip(values[1:], counts[1:]):
+        if m == math.inf and exact_mean is None:
+            raise ValueError("a model with infinitely many samples needs its exact mean")
         if m <= prev:
             alphas.append(np.zeros_like(estimate))
             continue
@@ -173,7 +185,8 @@ def mfmc_estimate(values: list[np.ndarray], counts: list[int]) -> dict:
         with np.errstate(invalid="ignore", divide="ignore"):
             alpha = np.where(si > 0, cov / si**2, 0.0)
             rho = np.where((si > 0) & (s1 > 0), cov / (s1 * si), 0.0)
-        estimate = estimate + alpha * (y[:m].mean(axis=0) - y[:prev].mean(axis=0))
+        upper = exact_mean if m == math.inf else y[:m].mean(axis=0)
+        estimate = estimate + alpha * (upper - y[:prev].mean(axis=0))
         variance = variance + (1.0 / prev - 1.0 / m) * (alpha**2 * si**2
                                                        - 2 * alpha * rho * s1 * si)
         alphas.append(alpha)
