@@ -25,6 +25,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import xarray as xr
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _record import FIGURES, ROOT, write_section  # noqa: E402
@@ -33,6 +34,7 @@ import uqflow  # noqa: E402
 from uqflow.methods.multilevel_estimators import (level_rate, mfmc_estimate,  # noqa: E402
                                                   mlmc_bias, mlmc_level_terms)
 
+METHODS = ("multilevel", "multifidelity", "multifidelity+taylor-local")
 JC = {"steel.jc.A": 792.0e6, "steel.jc.B": 510.0e6, "steel.jc.C": 0.014,
       "steel.jc.n": 0.26, "steel.jc.m": 1.03}
 
@@ -57,7 +59,7 @@ CASES = {
     "mpm": dict(
         solver="mpm", scene=_mpm_scene, key="resolution", values=[0.25, 0.5, 1.0],
         outputs=["flow_stress"], inputs={k: ("normal", v, 0.10) for k, v in JC.items()},
-        target=0.01, pilot=8, plain=12,
+        target=0.01, pilot=8, plain=12, surrogate=True,
         quantities={
             "σy at H, 9 µs": lambda runs: runs["flow_stress"].sel(probe="H").isel(
                 time=_nearest(runs["time"].values, 9e-6)).values,
@@ -80,6 +82,7 @@ CASES = {
     "euler": dict(
         solver="analytic", scene={"model": "euler_decay"}, key="steps", values=[4, 16, 64],
         outputs=["y"], inputs={"k": ("normal", 1.0, 0.2)}, target=0.01, pilot=8, plain=32,
+        surrogate=True,
         quantities={"y(T)": lambda runs: runs["y"].values}),
 }
 
@@ -113,7 +116,8 @@ def _scene_line(case, folder) -> str:
                                      for k, v in scene.items()) + " }"
 
 
-def _study(folder: Path, name: str, case: dict, method: str, finest_only=False) -> Path:
+def _study(folder: Path, name: str, case: dict, method: str, finest_only=False,
+           extra: str = "") -> Path:
     lines = [f'name = "{name}"', f'solver = "{case["solver"]}"', _scene_line(case, folder),
              "outputs = [" + ", ".join(f'"{o}"' for o in case["outputs"]) + "]", ""]
     for k, (dist, mean, cv) in case["inputs"].items():
@@ -124,7 +128,7 @@ def _study(folder: Path, name: str, case: dict, method: str, finest_only=False) 
     else:
         lines += ["[levels]", f'key = "{case["key"]}"', f"values = {case['values']!r}", "",
                   "[method]", f'kind = "{method}"', f"target_rel_rmse = {case['target']!r}",
-                  f"pilot = {case['pilot']}", ""]
+                  f"pilot = {case['pilot']}", extra, ""]
     lines += ["[execution]", "workers = 0", "seed = 7", "", "[output]",
               f'path = "{name}.nc"', "figures = false", ""]
     path = folder / f"{name}.toml"
@@ -166,12 +170,31 @@ def _mlmc_quantity(study, runs, q):
 
 
 def _mfmc_quantity(study, runs, q):
-    rows, _, _ = study.method.samples(runs)
+    method = study.method
+    rows, _, _ = method.samples(runs)
     values = q(runs)
-    got = mfmc_estimate([values[r][:, None] for r in rows], [r.size for r in rows])
+    parts = [values[r][:, None] for r in rows]
+    counts = [r.size for r in rows]
     rho = [float(np.corrcoef(values[rows[0]], values[r[:rows[0].size]])[0, 1]) for r in rows]
+    surrogates = method.surrogates(runs.drop_vars(study.outputs), runs)
+    if surrogates:
+        # the quantities are linear in the output (a value, a time mean): the surrogate of
+        # the quantity is the quantity of the surrogate, and so is its exact mean
+        name = study.outputs[0]
+        widest = rows[int(np.argmax(counts))]
+        template = runs[name].isel(realization=widest)
+        g = q(xr.Dataset({name: template.copy(data=surrogates[name](
+            runs["inputs"].values[widest]).reshape(template.shape))}))
+        mean = q(xr.Dataset({name: template.isel(realization=[0]).copy(
+            data=surrogates[name].mean.reshape((1, *template.shape[1:])))}))
+        parts.append(g[:, None])
+        counts.append(math.inf)
+        rho.append(float(np.corrcoef(values[rows[0]], g[:rows[0].size])[0, 1]))
+        got = mfmc_estimate(parts, counts, exact_mean=np.asarray(mean, dtype=float))
+    else:
+        got = mfmc_estimate(parts, counts)
     return dict(mean=float(got["mean"][0]), se=float(math.sqrt(got["variance"][0])),
-                rho=rho, m=[r.size for r in rows])
+                rho=rho, m=[r.size for r in rows] + (["∞"] if surrogates else []))
 
 
 def run_case(name, case, folder):
@@ -182,8 +205,12 @@ def run_case(name, case, folder):
     ok = plain.runs["status"].values == "ok"
     c_L = float(np.median(plain.runs["wall_time"].values[ok]))
     out = {"plain": plain, "c_L": c_L}
-    for method in ("multilevel", "multifidelity"):
-        study = uqflow.load_study(_study(folder, f"{name}_{method}", case, method))
+    for method in METHODS if case.get("surrogate") else METHODS[:2]:
+        kind, extra = method.split("+")[0], ""
+        if "+" in method:
+            extra = 'surrogate = "taylor-local"'
+        study = uqflow.load_study(_study(folder, f"{name}_{kind}{'_s' if extra else ''}",
+                                         case, kind, extra=extra))
         outcome = uqflow.run_study(study, show_progress=False, force=True)
         out[method] = (study, outcome)
     out["wall"] = time.perf_counter() - t0
@@ -194,8 +221,8 @@ def run_case(name, case, folder):
         plain_se = math.sqrt(s2 / p.size)
         row = {"quantity": label, "plain_mean": float(p.mean()), "plain_se": plain_se,
                "s_L": math.sqrt(s2)}
-        for method, estimate in (("multilevel", _mlmc_quantity),
-                                 ("multifidelity", _mfmc_quantity)):
+        for method in (m for m in METHODS if m in out):
+            estimate = _mlmc_quantity if method == "multilevel" else _mfmc_quantity
             study, outcome = out[method]
             got = estimate(study, outcome.runs, q)
             cost = float(np.nansum(outcome.runs["wall_time"].values))
@@ -224,7 +251,6 @@ def report(results) -> str:
     for name, res in results.items():
         case = CASES[name]
         ml_study, ml = res["multilevel"]
-        mf_study, mf = res["multifidelity"]
         body += (f"\n### {name}: {case['key']} = {case['values']}\n\n"
                  f"Plain MC: {case['plain']} runs at {case['key']} = {case['values'][-1]}, "
                  f"c_L = {res['c_L']:.3g} s per run. Run costs per level (pilot medians, s): "
@@ -243,12 +269,13 @@ def report(results) -> str:
                      f"{'/'.join(f'{v:.2g}' for v in g['V'])} (β {g['beta']:.2g}) | "
                      f"{g['cost']:.3g} | {g['plain_cost']:.3g} | **{g['ratio']:.2g}** | "
                      f"{g['z']:.2f} |\n")
-            g = row["multifidelity"]
-            body += (f"| | multifidelity | {g['mean']:.5g} | {g['se']:.3g} | | "
-                     f"{'/'.join(map(str, g['m']))} | "
-                     f"ρ {'/'.join(f'{v:.4f}' for v in g['rho'])} | {g['cost']:.3g} | "
-                     f"{g['plain_cost']:.3g} | **{g['ratio']:.2g}** | {g['z']:.2f} |\n")
-        warnings = [w for w in (ml.warnings + mf.warnings)]
+            for method in (m for m in METHODS[1:] if m in row):
+                g = row[method]
+                body += (f"| | {method} | {g['mean']:.5g} | {g['se']:.3g} | | "
+                         f"{'/'.join(map(str, g['m']))} | "
+                         f"ρ {'/'.join(f'{v:.4f}' for v in g['rho'])} | {g['cost']:.3g} | "
+                         f"{g['plain_cost']:.3g} | **{g['ratio']:.2g}** | {g['z']:.2f} |\n")
+        warnings = [w for m in METHODS if m in res for w in res[m][1].warnings]
         if warnings:
             body += "\nWarnings: " + " / ".join(warnings) + "\n"
     return body
@@ -268,7 +295,9 @@ def figure(results) -> None:
         cost = np.geomspace(res["c_L"], 1e3 * res["c_L"] * CASES[name]["plain"], 50)
         ax.loglog(cost, row["s_L"] * np.sqrt(res["c_L"] / cost), "k-", label="plain MC")
         ax.loglog(CASES[name]["plain"] * res["c_L"], row["plain_se"], "ko")
-        for method, marker in (("multilevel", "s"), ("multifidelity", "^")):
+        for method, marker in zip(METHODS, "s^v"):
+            if method not in row:
+                continue
             g = row[method]
             ax.loglog(g["cost"], g["se"], marker, ms=8, label=f"{method} ({g['ratio']:.2g}x)")
         ax.set(xlabel="solver time (s)", ylabel="standard error",

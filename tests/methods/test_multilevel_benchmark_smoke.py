@@ -17,7 +17,7 @@ def test_multilevel_gain_runs_in_quick_mode(monkeypatch):
     monkeypatch.setattr(module, "write_section", lambda *a: pytest.fail("quick mode wrote"))
     results = module.main(["--quick"])
     row = results["euler"]["rows"][0]
-    for method in ("multilevel", "multifidelity"):
+    for method in ("multilevel", "multifidelity", "multifidelity+taylor-local"):
         # the same finest-level mean: within 4 combined standard errors
         assert abs(row[method]["z"]) < 4
         assert row[method]["cost"] > 0 and row[method]["plain_cost"] > 0
