@@ -196,3 +196,19 @@ def test_a_gap_below_one_support_is_refused():
     with pytest.raises(SceneError, match="below one support diameter") as info:
         SPHSolver.from_scene(_coupled_plate(0.5, min_gap=1e-5))
     assert info.value.key == "scene.random.min_gap"
+
+
+def test_a_singular_system_fails_its_realization_with_where_it_shows():
+    from uqflow.inputs import InputSpace, RandomInput
+    from uqflow.methods.base import make_design
+    from uqflow.realization import evaluate_design
+
+    solver = SPHSolver.from_scene(example3(**dict(SMALL3, steps=1)))
+    space = InputSpace([RandomInput.from_spec({"name": "inclusion.E", "distribution": "uniform",
+                                               "lower": 1e-300, "upper": 150e6})])
+    # an inclusion 10^308 times softer than the matrix: its pivots vanish against the matrix's
+    runs = evaluate_design(solver, make_design(space, np.array([[150e6], [1e-300]])),
+                           outputs=["effective_modulus"])
+    assert runs.status.values.tolist() == ["ok", "failed"]
+    assert "is singular to working precision" in runs.message.values[1]
+    assert "at unknown" in runs.message.values[1]
