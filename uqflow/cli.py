@@ -111,6 +111,7 @@ def _validate(args) -> int:
 
 def _report(args) -> int:
     from uqflow import report
+    from uqflow.report_levels import cost_comparison
 
     trees = []
     for path in args.results:
@@ -131,6 +132,13 @@ def _report(args) -> int:
                                          report.figure_folder(args.results[0]).parent,
                                          figures=not args.no_figures, time=args.time,
                                          reference=args.reference)
+    if text:
+        print(text)
+    for fig in figures:
+        print(f"figure: {fig}")
+    text, figures = cost_comparison(trees, args.figures or
+                                    report.figure_folder(args.results[0]).parent,
+                                    figures=not args.no_figures)
     if text:
         print(text)
     for fig in figures:

@@ -118,3 +118,78 @@ def levels_figure(ctx, out: str):
     for a in (ax, cx, bx):
         a.set_xticks(l)
     return fig
+
+
+def cost_comparison(trees: list, folder, figures: bool = True) -> tuple[str, list]:
+    """For results of one solver and output, at least one of them multilevel or
+    multifidelity: each result's standard error against its solver time, beside plain Monte
+    Carlo at the finest level (from a plain Monte Carlo result among them, or else from the
+    first multilevel result's own estimate of Var[P_L] and c_L). Empty otherwise."""
+    from pathlib import Path
+
+    from uqflow.report import _focus, _outputs
+
+    parts = [(t.attrs, t["statistics"].to_dataset()) for t in trees if "statistics" in t.children]
+    if len(parts) < 2 or not any(s.attrs.get("method") in LEVEL_METHODS for _, s in parts):
+        return "", []
+    if len({str(a.get("solver")) for a, _ in parts}) != 1:
+        return "", []
+    common = [o for o in _outputs(parts[0][1]) if all(o in s for _, s in parts)]
+    if not common:
+        return "", []
+    out = common[0]
+    focus = _focus(parts[0][1], out)
+    rows, plain = [], None
+    for attrs, stats in parts:
+        method = str(stats.attrs.get("method"))
+        at = stats[out].isel(focus)
+        if "stderr" not in at["statistic"].values:
+            continue
+        se = float(at.sel(statistic="stderr"))
+        cost = float(stats.attrs.get("solver_wall_time", np.nan))
+        rows.append((str(attrs.get("study_name", "?")), method, int(stats.attrs.get(
+            "solver_runs", 0)), cost, se))
+        if method == "monte-carlo" and plain is None:
+            runs = int(stats.attrs.get("solver_runs", 0))
+            plain = (float(at.sel(statistic="std")), cost / max(runs, 1))
+        elif method == "multilevel" and plain is None and "level_run_cost" in stats:
+            units = stats["level_run_cost"].attrs.get("units")
+            if units == "s":
+                plain = (float(np.sqrt(max(float(at.sel(statistic="variance")), 0.0))),
+                         float(stats["level_run_cost"].values[-1]))
+    if not rows:
+        return "", []
+    lines = [f"error against cost, {out} at its row point of the first result "
+             f"(plain MC at the finest level: "
+             + ("s / sqrt(n) with its measured std and cost per run)" if plain else
+                "no plain Monte Carlo result or measured costs among them)")]
+    head = ["study", "method", "runs", "solver time (s)", "stderr", "plain MC time (s)"]
+    table = []
+    for name, method, runs, cost, se in rows:
+        need = plain[0] ** 2 / se**2 * plain[1] if plain and se > 0 else np.nan
+        table.append([name, method, str(runs), _g(cost), _g(se), _g(need)])
+    lines += _table(head, table)
+    written = []
+    if figures:
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+
+        fig = Figure(figsize=(6.4, 4.4), layout="constrained")
+        FigureCanvasAgg(fig)
+        ax = fig.subplots()
+        costs = [r[3] for r in rows if np.isfinite(r[3]) and r[3] > 0]
+        if plain and costs:
+            c = np.geomspace(min(costs) / 10, max(costs) * 100, 50)
+            ax.loglog(c, plain[0] * np.sqrt(plain[1] / c), "k-", label="plain MC, finest level")
+        for (name, method, _, cost, se), marker in zip(rows, "os^vD<>p*h"):
+            if np.isfinite(cost) and cost > 0 and se > 0:
+                ax.loglog(cost, se, marker, ms=8, label=f"{name} ({method})")
+        ax.set(xlabel="solver time (s)", ylabel=f"standard error of {out}",
+               title="error against cost")
+        ax.legend(fontsize=8)
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        path = folder / f"{out}_error_vs_cost.png"
+        fig.savefig(path, dpi=110)
+        written.append(path)
+    return "\n".join(lines), written

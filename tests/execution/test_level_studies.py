@@ -240,3 +240,22 @@ def test_a_surrogate_needs_local_derivatives(write_study):
     with pytest.raises(StudyError, match="no local") as info:
         load_study(path)
     assert info.value.key == "method.surrogate"
+
+
+def test_report_compares_error_against_cost_across_results(write_study, tmp_path):
+    from uqflow.report_levels import cost_comparison
+
+    ml = run_study(load_study(level_study(write_study, "cmp_ml")), show_progress=False)
+    plain_path = write_study(name="cmp_plain", scene='{ model = "euler_decay", steps = 16 }',
+                             inputs=K_INPUT.format(low=0.5, high=1.5),
+                             method='kind = "monte-carlo"\nsamples = 64\nrule = "random"')
+    plain = run_study(load_study(plain_path), show_progress=False)
+    trees = [uqflow.open_result(p) for p in (plain.path, ml.path)]
+    text, figures = cost_comparison(trees, tmp_path / "figs")
+    assert "cmp_plain" in text and "cmp_ml" in text and "plain MC time" in text
+    assert [f.name for f in figures] == ["y_error_vs_cost.png"]
+    # the plain MC time for the plain result's own stderr is its own solver time
+    row = next(line for line in text.splitlines() if line.strip().startswith("cmp_plain"))
+    cells = row.split()
+    assert float(cells[3]) == pytest.approx(float(cells[5]), rel=1e-3)   # 4 digits shown
+    assert cost_comparison(trees[:1], tmp_path / "none") == ("", [])
