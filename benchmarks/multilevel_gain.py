@@ -40,15 +40,9 @@ JC = {"steel.jc.A": 792.0e6, "steel.jc.B": 510.0e6, "steel.jc.C": 0.014,
 
 
 def _mpm_scene(folder: Path) -> str:
-    # the quickstart's plate with probes averaged over 15 mm (1.5 particle spacings at the
-    # coarsest level, the least the MPM accepts; docs/mpm.md "Probes"): comparable across
-    # resolutions, where a nearest-particle probe jumps between material points
-    text = (ROOT / "studies" / "scenes" / "quickstart_thin_plate.toml").read_text()
-    text = text.replace('body = "plate"\n', 'body = "plate"\nradius = 0.015\n')
-    text = text.replace('outputs = ["flow_stress", "S11", "S22"]', 'outputs = ["flow_stress"]')
-    path = folder / "mpm_levels_scene.toml"
-    path.write_text(text)
-    return str(path)
+    # the shipped scene of studies/multilevel/thin_plate_*.toml: probes averaged over 15 mm,
+    # comparable across resolutions
+    return str(ROOT / "studies" / "scenes" / "thin_plate_levels.toml")
 
 
 def _nearest(coord, at):

@@ -1,4 +1,4 @@
-"""Our versions of seed 001's Figs. 4-6, 11 and 14-15, written to docs/figures/sph_*.png.
+"""Our versions of seed 001's Figs. 4-6, 8, 11 and 14-15, written to docs/figures/sph_*.png.
 
     python benchmarks/sph_figures.py
 """
@@ -71,20 +71,37 @@ def main():
     fig.savefig(FIGURES / "sph_example1_errors.png", dpi=110)
     plt.close(fig)
 
+    example3_figure()
+    example2_figure()
+
+
+def plate_scene(method, steps, **extra):
+    """The seed's Example 2/3 plate: the ellipses random sequential addition draws from
+    layout_seed = 3 (docs/sph.md § 9), given as a fixed layout so every particle's
+    displacement and stress are outputs."""
+    drawn = SPHSolver.from_scene(dict(
+        layout="random", width=100e-6, height=100e-6, spacing=2.5e-6,
+        random=dict(count=9, semi_axes_min=[6e-6, 3e-6], semi_axes_max=[10e-6, 6e-6],
+                    layout_seed=3), matrix=dict(E=1e6, nu=0.4), inclusion=dict(E=150e6, nu=0.3),
+        loading="tension", step=0.05e-6, steps=1)).layout.inclusions
+    inclusions = [dict(centre=[e.cx, e.cy], semi_axes=[e.a, e.b],
+                       angle_deg=float(np.degrees(e.angle))) for e in drawn]
+    return dict(layout="regular", width=100e-6, height=100e-6, spacing=2.5e-6,
+                inclusions=inclusions, matrix=dict(E=1e6, nu=0.4),
+                inclusion=dict(E=150e6, nu=0.3), interface_strength=0.04e6, loading="tension",
+                step=0.05e-6, steps=steps, constraints=method, **extra)
+
+
+def example3_figure():
+    """Figs. 14-15: the stress-strain curve of each method, and sigma_yy after 30 steps."""
     fig, ax = plt.subplots(1, 2, figsize=(11, 4))
     for method in ("master-slave", "master-slave-cutoff", "master-slave-local", "penalty"):
-        scene = dict(layout="random", width=100e-6, height=100e-6, spacing=2.5e-6,
-                     random=dict(count=9, semi_axes_min=[6e-6, 3e-6],
-                                 semi_axes_max=[10e-6, 6e-6], layout_seed=3),
-                     matrix=dict(E=1e6, nu=0.4), inclusion=dict(E=150e6, nu=0.3),
-                     interface_strength=0.04e6, loading="tension", step=0.05e-6, steps=30,
-                     constraints=method)
-        solver = SPHSolver.from_scene(scene)
+        solver = SPHSolver.from_scene(plate_scene(method, 30))
         ds = solver.run({})
         ax[0].plot(ds.strain * 100, ds.macro_stress / 1e3, label=method)
         if method == "master-slave":
-            lay = solver.layout
-            sc = ax[1].scatter(lay.x[:, 0] * 1e6, lay.x[:, 1] * 1e6, c=ds.stress[:, 1] / 1e3,
+            x = ds.x.values
+            sc = ax[1].scatter(x[:, 0] * 1e6, x[:, 1] * 1e6, c=ds.stress.values[:, 1] / 1e3,
                                s=4, cmap="viridis")
             fig.colorbar(sc, ax=ax[1], label="σ_yy (kPa)")
             ax[1].set(aspect="equal", xlabel="x (µm)", ylabel="y (µm)",
@@ -96,6 +113,34 @@ def main():
     fig.savefig(FIGURES / "sph_example3.png", dpi=110)
     plt.close(fig)
 
+
+def example2_figure():
+    """Fig. 8: displacement vectors of the inclusion particles after 30 steps with debonding,
+    MS and the penalty at 10^6, 10^4, 10^2 (relative weights), relative to each inclusion's
+    mean displacement so that rotations show."""
+    cases = [("master-slave", {}, "MS"), ("penalty", {"penalty": 1e6}, "PF 10⁶"),
+             ("penalty", {"penalty": 1e4}, "PF 10⁴"), ("penalty", {"penalty": 1e2}, "PF 10²")]
+    fig, axes = plt.subplots(1, 4, figsize=(16, 4.4))
+    for ax, (method, extra, label) in zip(axes, cases):
+        solver = SPHSolver.from_scene(plate_scene(method, 30, **extra))
+        ds = solver.run({})
+        x, u = ds.x.values, ds.displacement.values
+        phase = solver.layout.phase
+        rel = np.zeros_like(u)
+        for k in np.unique(phase[phase > 0]):
+            mine = phase == k
+            rel[mine] = u[mine] - u[mine].mean(axis=0)
+        inside = phase > 0
+        ax.quiver(x[inside, 0] * 1e6, x[inside, 1] * 1e6, rel[inside, 0], rel[inside, 1],
+                  angles="xy", scale_units="xy", scale=None, width=0.003)
+        ax.set(aspect="equal", xlim=(-50, 50), ylim=(-50, 50), xlabel="x (µm)",
+               title=f"{label}: {int(ds.intact_pairs.values[-1])} pairs intact")
+    axes[0].set_ylabel("y (µm)")
+    fig.suptitle("Displacement of the inclusion particles about each inclusion's mean, "
+                 "30 steps (Fig. 8)")
+    fig.tight_layout()
+    fig.savefig(FIGURES / "sph_example2_vectors.png", dpi=110)
+    plt.close(fig)
 
 if __name__ == "__main__":
     main()

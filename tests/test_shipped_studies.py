@@ -34,7 +34,10 @@ EXPECT = re.compile(r"#\s*expect:\s*exit\s+(\d+)\s+—\s+\S")
 # steps through fewer levels of that range. Its first realizations are those of the full
 # study, so the reduced run meets the bars the shipped one does.
 SHRUNK_COUNTS = {"samples": 16, "realizations": 2, "min_samples": 8, "trace_points": 4,
-                 "resamples": 50}
+                 "resamples": 50, "pilot": 4}
+# A study with fidelity levels keeps its two coarsest (the methods need two): the coupling,
+# allocation and estimators run as shipped, without the finest level's cost.
+SHRUNK_LEVELS = 2
 MPM_RESOLUTION_FACTOR = 0.25
 GAMUT_BAR_CYCLES = 3      # the fewest levels whose loops still fit n' and K' with a margin
 SPH_STEPS = 8              # load steps of an sph tension scene (each a solve)
@@ -116,8 +119,18 @@ def shrunk(path: Path, folder: Path) -> Path:
             method[key] = min(method[key], cap)
     if "min_samples" in method and "samples" in method:
         method["min_samples"] = min(method["min_samples"], method["samples"])
+    levels = data.get("levels")
+    if levels and isinstance(levels.get("values"), list):
+        levels["values"] = levels["values"][:SHRUNK_LEVELS]
+        method["pilot"] = min(method.get("pilot", SHRUNK_COUNTS["pilot"]), SHRUNK_COUNTS["pilot"])
+        method["max_rounds"] = 0             # the pilot alone
+        if isinstance(method.get("costs"), list):
+            method["costs"] = method["costs"][:SHRUNK_LEVELS]
     scene = data.get("scene")
-    if isinstance(scene, str):
+    if levels:
+        # the levels set the resolution; the scene file is read where it is
+        data["scene"] = str((path.parent / scene).resolve()) if isinstance(scene, str) else scene
+    elif isinstance(scene, str):
         with open(path.parent / scene, "rb") as fh:
             scene_data = tomllib.load(fh)
         scene_file = folder / f"scene_{path.stem}.toml"

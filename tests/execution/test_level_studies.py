@@ -259,3 +259,14 @@ def test_report_compares_error_against_cost_across_results(write_study, tmp_path
     cells = row.split()
     assert float(cells[3]) == pytest.approx(float(cells[5]), rel=1e-3)   # 4 digits shown
     assert cost_comparison(trees[:1], tmp_path / "none") == ("", [])
+
+
+@pytest.mark.parametrize("method", ["multilevel", "multifidelity"])
+def test_max_rounds_zero_runs_the_pilot_alone_and_says_the_target_is_not_met(write_study,
+                                                                              method):
+    outcome = run_study(load_study(level_study(write_study, f"pilot_{method}", method,
+                                               target=1e-4, extra="max_rounds = 0")),
+                        show_progress=False)
+    assert outcome.runs["round"].values.max() == 0
+    assert outcome.runs.sizes["realization"] == 8 * (5 if method == "multilevel" else 3)
+    assert any("max_rounds" in w for w in outcome.warnings)

@@ -43,7 +43,8 @@ class FidelityOptions(MethodOptions):
                                           "meet the target (default: all)")
     max_samples: int = Field(100_000, ge=1, le=MAX_REALIZATIONS,
                              description="most samples of any level or model")
-    max_rounds: int = Field(8, ge=1, le=100, description="allocations after the pilot")
+    max_rounds: int = Field(8, ge=0, le=100, description="allocations after the pilot (0: "
+                            "the pilot alone)")
     confidence: float = Field(0.95, gt=0, lt=1, description="level of the mean's interval")
 
     @model_validator(mode="after")
