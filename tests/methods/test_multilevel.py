@@ -168,6 +168,19 @@ def test_the_mfmc_estimator_variance_matches_its_spread():
 
 # --- conformance ---------------------------------------------------------------------------
 
+def assert_conformant(results, eps, truth, finest_mean, optimum):
+    """Over the seeds: RMSE against ``truth`` within 1.5 eps, the mean within 4 standard
+    errors of ``finest_mean`` (what the estimator is unbiased for), every seed's cost within
+    a factor 3 of ``optimum``. Returns the means."""
+    means = np.array([r["y"].sel(statistic="mean").item() for r in results])
+    assert math.sqrt(np.mean((means - truth) ** 2)) <= 1.5 * eps
+    se = np.std(means, ddof=1) / math.sqrt(len(means))
+    assert abs(means.mean() - finest_mean) < 4 * se
+    spent = np.array([r.attrs["total_cost"] for r in results])
+    assert np.all(spent <= 3 * optimum) and np.all(spent >= optimum / 3)
+    return means
+
+
 MLMC_STEPS = [4, 8, 16, 32, 64, 128]
 MLMC_EPS = 0.005
 
@@ -176,18 +189,12 @@ def test_multilevel_reaches_the_rmse_at_near_optimal_cost_without_bias():
     costs = [float(s) for s in MLMC_STEPS]
     results = [drive(with_levels(Multilevel(target_rmse=MLMC_EPS, costs=costs, pilot=10),
                                  MLMC_STEPS), MLMC_STEPS, seed) for seed in SEEDS]
-    means = np.array([r["y"].sel(statistic="mean").item() for r in results])
-    # RMSE against E[e^-k], bias included: MLMC controls both (theta = 1/2 each)
-    rmse = math.sqrt(np.mean((means - exact_mean()) ** 2))
-    assert rmse <= 1.5 * MLMC_EPS
-    # unbiased for the finest level's mean, within 4 standard errors of the seed average
-    se = np.std(means, ddof=1) / math.sqrt(len(means))
-    assert abs(means.mean() - exact_mean(MLMC_STEPS[-1])) < 4 * se
-    # cost against the real-valued optimum with the exact V_l: (sum sqrt(V_l C_l))^2/(theta eps^2)
+    # the real-valued optimum with the exact V_l: (sum sqrt(V_l C_l))^2 / (theta eps^2)
     C = np.array(costs) + np.concatenate([[0.0], costs[:-1]])
     optimum = optimal_mlmc_cost(correction_variances(MLMC_STEPS), C, 0.5 * MLMC_EPS**2)
-    spent = np.array([r.attrs["total_cost"] for r in results])
-    assert np.all(spent <= 3 * optimum) and np.all(spent >= optimum / 3)
+    # RMSE against E[e^-k], bias included: MLMC controls both (theta = 1/2 each)
+    means = assert_conformant(results, MLMC_EPS, exact_mean(), exact_mean(MLMC_STEPS[-1]),
+                              optimum)
     # the reported stderr is the spread over seeds (20 values: ratio within 0.6..1.5)
     reported = np.median([r["y"].sel(statistic="stderr").item() for r in results])
     assert 0.6 < np.std(means, ddof=1) / reported < 1.5
@@ -205,12 +212,6 @@ def test_multifidelity_reaches_the_rmse_at_near_optimal_cost_without_bias():
     costs = [float(s) for s in MF_STEPS]
     results = [drive(with_levels(Multifidelity(target_rmse=MF_EPS, costs=costs, pilot=16),
                                  MF_STEPS), MF_STEPS, seed) for seed in SEEDS]
-    means = np.array([r["y"].sel(statistic="mean").item() for r in results])
-    # MFMC estimates the high-fidelity model's mean; its RMSE is against that
-    truth = exact_mean(MF_STEPS[-1])
-    assert math.sqrt(np.mean((means - truth) ** 2)) <= 1.5 * MF_EPS
-    se = np.std(means, ddof=1) / math.sqrt(len(means))
-    assert abs(means.mean() - truth) < 4 * se
     # the optimum with the exact sigma, rho (models: finest first) and costs
     f = [lambda k, s=s: euler(k, s) for s in MF_STEPS[::-1]]
     m = [expect(g) for g in f]
@@ -218,8 +219,9 @@ def test_multifidelity_reaches_the_rmse_at_near_optimal_cost_without_bias():
     rho = [(expect(lambda k, g=g: f[0](k) * g(k)) - m[0] * mi) / (sd[0] * si)
            for g, mi, si in zip(f, m, sd)]
     optimum = mfmc_best(sd[0], np.array(rho), np.array(costs[::-1]), MF_EPS**2)[3]
-    spent = np.array([r.attrs["total_cost"] for r in results])
-    assert np.all(spent <= 3 * optimum) and np.all(spent >= optimum / 3)
+    # MFMC estimates the high-fidelity model's mean; its RMSE is against that
+    truth = exact_mean(MF_STEPS[-1])
+    assert_conformant(results, MF_EPS, truth, truth, optimum)
     # the plain-MC equivalent: more high-fidelity runs than were made
     assert np.all([r["y_equivalent_runs"].item() > r["model_samples"].values[0]
                    for r in results])
@@ -275,11 +277,6 @@ def test_multifidelity_with_the_taylor_surrogate_reaches_the_rmse_at_near_optima
                                                pilot=16, surrogate="taylor-local"),
                                  SURROGATE_STEPS), SURROGATE_STEPS, seed) for seed in SEEDS]
     assert all(r.attrs["surrogate"] == "taylor-local" for r in results)
-    means = np.array([r["y"].sel(statistic="mean").item() for r in results])
-    truth = exact_mean(SURROGATE_STEPS[-1])
-    assert math.sqrt(np.mean((means - truth) ** 2)) <= 1.5 * SURROGATE_EPS
-    se = np.std(means, ddof=1) / math.sqrt(len(means))
-    assert abs(means.mean() - truth) < 4 * se
     # the optimum with the exact sigma and correlations: the finest level, the coarse one
     # and the Taylor polynomial of the finest level around k = 1 (free)
     fine = AnalyticSolver.from_scene({"model": "euler_decay", "steps": 64})
@@ -293,7 +290,7 @@ def test_multifidelity_with_the_taylor_surrogate_reaches_the_rmse_at_near_optima
            for g, mi, si in zip(f, m, sd)]
     optimum = mfmc_best(sd[0], np.array(rho), np.array([64.0, 8.0, 0.0]),
                         SURROGATE_EPS**2)[3] + 64.0        # + the surrogate's own run
-    spent = np.array([r.attrs["total_cost"] for r in results])
-    assert np.all(spent <= 3 * optimum) and np.all(spent >= optimum / 3)
+    truth = exact_mean(SURROGATE_STEPS[-1])
+    assert_conformant(results, SURROGATE_EPS, truth, truth, optimum)
     # the surrogate takes the place of the coarse level where it is better correlated
     assert results[0]["y_correlation"].values[-1] == pytest.approx(rho[2], abs=1e-3)
