@@ -270,3 +270,24 @@ def test_max_rounds_zero_runs_the_pilot_alone_and_says_the_target_is_not_met(wri
     assert outcome.runs["round"].values.max() == 0
     assert outcome.runs.sizes["realization"] == 8 * (5 if method == "multilevel" else 3)
     assert any("max_rounds" in w for w in outcome.warnings)
+
+
+def test_allocate_at_lets_only_the_chosen_points_drive_the_allocation(write_study):
+    # the path's late points vary most; allocating on its first step (always 1: no
+    # variance) asks nothing beyond the pilot, on its last step as much as y does
+    def samples(at):
+        extra = f"allocate_at = {{ t = [{at}] }}"
+        outcome = run_study(load_study(level_study(write_study, f"at{at}", outputs='["path"]',
+                                                   target=0.005, extra=extra,
+                                                   levels_extra='align = "interpolate"')),
+                            show_progress=False)
+        return outcome.statistics["level_samples"].values.tolist()
+
+    assert samples(0.0) == [8, 8, 8]
+    assert samples(1.0) > [8, 8, 8]
+    path = level_study(write_study, "at_bad", outputs='["path"]',
+                       levels_extra='align = "interpolate"',
+                       extra='allocate_at = { probe = ["H"] }')
+    with pytest.raises(StudyError, match="no allocating output has a dimension 'probe'") as info:
+        load_study(path)
+    assert info.value.key == "method.allocate_at.probe"

@@ -41,6 +41,9 @@ class FidelityOptions(MethodOptions):
                                 "(the pilot's median wall time per level) or numbers")
     allocate_on: list[str] | None = Field(None, description="outputs whose every point must "
                                           "meet the target (default: all)")
+    allocate_at: dict[str, list[float | str]] | None = Field(
+        None, description="only these points of the allocating outputs must meet it: "
+                          "{dim = [coordinate values]}, the nearest for numbers")
     max_samples: int = Field(100_000, ge=1, le=MAX_REALIZATIONS,
                              description="most samples of any level or model")
     max_rounds: int = Field(8, ge=0, le=100, description="allocations after the pilot (0: "
@@ -77,6 +80,20 @@ class FidelitySampling(PropagationMethod):
             if name not in outputs:
                 raise StudyError(f"'{name}' is not among the study's outputs "
                                  f"({', '.join(outputs)})", key="method.allocate_on")
+        at = self.options.allocate_at or {}
+        template = solver.outputs()
+        for dim, wanted in at.items():
+            holders = [n for n in chosen if dim in template[n].dims]
+            if not holders:
+                raise StudyError(f"no allocating output has a dimension '{dim}' "
+                                 f"({', '.join(f'{n}: {template[n].dims}' for n in chosen)})",
+                                 key=f"method.allocate_at.{dim}")
+            known = template[holders[0]][dim].values if dim in template.coords else None
+            for value in wanted:
+                if isinstance(value, str) and (known is None or value not in known.astype(str)):
+                    raise StudyError(f"'{value}' is not a '{dim}' coordinate"
+                                     + (f" ({', '.join(map(str, known))})" if known is not None
+                                        else ""), key=f"method.allocate_at.{dim}")
         if self.options.target_rmse is not None and len(chosen) != 1:
             raise StudyError("target_rmse is in the units of one output: name it with "
                              "allocate_on = [\"...\"], or use target_rel_rmse",
@@ -142,17 +159,42 @@ class FidelitySampling(PropagationMethod):
         from uqflow.methods.base import output_names
         return list(self.options.allocate_on or output_names(runs))
 
-    def variance_targets(self, means: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        """eps^2 per point of each allocating output, from the current mean estimates."""
+    def variance_targets(self, means: dict[str, np.ndarray],
+                         runs: xr.Dataset) -> dict[str, np.ndarray]:
+        """eps^2 per point of each allocating output, from the current mean estimates; NaN
+        at the points ``allocate_at`` leaves out (they then drive nothing)."""
         out = {}
         for name, mean in means.items():
+            chosen = self.allocated_points(runs, name)
             if self.options.target_rmse is not None:
                 eps = self.options.target_rmse
             else:
-                scale = np.nanmax(np.abs(mean)) if np.isfinite(mean).any() else np.nan
+                picked = np.abs(mean)[chosen]
+                scale = np.nanmax(picked) if np.isfinite(picked).any() else np.nan
                 eps = self.options.target_rel_rmse * scale
-            out[name] = np.full(mean.shape, float(eps) ** 2)
+            out[name] = np.where(chosen, float(eps) ** 2, np.nan)
         return out
+
+    def allocated_points(self, runs: xr.Dataset, name: str) -> np.ndarray:
+        """Which flattened points of output ``name`` must meet the target."""
+        dims, shape = output_shape(runs, name)
+        keep = [np.ones(n, dtype=bool) for n in shape]
+        for dim, wanted in (self.options.allocate_at or {}).items():
+            if dim not in dims:
+                continue
+            axis = dims.index(dim)
+            coord = runs[dim].values if dim in runs.coords else np.arange(shape[axis])
+            mask = np.zeros(shape[axis], dtype=bool)
+            for value in wanted:
+                if isinstance(value, str):
+                    mask |= coord.astype(str) == value
+                else:
+                    mask[int(np.argmin(np.abs(coord.astype(float) - value)))] = True
+            keep[axis] = mask
+        full = np.ones(shape, dtype=bool)
+        for axis, mask in enumerate(keep):
+            full &= mask.reshape([-1 if a == axis else 1 for a in range(len(shape))])
+        return full.reshape(-1)
 
 
 def flat(runs: xr.Dataset, name: str, rows: np.ndarray) -> np.ndarray:

@@ -187,7 +187,7 @@ class Multifidelity(FidelitySampling):
         wanted = np.zeros(w.size, dtype=np.int64)
         means = {name: self.estimates(runs, name, rows, surrogate=surrogate)["mean"]
                  for name in self.allocating(runs)}
-        for name, eps2 in self.variance_targets(means).items():
+        for name, eps2 in self.variance_targets(means, runs).items():
             values = self.model_values(runs, name, rows, surrogate)
             shared = min(v.shape[0] for v in values)
             y = np.stack([v[:shared] for v in values])                    # (models, n, points)
@@ -257,7 +257,7 @@ class Multifidelity(FidelitySampling):
                             f"model); the statistics use the others, which biases them if "
                             f"failures depend on the inputs")
         targets = self.variance_targets({k: data[k][1].reshape(6, -1)[0]
-                                         for k in self.allocating(runs)})
+                                         for k in self.allocating(runs)}, runs)
         for name, eps2 in targets.items():
             stderr = data[name][1].reshape(6, -1)[3]
             short = np.flatnonzero(stderr**2 > eps2 * (1 + 1e-9))

@@ -105,7 +105,7 @@ class Multilevel(FidelitySampling):
             terms = self.level_terms(runs, name, pairs)
             means[name] = np.sum([t["mean"] for t in terms], axis=0)
             V.append(np.stack([t["V"] for t in terms]))
-        for name, eps2 in self.variance_targets(means).items():
+        for name, eps2 in self.variance_targets(means, runs).items():
             target.append(eps2 * self.options.variance_share)
         wanted = giles_counts(np.concatenate(V, axis=1), C, np.concatenate(target))
         wanted = np.minimum(wanted, self.options.max_samples)
@@ -158,7 +158,7 @@ class Multilevel(FidelitySampling):
                 warnings.append(f"{name}: the bias rate alpha could not be fitted (fewer than "
                                 f"two correction levels with a nonzero mean); the bias "
                                 f"estimate assumes first order (alpha = 1)")
-        targets = self.variance_targets({k: means[k] for k in self.allocating(runs)})
+        targets = self.variance_targets({k: means[k] for k in self.allocating(runs)}, runs)
         for name, eps2 in targets.items():
             stat = data[name][1].reshape(9, -1)
             bias, stderr = stat[7], stat[3]
