@@ -305,7 +305,7 @@ def figure(results, name) -> None:
             ax.loglog(g["cost"], g["se"], marker, ms=8, label=f"{method} ({g['ratio']:.2g}x)")
         ax.set(xlabel="solver time (s)", ylabel="standard error",
                title=f"{name}: {row['quantity']}")
-        ax.legend(fontsize=8)
+        ax.legend(fontsize=8, loc="upper right")   # the methods' points sit low and left
     fig.tight_layout()
     fig.savefig(FIGURES / f"multilevel_gain_{name}.png", dpi=110)
     plt.close(fig)
