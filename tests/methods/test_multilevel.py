@@ -31,6 +31,8 @@ def euler(k, steps):
 
 def expect(g):
     """E[g(k)] for k ~ U(LOW, HIGH), by adaptive quadrature (error ~1e-14 for these smooth g)."""
+    # quad's own targets: a polynomial-like integrand on [0.5, 1.5] of size <= 1 meets them in
+    # a few Gauss-Kronrod panels; the tests compare against these values at 1e-3 or looser
     return integrate.quad(g, LOW, HIGH, epsabs=1e-15, epsrel=1e-13)[0] / (HIGH - LOW)
 
 
@@ -102,9 +104,11 @@ def test_giles_counts_are_the_lagrange_optimum_and_skip_constant_points():
     expected = np.ceil(np.sqrt(V[:, 0] / C) * total / 0.01)
     assert giles_counts(V, C, np.array([0.01, 0.01])).tolist() == expected.tolist()
     assert giles_counts(np.zeros((3, 2)), C, np.ones(2)).tolist() == [0, 0, 0]
-    # that allocation's variance sum V/N meets the target and its cost is the optimum's
+    # that allocation's variance sum V/N meets the target and its cost is the optimum's:
+    # three terms of a few IEEE roundings each (sqrt, /, *, +): ~10 eps, whatever the libm
     N = np.sqrt(V[:, 0] / C) * total / 0.01
-    assert np.sum(V[:, 0] / N) == pytest.approx(0.01, rel=1e-14)   # a few roundings
+    assert np.sum(V[:, 0] / N) == pytest.approx(0.01, rel=1e-14)
+    # the same products summed in another order: ~10 eps
     assert np.dot(N, C) == pytest.approx(optimal_mlmc_cost(V[:, 0], C, 0.01), rel=1e-14)
 
 
@@ -202,6 +206,8 @@ def test_multilevel_reaches_the_rmse_at_near_optimal_cost_without_bias():
     # the fitted rates: alpha = 1 (Euler's first order), beta = 2, gamma = 1 (stated costs)
     alpha, beta = np.median([r["y_rates"].values for r in results], axis=0)
     assert abs(alpha - 1) < 0.3 and abs(beta - 2) < 0.4
+    # log2 of the stated costs 4 .. 128 is exact; polyfit's least squares on 5 points rounds
+    # at ~10 eps (its lstsq is LAPACK's, conditioned ~10 here)
     assert results[0].attrs["gamma"] == pytest.approx(1.0, rel=1e-12)
 
 

@@ -260,6 +260,7 @@ class Multifidelity(FidelitySampling):
                                          for k in self.allocating(runs)}, runs)
         for name, eps2 in targets.items():
             stderr = data[name][1].reshape(6, -1)[3]
+            # a target met exactly may differ from it by the roundings of the sums: 1e-9 ≫ eps
             short = np.flatnonzero(stderr**2 > eps2 * (1 + 1e-9))
             if short.size:
                 k = int(short[np.argmax(stderr[short])])

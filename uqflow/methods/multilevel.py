@@ -169,6 +169,7 @@ class Multilevel(FidelitySampling):
                                 f"(point {k}) exceeds its share of the target, "
                                 f"sqrt(1 - theta) eps = {np.sqrt((1 - theta) * eps2[k]):.3g}: "
                                 f"add a finer level")
+            # a target met exactly may differ from it by the roundings of the sums: 1e-9 ≫ eps
             short = np.flatnonzero(stderr**2 > theta * eps2 * (1 + 1e-9))
             if short.size:
                 k = int(short[np.argmax(stderr[short])])
