@@ -77,9 +77,9 @@ def level_lines(stats: xr.Dataset, method: str, outs: list[str], focus_of) -> li
 
 
 def _table(head, rows) -> list[str]:
-    widths = [max(len(str(r[i])) for r in [head, *rows]) for i in range(len(head))]
-    fmt = (lambda r: "  ".join(str(c).rjust(w) for c, w in zip(r, widths)))
-    return [fmt(head), fmt(["-" * w for w in widths]), *map(fmt, rows)]
+    from uqflow.report import _grid      # report imports this module: import at call time
+
+    return _grid(head, rows, right=set(range(len(head))))
 
 
 def levels_figure(ctx, out: str):

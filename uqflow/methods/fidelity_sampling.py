@@ -22,7 +22,8 @@ from pydantic import Field, model_validator
 
 from uqflow.errors import StudyError
 from uqflow.levels import LEVEL_VARIABLE, SEED_KEY_VARIABLE
-from uqflow.methods.base import MAX_REALIZATIONS, MethodOptions, PropagationMethod, make_design
+from uqflow.methods.base import (MAX_REALIZATIONS, MethodOptions, PropagationMethod,
+                                 make_design, output_names)
 
 #: seed keys of stream s are s * STREAM_STRIDE + k
 STREAM_STRIDE = 2**32
@@ -156,7 +157,6 @@ class FidelitySampling(PropagationMethod):
         return np.maximum(costs, 1e-9)
 
     def allocating(self, runs: xr.Dataset) -> list[str]:
-        from uqflow.methods.base import output_names
         return list(self.options.allocate_on or output_names(runs))
 
     def variance_targets(self, means: dict[str, np.ndarray],

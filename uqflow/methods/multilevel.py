@@ -29,7 +29,7 @@ from pydantic import Field
 from scipy import stats as sps
 
 from uqflow.levels import LEVEL_VARIABLE
-from uqflow.methods.base import finish_statistics, register_method
+from uqflow.methods.base import finish_statistics, output_names, register_method
 from uqflow.methods.fidelity_sampling import (FidelityOptions, FidelitySampling, flat,
                                               output_shape)
 from uqflow.methods.multilevel_estimators import (giles_counts, level_rate, mlmc_bias,
@@ -126,7 +126,7 @@ class Multilevel(FidelitySampling):
         gamma = level_rate(c, decreasing=False)
         data, warnings = {}, []
         means = {}
-        for name in [o for o in self._outputs(runs)]:
+        for name in output_names(runs):
             dims, shape = output_shape(runs, name)
             terms = self.level_terms(runs, name, pairs)
             E = np.stack([t["mean"] for t in terms])
@@ -185,7 +185,7 @@ class Multilevel(FidelitySampling):
         coords = {"statistic": ["mean", "variance", "std", "stderr", "ci_low", "ci_high",
                                 "variance_stderr", "bias", "rmse"],
                   "level": np.arange(self.n_levels), "rate": ["alpha", "beta"]}
-        coords.update({d: runs[d] for name in self._outputs(runs)
+        coords.update({d: runs[d] for name in output_names(runs)
                        for d in output_shape(runs, name)[0] if d in runs.coords})
         stats = xr.Dataset(data, coords=coords)
         stats = stats.assign_coords(level_value=("level", np.asarray(self.level_values,
@@ -198,7 +198,3 @@ class Multilevel(FidelitySampling):
         stats.attrs.update(gamma=gamma, variance_share=theta, rounds=int(
             runs["round"].values.max()) + 1, total_cost=float(np.dot(n + failed, C)))
         return finish_statistics(stats, design, runs, self.name, warnings)
-
-    def _outputs(self, runs):
-        from uqflow.methods.base import output_names
-        return output_names(runs)
