@@ -176,7 +176,8 @@ def _mfmc_quantity(study, runs, q):
     values = q(runs)
     parts = [values[r][:, None] for r in rows]
     counts = [r.size for r in rows]
-    rho = [float(np.corrcoef(values[rows[0]], values[r[:rows[0].size]])[0, 1]) for r in rows]
+    shared = min(r.size for r in rows)   # samples every model ran (the finest need not be fewest)
+    rho = [float(np.corrcoef(values[rows[0][:shared]], values[r[:shared]])[0, 1]) for r in rows]
     surrogates = method.surrogates(runs.drop_vars(study.outputs), runs)
     if surrogates:
         # the quantities are linear in the output (a value, a time mean): the surrogate of
@@ -190,7 +191,7 @@ def _mfmc_quantity(study, runs, q):
             data=surrogates[name].mean.reshape((1, *template.shape[1:])))}))
         parts.append(g[:, None])
         counts.append(math.inf)
-        rho.append(float(np.corrcoef(values[rows[0]], g[:rows[0].size])[0, 1]))
+        rho.append(float(np.corrcoef(values[rows[0][:shared]], g[:shared])[0, 1]))
         got = mfmc_estimate(parts, counts, exact_mean=np.asarray(mean, dtype=float))
     else:
         got = mfmc_estimate(parts, counts)
