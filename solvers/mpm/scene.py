@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -87,6 +88,9 @@ DEFAULTS = {"resolution": 1.0, "particles_per_cell": 2, "shape": "quadratic", "f
             "cfl": 0.3, "gravity": [0.0, 0.0], "padding": 3, "extent": "full",
             "max_steps": 5_000_000, "threads": 1, "conventions": "uqflow"}
 PROBE_KEYS = ("name", "point", "body", "radius")
+# A probe name becomes part of file names (the report's figures): no folder separators, no
+# hidden or parent-folder names, nothing a file system or shell treats specially.
+PROBE_NAME = re.compile(r"[A-Za-z0-9_.-]+")
 # An averaging probe's radius, in particle spacings (cell / particles_per_cell), at least:
 # below it the kernel-weighted centroid of the lattice points in the disk wanders with the
 # layout by more than 0.05 spacing (0.28 at one spacing; docs/mpm.md, "Probes").
@@ -414,6 +418,10 @@ def parse(scene) -> Config:
         _keys(p, PROBE_KEYS, key)
         if "name" not in p or not isinstance(p["name"], str) or not p["name"]:
             raise _err(f"{key}.name", "is required (a non-empty string)")
+        if not PROBE_NAME.fullmatch(p["name"]) or p["name"].startswith("."):
+            raise _err(f"{key}.name", f"{p['name']!r} cannot name files: a probe name names "
+                                      f"its figures, so it is letters, digits, '_', '.' and "
+                                      f"'-' only, not starting with '.'")
         if p["name"] in pnames:
             raise _err(f"{key}.name", f"duplicate probe name {p['name']!r}")
         pnames.add(p["name"])
@@ -435,6 +443,8 @@ def parse(scene) -> Config:
         probes.append(Probe(p["name"], pt, body, radius))
 
     snaps = _snapshots(s["snapshots"], dt_out) if "snapshots" in s else None
+    materials = apply_conventions(materials, conventions)
+    _check_material_constants(materials)
 
     return Config(grid=grid, ppc=ppc, shape=shape, flip=flip, cfl=cfl, q1=q1, q2=q2,
                   gravity=gravity, end_time=end, output_interval=dt_out, outputs=tuple(outs),
@@ -466,6 +476,44 @@ def _snapshots(v, dt_out) -> Snapshots:
                     SNAPSHOT_FIELDS, "field")
     return Snapshots(interval=every * dt_out, every=int(every), directory=directory,
                      fields=tuple(fields))
+
+
+def apply_conventions(materials: dict, conventions: str) -> dict:
+    """The materials with the scene's ``conventions`` mapped onto those that have a
+    conventions flag (the Johnson–Cook steel): ``seed_conventions`` = 1 under "seed", with
+    ε̇0 = 1e6 /s (the seed's 1/µs) unless the scene sets ``jc.eps0_dot`` itself. The flag
+    belongs to the scene, so a material may not set it. Applying it twice changes nothing."""
+    from solvers.mpm.materials.johnson_cook import CONVENTIONS_PARAMETER, SEED_EPS0_DOT
+
+    seed = conventions == "seed"
+    out = {}
+    for label, m in materials.items():
+        if CONVENTIONS_PARAMETER in m.module.PARAMETERS:
+            if CONVENTIONS_PARAMETER in m.overrides:
+                raise _err(f"materials.{label}.{CONVENTIONS_PARAMETER}",
+                           "is set by the scene's `conventions` (\"uqflow\" or \"seed\"), "
+                           "not per material")
+            values = dict(m.values)
+            values[CONVENTIONS_PARAMETER] = 1.0 if seed else 0.0
+            if seed and "jc.eps0_dot" not in m.overrides:
+                values["jc.eps0_dot"] = SEED_EPS0_DOT
+            m = Material(m.label, m.model, m.module, values, dict(m.overrides))
+        out[label] = m
+    return out
+
+
+def _check_material_constants(materials: dict) -> None:
+    """Every material's parameters, as the scene sets them under its conventions, in their
+    ranges: a constant that every run would refuse (say jc.C = 0.05 under the seed
+    conventions, whose rate factor needs C < 0.048) is refused here, at load, under its key.
+    A sampled value out of range still fails only its realization."""
+    from solvers.mpm.materials.state import ParameterError
+
+    for label, m in materials.items():
+        try:
+            m.module.pack(m.values)
+        except ParameterError as exc:
+            raise _err(f"materials.{label}.{exc.parameter}", exc.reason) from None
 
 
 def _material(label, model, lib, overrides, key):

@@ -3,7 +3,6 @@ docs/mpm.md). Kernels: ``step.py``; scene: ``scene.py``; materials: ``materials/
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time as _time
 from collections.abc import Mapping
@@ -14,13 +13,13 @@ import xarray as xr
 
 from solvers.mpm import step as K
 from solvers.mpm.materials import state as ST
-from solvers.mpm.materials.johnson_cook import CONVENTIONS_PARAMETER, SEED_EPS0_DOT
+from solvers.mpm.materials.johnson_cook import CONVENTIONS_PARAMETER
 from solvers.mpm.probe_sensitivities import OUTPUTS as SENSITIVITY_OUTPUTS, \
     ProbeSensitivities, sensitivity_parameters
 from solvers.mpm.probes import ProbeRecorder
 from solvers.mpm.snapshots import SnapshotWriter
-from solvers.mpm.scene import ENERGY_OUTPUTS, PROBE_QUANTITIES, auto_extent, parse, \
-    place_probes, probe_members, seed_particles
+from solvers.mpm.scene import ENERGY_OUTPUTS, PROBE_QUANTITIES, apply_conventions, \
+    auto_extent, parse, place_probes, probe_members, seed_particles
 from solvers.mpm.shapes import KINDS
 from uqflow.errors import SceneError, SolverError
 from uqflow.solver import Solver, register_solver
@@ -250,23 +249,9 @@ class MPMSolver(Solver):
 
 
 def _apply_conventions(cfg):
-    """Map the scene's ``conventions`` onto the materials that have a conventions flag (the
-    Johnson–Cook steel): ``seed_conventions`` = 1 under "seed", with ε̇0 = 1e6 /s (the seed's
-    1/µs) unless the scene sets ``jc.eps0_dot`` itself. The flag belongs to the scene, so a
-    material may not set it."""
-    seed = getattr(cfg, "conventions", "uqflow") == "seed"
-    for lab, m in list(cfg.materials.items()):
-        if CONVENTIONS_PARAMETER not in m.module.PARAMETERS:
-            continue
-        if CONVENTIONS_PARAMETER in m.overrides:
-            raise SceneError(f"is set by the scene's `conventions` (\"uqflow\" or \"seed\"), "
-                             f"not per material",
-                             key=f"scene.materials.{lab}.{CONVENTIONS_PARAMETER}")
-        values = dict(m.values)
-        values[CONVENTIONS_PARAMETER] = 1.0 if seed else 0.0
-        if seed and "jc.eps0_dot" not in m.overrides:
-            values["jc.eps0_dot"] = SEED_EPS0_DOT
-        cfg.materials[lab] = dataclasses.replace(m, values=values)
+    """The scene's ``conventions`` on the materials (``scene.apply_conventions``; parse has
+    applied them already, a Config built otherwise gets them here)."""
+    cfg.materials = apply_conventions(cfg.materials, getattr(cfg, "conventions", "uqflow"))
 
 
 # ------------------------------------------------------------------------------------------

@@ -125,8 +125,17 @@ def pack_parameters(parameters: dict, values: dict | None, material: str) -> np.
     return out
 
 
+class ParameterError(SolverError):
+    """A material parameter outside its range: ``parameter`` names it and ``reason`` says
+    why, so a scene constant can be refused at load under its own key (scene.py)."""
+
+    def __init__(self, material: str, parameter: str, reason: str):
+        super().__init__(f"material '{material}': parameter {parameter} = {reason}")
+        self.parameter, self.reason = parameter, reason
+
+
 def require(material: str, prm: np.ndarray, names, rules) -> None:
-    """Raise ``SolverError`` for the first parameter breaking its rule.
+    """Raise ``ParameterError`` (a ``SolverError``) for the first parameter breaking its rule.
 
     ``rules``: iterable of (name, predicate, text), e.g. ("rho0", lambda v: v > 0, "> 0").
     """
@@ -134,7 +143,7 @@ def require(material: str, prm: np.ndarray, names, rules) -> None:
     for name, ok, text in rules:
         v = float(prm[idx[name]])
         if not ok(v):
-            raise SolverError(f"material '{material}': parameter {name} = {v:g} must be {text}")
+            raise ParameterError(material, name, f"{v:g} must be {text}")
 
 
 # --- numba helpers shared by the kernels -----------------------------------------------------

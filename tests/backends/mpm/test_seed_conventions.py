@@ -158,3 +158,39 @@ def test_documented_seed_constants():
     assert round(np.log10(np.exp(-1 / 0.014))) == -31
     assert -np.log(jc.SEED_RATE_STAR_FLOOR) == pytest.approx(20.7, abs=0.05)
     assert -1 / np.log(jc.SEED_RATE_STAR_FLOOR) == pytest.approx(0.048, abs=0.0005)
+
+
+# --- scene constants every run would refuse: refused at load -------------------------------
+from solvers.mpm.scene import parse   # noqa: E402
+
+
+def test_seed_rate_constant_is_refused_at_scene_load():
+    """jc.C = 0.05 in the scene under the seed conventions used to validate and then fail every
+    run that does not sample C (the rate factor's floor needs C < 1/ln 1e9 = 0.048): it is now
+    one SceneError at load, naming the key; with the clamp (default conventions) it is fine."""
+    sc = small_scene(conventions="seed")
+    sc["materials"]["steel"]["jc"] = {"C": 0.05}
+    with pytest.raises(SceneError) as e:
+        parse(sc)
+    assert e.value.key == "scene.materials.steel.jc.C"
+    assert "seed conventions" in str(e.value) and "0.04825" in str(e.value)
+    assert "\n" not in str(e.value)
+    sc["conventions"] = "uqflow"
+    assert parse(sc).materials["steel"].values["jc.C"] == 0.05
+    sc = small_scene(conventions="seed")
+    sc["materials"]["steel"]["jc"] = {"C": 0.04}                 # below the bound: accepted
+    assert parse(sc).materials["steel"].values["seed_conventions"] == 1.0
+
+
+def test_validate_refuses_the_seed_rate_constant_in_one_line(tmp_path, capsys):
+    from uqflow.cli import main
+
+    sc = (REPO / "studies/scenes/mpm_contact_thin_small_seed.toml").read_text()
+    sc = sc.replace('model = "steel_4340"\n', 'model = "steel_4340"\njc.C = 0.05\n', 1)
+    (tmp_path / "scene.toml").write_text(sc)
+    study = (REPO / "studies/smpm/thin_jc_seed_conventions_cv0.10_taylor_local.toml").read_text()
+    study = study.replace("../scenes/mpm_contact_thin_small_seed.toml", "scene.toml")
+    (tmp_path / "study.toml").write_text(study)
+    assert main(["validate", str(tmp_path / "study.toml")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "scene.materials.steel.jc.C" in err, err
