@@ -1,4 +1,5 @@
-"""Every ```toml block in README.md and docs/*.md validates, so the examples cannot rot.
+"""Every ```toml block in README.md and docs/*.md validates and every ```python block runs,
+so the examples cannot rot (the Python blocks: see "python blocks" below).
 
 How a block is read (its first line may carry a marker):
 
@@ -6,7 +7,9 @@ How a block is read (its first line may carry a marker):
   SceneError), whatever kind of block it is.
 - ``# file: <path>``: the content of a file. A scene file (any other name than
   ``pyproject.toml``) is validated as a scene and written at ``<path>`` beside the studies of
-  the same page that come after it; ``pyproject.toml`` is only parsed.
+  the same page that come after it; ``pyproject.toml`` is only parsed; a study file is
+  validated as a study, unless its method is one a ```python block of the page registers and
+  that block loads the file: that block's test then loads and runs it.
 - a whole study (``solver`` and ``method``): written to a temporary folder that holds the
   project's ``studies/scenes`` as ``scenes/`` (what the shipped studies name) plus the page's
   ``# file:`` blocks, and loaded with ``uqflow.study.load_study``;
@@ -19,14 +22,20 @@ How a block is read (its first line may carry a marker):
 
 from __future__ import annotations
 
+import os
 import re
+import subprocess
+import sys
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import pytest
+import xarray as xr
 
 from test_shipped_studies import to_toml
+from uqflow.cli import main
 from uqflow.errors import SceneError, StudyError
 from uqflow.solver import get_solver
 from uqflow.study import StudySpec, load_study
@@ -174,6 +183,14 @@ def _folder(tmp: Path, block: Block) -> Path:
     return tmp
 
 
+def _registered_by_page(block: Block, kind) -> bool:
+    """Whether a Python block of ``block``'s page registers method ``kind`` and loads the
+    file ``block`` is (its study can only load where that method is registered)."""
+    name = block.marker[1]
+    return any(b.page == block.page and f'register_method("{kind}")' in b.text
+               and name in b.text for b in python_blocks() if b.marker[0] != "fragment")
+
+
 def validate(block: Block, tmp: Path, monkeypatch) -> None:
     """Raise StudyError/SceneError (or a TOML error) if the block does not validate."""
     monkeypatch.chdir(tmp)               # a scene's relative directories land in tmp
@@ -181,12 +198,16 @@ def validate(block: Block, tmp: Path, monkeypatch) -> None:
     data = tomllib.loads(block.text)
     if kind == "file" and name == "pyproject.toml":
         return
-    if kind == "file" or not set(data) <= STUDY_KEYS:
+    is_study = "solver" in data and "method" in data
+    if kind == "file" and is_study and _registered_by_page(block, data["method"].get("kind")):
+        return        # a study of the page's own method: loaded and run by the block that
+        #               registers the method (test_doc_python_block_runs)
+    if (kind == "file" and not is_study) or not set(data) <= STUDY_KEYS:
         get_solver(scene_solver(data)).from_scene(data)
         return
     folder = _folder(tmp, block)
     study = folder / "study.toml"
-    if "solver" in data and "method" in data:
+    if is_study:
         study.write_text(block.text, encoding="utf-8")
     else:
         study.write_text(to_toml(merged(data)) + "\n", encoding="utf-8")
@@ -287,3 +308,233 @@ def test_fields_page_tables_match_the_code():
             assert shown == "—" or " if " in shown or shown == "[name]", (name, shown)
         else:
             assert shown.split(" if ")[0] == _shown_default(field), (name, shown)
+
+
+# ----------------------------------------------------------------------------- python blocks
+# Every ```python block of README.md and docs/*.md runs as written: saved as a script in a
+# temporary folder that holds a copy of the project's studies/ (the studies and scenes it names
+# shrunk as for the shipped-study runs, [execution] left as written) and the page's
+# `# file:` blocks, then run with `python <block>.py` in a subprocess, so a script that starts
+# dask workers without `if __name__ == "__main__":` fails here as it does for a reader.
+# The line before a block may say what it needs, as an HTML comment a reader sees in the source:
+#   <!-- after: uqflow run studies/x.toml -->  run that study first (in this process, shrunk)
+#   <!-- fragment: why -->  not a whole program (an excerpt, an interface, a cluster we lack);
+#                           it is not run, and there are at most MAX_FRAGMENTS of them.
+PY_BLOCK = re.compile(r"^```python[ \t]*\n(.*?)^```", re.S | re.M)
+PY_MARKER = re.compile(r"<!--\s*(fragment|after):\s*(\S.*?)\s*-->\s*$")
+STUDY_PATH = re.compile(r"studies/[\w./-]+\.toml")
+MAX_FRAGMENTS = 4
+BLOCK_TIMEOUT = 300          # s; a dask block spends most of it importing in its workers
+
+
+@dataclass
+class PyBlock:
+    page: Path
+    line: int
+    text: str
+    marker: tuple[str, str]
+
+    @property
+    def id(self) -> str:
+        return f"{self.page.relative_to(ROOT)}:{self.line}"
+
+
+def python_blocks() -> list[PyBlock]:
+    out = []
+    for page in PAGES:
+        text = page.read_text(encoding="utf-8")
+        for match in PY_BLOCK.finditer(text):
+            before = [s for s in text[:match.start()].splitlines() if s.strip()]
+            found = PY_MARKER.match(before[-1].strip()) if before else None
+            marker = (found.group(1), found.group(2)) if found else ("", "")
+            out.append(PyBlock(page, text.count("\n", 0, match.start()) + 1, match.group(1),
+                               marker))
+    return out
+
+
+PY_BLOCKS = python_blocks()
+RUNNABLE = [b for b in PY_BLOCKS if b.marker[0] != "fragment"]
+
+
+def _shrink_file(path: Path) -> None:
+    """Shrink, in place, a study (method counts, its scene file) or a scene file."""
+    from test_shipped_studies import SHRUNK_COUNTS, _shrink_scene
+    with open(path, "rb") as fh:
+        data = tomllib.load(fh)
+    if "solver" in data and "method" in data:
+        method = data["method"]
+        for key, cap in SHRUNK_COUNTS.items():
+            if isinstance(method.get(key), int):
+                method[key] = min(method[key], cap)
+        if isinstance(data.get("scene"), str):
+            _shrink_file(path.parent / data["scene"])
+        elif isinstance(data.get("scene"), dict):
+            data["scene"] = _shrink_scene(data["scene"], data["solver"])
+    elif scene_solver(data) == "mpm":
+        data = _shrink_scene(data, "mpm")
+    else:
+        return
+    path.write_text(to_toml(data) + "\n", encoding="utf-8")
+
+
+def prepare(block: PyBlock, folder: Path, monkeypatch) -> None:
+    """The folder a reader would run the block in: studies/, the page's files, and what an
+    `after:` marker names run first."""
+    import shutil
+    shutil.copytree(ROOT / "studies", folder / "studies")
+    for toml_block in BLOCKS:
+        kind, name = toml_block.marker
+        if toml_block.page == block.page and kind == "file" and name != "pyproject.toml":
+            (folder / name).parent.mkdir(parents=True, exist_ok=True)
+            (folder / name).write_text(toml_block.text, encoding="utf-8")
+    kind, command = block.marker
+    for named in sorted(set(STUDY_PATH.findall(block.text + "\n" + command))):
+        if (folder / named).is_file():
+            _shrink_file(folder / named)
+    if kind == "after":
+        words = command.split()
+        assert words[:2] == ["uqflow", "run"], f"{block.id}: after: takes 'uqflow run STUDY'"
+        monkeypatch.chdir(folder)
+        code = main([*words[1:], "--workers", "0", "--quiet", "--no-figures"])
+        assert code == 0, f"{block.id}: '{command}' exited {code}"
+
+
+def run_block(block: PyBlock, folder: Path) -> subprocess.CompletedProcess:
+    """Run the block as `python doc_block.py` in ``folder``; AssertionError if it fails."""
+    script = folder / "doc_block.py"
+    script.write_text(block.text, encoding="utf-8")
+    env = dict(os.environ, MPLBACKEND="Agg")
+    done = subprocess.run([sys.executable, script.name], cwd=folder, env=env, text=True,
+                          capture_output=True, timeout=BLOCK_TIMEOUT)
+    assert done.returncode == 0, (
+        f"{block.id} exited {done.returncode}:\n" + "\n".join(done.stderr.splitlines()[-15:]))
+    return done
+
+
+def assert_results_keep_output_dims(folder: Path) -> None:
+    """Every result a block wrote has statistics with the dims of the outputs they describe
+    (a method that averaged y(t) into one number would teach the wrong thing)."""
+    from uqflow.methods.base import output_names
+    from uqflow.store import open_result
+    for path in folder.rglob("*.nc"):
+        tree = open_result(path)
+        if "statistics" not in tree.children:
+            continue
+        runs, stats = tree["runs"].to_dataset(), tree["statistics"].to_dataset()
+        for out in output_names(runs):
+            assert stats[out].dims[1:] == runs[out].dims[1:], (path.name, out, stats[out].dims)
+
+
+def test_the_pages_have_python_examples():
+    assert len(RUNNABLE) >= 4
+    assert {b.page.name for b in RUNNABLE} >= {"README.md", "results.md"}
+
+
+def test_fragments_are_rare_and_say_why():
+    fragments = [b for b in PY_BLOCKS if b.marker[0] == "fragment"]
+    assert len(fragments) <= MAX_FRAGMENTS, [b.id for b in fragments]
+    assert all(len(b.marker[1].split()) >= 3 for b in fragments), [b.id for b in fragments]
+
+
+def test_blocks_that_start_dask_workers_guard_main():
+    """A script that starts worker processes runs its study under `if __name__ ==
+    "__main__":` (the workers import the script again; without it: "Nanny failed to start")."""
+    assert any(_starts_workers(b) for b in RUNNABLE)
+    for block in RUNNABLE:
+        if _starts_workers(block):
+            assert 'if __name__ == "__main__":' in block.text, block.id
+
+
+def _starts_workers(block: PyBlock) -> bool:
+    """Whether the block may start dask worker processes: a run_study without workers=0
+    (the study's [execution] workers default to 2), or a LocalCluster."""
+    calls = re.findall(r"run_study\(([^)]*)\)", block.text)
+    return any(not re.search(r"workers\s*=\s*0\b", c) for c in calls) or \
+        "LocalCluster(" in block.text
+
+
+@pytest.mark.parametrize("block", [pytest.param(b, marks=pytest.mark.slow) if _starts_workers(b)
+                                   else b for b in RUNNABLE], ids=[b.id for b in RUNNABLE])
+def test_doc_python_block_runs(block, tmp_path, monkeypatch):
+    prepare(block, tmp_path, monkeypatch)
+    run_block(block, tmp_path)
+    assert_results_keep_output_dims(tmp_path)
+
+
+def test_a_failing_block_fails(tmp_path):
+    """The runner can fail: a block that raises, and one that reduces y(t) to one number."""
+    bad = PyBlock(ROOT / "README.md", 0, "import math\nmath.sqrt(-1)\n", ("", ""))
+    with pytest.raises(AssertionError, match="ValueError"):
+        run_block(bad, tmp_path)
+    runs = xr.Dataset({"y": (("realization", "t"), np.ones((2, 3))),
+                       "status": ("realization", ["ok", "ok"])}, coords={"t": [0.0, 1.0, 2.0]})
+    stats = xr.Dataset({"y": (("statistic",), [1.0])}, coords={"statistic": ["mean"]})
+    tree = xr.DataTree.from_dict({"runs": runs, "statistics": stats})
+    tree.to_netcdf(tmp_path / "reduced.nc")
+    with pytest.raises(AssertionError, match="reduced.nc"):
+        assert_results_keep_output_dims(tmp_path)
+
+
+def test_the_readme_selects_the_samples_the_statistics_use(tmp_path):
+    """The README's selection of the Monte Carlo samples, run on a study with a control
+    variate: it keeps the samples the statistics count (samples_ok), not the control runs."""
+    import textwrap
+
+    from uqflow.execute import run_study
+    from uqflow.store import open_result
+    block = next(b for b in RUNNABLE if b.page.name == "README.md" and "ishigami_mc" in b.text)
+    lines = block.text.splitlines()
+    first = next(k for k, s in enumerate(lines) if 'runs = tree["runs"]' in s)
+    last = max(k for k, s in enumerate(lines) if s.lstrip().startswith("samples"))
+    selection = textwrap.dedent("\n".join(lines[first:last + 1]))
+    study = {**BASES["analytic"], "name": "controlled", "solver": "analytic",
+             "method": {"kind": "monte-carlo", "samples": 16, "control": "taylor"},
+             "execution": {"workers": 0}, "output": {"path": "controlled.nc", "figures": False}}
+    (tmp_path / "controlled.toml").write_text(to_toml(study) + "\n", encoding="utf-8")
+    tree = open_result(run_study(load_study(tmp_path / "controlled.toml"),
+                                 show_progress=False).path)
+    namespace = {"tree": tree}
+    exec(selection, namespace)
+    samples, runs = namespace["samples"], namespace["runs"]
+    assert int(samples.sum()) == tree["statistics"].attrs["samples_ok"] == 16
+    assert int((runs.status == "ok").sum()) > 16          # with the control runs
+    assert set(runs.role.values[samples.values]) == {"sample"}
+
+
+# ----------------------------------------------------------------------------- figures
+RESULTS_PAGE = ROOT / "docs" / "results.md"
+
+
+def test_every_figure_the_report_draws_is_on_the_results_page():
+    from uqflow.report import _FIGURES
+    text = RESULTS_PAGE.read_text(encoding="utf-8")
+    table = text[text.index("## The figures"):]
+    for kind, _ in _FIGURES:
+        assert f"| `<out>_{kind}.png` |" in table, kind
+
+
+def test_the_convergence_figure_is_drawn_where_the_results_page_says(tmp_path):
+    """docs/results.md: a monte-carlo trace for every output, the figure only with two or more
+    sample counts (sobol: 2 x replicates samples; samples = replicates gives one), none for
+    kl-weibull."""
+    from uqflow.execute import run_study
+    from uqflow.report import write_figures
+    from uqflow.store import open_result
+
+    def figures(name, method, relabel=None):
+        study = {**BASES["analytic"], "name": name, "solver": "analytic", "method": method,
+                 "execution": {"workers": 0}, "output": {"path": f"{name}.nc",
+                                                         "figures": False}}
+        (tmp_path / f"{name}.toml").write_text(to_toml(study) + "\n", encoding="utf-8")
+        tree = open_result(run_study(load_study(tmp_path / f"{name}.toml"),
+                                     show_progress=False).path)
+        assert "y_trace" in tree["statistics"]
+        if relabel:
+            tree["statistics"].attrs["method"] = relabel
+        return sorted(p.name for p in write_figures(tree, tmp_path / name))
+
+    one_count = {"kind": "monte-carlo", "samples": 8, "rule": "sobol", "replicates": 8}
+    two_counts = dict(one_count, samples=16)
+    assert figures("one", one_count) == ["y_histogram.png"]
+    assert figures("two", two_counts) == ["y_convergence.png", "y_histogram.png"]
+    assert figures("kl", two_counts, relabel="kl-weibull") == []
