@@ -87,3 +87,13 @@ def test_mpm_particle_counts_as_stated(scene, pattern):
     stated = int(_stated(pattern).group(1).replace(",", ""))
     solver = MPMSolver.from_scene(tomllib.loads((STUDIES / "scenes" / scene).read_text()))
     assert solver.parts.x.size == stated
+
+
+def test_sph_scenes_as_stated():
+    """The SPH example scenes the README names are the sph_*.toml files in studies/scenes."""
+    sentence = _stated(r"The corrected SPH of seed 001 has (.*?)\s+and, in `studies/sph/`").group(1)
+    named = set(re.findall(r"studies/scenes/(sph_\w+\.toml)", sentence))
+    assert named == {p.name for p in (STUDIES / "scenes").glob("sph_*.toml")}
+    numbers = sorted(int(n) for n in re.findall(r"sph_example(\d+)\.toml", " ".join(named)))
+    listed = ", ".join(map(str, numbers[:-1])) + " and " if len(numbers) > 1 else ""
+    assert f"examples {listed}{numbers[-1]} " in " ".join(sentence.split()), sentence
