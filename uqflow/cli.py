@@ -5,15 +5,27 @@ could not be written, a dask task died; the runs so far are on disk); 2 a user e
 before anything ran (study, scene, result path, scheduler), printed as one line
 ``uqflow: error: <file>: <key>: <reason>``; 3 an internal error (a bug in uqflow or a solver
 outside a realization), printed as one line ``uqflow: internal error: ...``; 130
-interrupted. No command prints a Python traceback unless ``UQFLOW_DEBUG=1`` is set.
+interrupted (Ctrl-C: one line, also under dask); 141 the output pipe was closed (below). No
+command prints a Python traceback unless ``UQFLOW_DEBUG=1`` is set.
+
+A command-line mistake (an unknown option, ``--workers abc``, ``--resume --force``) is one
+line ``uqflow: error: <option>: <reason>``, exit 2, not argparse's usage block.
+
+A closed output pipe (``uqflow list | head -2``) ends the command quietly with exit 141, the
+code a shell reports for a process that SIGPIPE ended, as ``cat`` or ``ls`` would give: a
+pipeline under ``set -o pipefail`` still sees that the output was cut short. A study whose
+summary is cut short this way has already written its result file.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import re
+import signal
 import sys
 import warnings
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 from uqflow.errors import AccuracyWarning, StudyError, UqflowError
@@ -21,15 +33,35 @@ from uqflow.errors import AccuracyWarning, StudyError, UqflowError
 EXIT_USAGE = 2
 EXIT_FAILED = 1
 EXIT_INTERNAL = 3
+EXIT_INTERRUPTED = 130
+EXIT_BROKEN_PIPE = 128 + signal.SIGPIPE  # 141, as a shell reports a process SIGPIPE ended
+
+
+class _OneLineParser(argparse.ArgumentParser):
+    """argparse's errors as one line ``uqflow: error: <option>: <reason>``, exit 2."""
+
+    def error(self, message: str):
+        message = " ".join(message.split())
+        message = re.sub(r"^argument ([^:]+): ", lambda m: f"{m.group(1).split('/')[-1]}: ",
+                         message)
+        self.exit(EXIT_USAGE, f"uqflow: error: {message} (see {self.prog} --help)\n")
+
+
+def _version() -> str:
+    try:
+        return version("uqflow")
+    except PackageNotFoundError:  # a source tree that was never installed
+        return "unknown (not installed)"
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="uqflow", description="Uncertainty propagation through "
-                                "particle solvers for solid mechanics.")
+    p = _OneLineParser(prog="uqflow", description="Uncertainty propagation through "
+                       "particle solvers for solid mechanics.")
+    p.add_argument("--version", action="version", version=f"uqflow {_version()}")
     sub = p.add_subparsers(dest="command", required=True)
 
     run = sub.add_parser("run", help="run a study file and write its result and figures")
-    run.add_argument("study", type=Path)
+    run.add_argument("study", type=Path, help="the study file (TOML) to run")
     run.add_argument("-o", "--output", type=Path, default=None, metavar="PATH",
                      help="write the result here instead of the study's [output] path "
                      "(figures beside it; --resume and --force apply to it)")
@@ -45,14 +77,17 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--quiet", action="store_true", help="no progress bar")
 
     val = sub.add_parser("validate", help="check study files without running them")
-    val.add_argument("studies", type=Path, nargs="+")
+    val.add_argument("studies", type=Path, nargs="+", metavar="study",
+                     help="study files (TOML); each is checked and gets one line, ok or its "
+                          "error")
 
     rep = sub.add_parser("report", help="print the table and redraw the figures of results; "
                          "a solver may add a comparison across several results")
-    rep.add_argument("results", type=Path, nargs="+")
+    rep.add_argument("results", type=Path, nargs="+", metavar="result",
+                     help="result files (.nc) written by uqflow run")
     rep.add_argument("--figures", type=Path, default=None,
                      help="folder for the PNG figures (default: beside the result)")
-    rep.add_argument("--no-figures", action="store_true")
+    rep.add_argument("--no-figures", action="store_true", help="write no PNG figures")
     rep.add_argument("--time", type=float, default=None, metavar="SECONDS",
                      help="the output time of a solver's comparison tables (MPM: default the "
                           "last output time)")
@@ -100,18 +135,57 @@ def _run(args) -> int:
 
 
 def _validate(args) -> int:
+    """Check every file given, one line each (``ok`` on stdout, the error on stderr); exit 2
+    if any failed."""
     from uqflow.study import load_study
 
+    failed = 0
     for path in args.studies:
-        study = load_study(path)
+        try:
+            study = load_study(path)
+        except StudyError as exc:
+            print(f"uqflow: error: {exc}", file=sys.stderr)
+            failed += 1
+            continue
         print(f"{path}: ok ({study.spec.solver}, {study.spec.method.kind}, "
-              f"{len(study.space)} random inputs, outputs {', '.join(study.outputs)})")
-    return 0
+              f"{_uncertain_inputs(study)}, outputs {', '.join(study.outputs)})")
+    return EXIT_USAGE if failed else 0
+
+
+def _uncertain_inputs(study) -> str:
+    """'3 random inputs' and, when the study has them, ', 2 random fields (E, rho)'."""
+    n = len(study.space)
+    text = f"{n} random input{'' if n == 1 else 's'}"
+    if study.fields:
+        names = ", ".join(f.name for f in study.fields)
+        text += f", {len(study.fields)} random field{'' if len(study.fields) == 1 else 's'} " \
+                f"({names})"
+    return text
 
 
 def _report(args) -> int:
+    """Tables of every result, then figures. A figures folder that cannot be written still
+    gets the tables printed, then one line naming the folder, exit 2."""
     from uqflow import report
     from uqflow.report_levels import cost_comparison
+
+    if args.figures is not None and not args.no_figures and args.figures.exists() \
+            and not args.figures.is_dir():
+        raise StudyError(f"{args.figures}: is a file, not a folder for the figures",
+                         key="--figures")
+    cannot: list[str] = []  # why figures could not be written, once it happened
+
+    def draw(folder, make):
+        """``make(figures)`` with figures on until one failed; on a write failure the same
+        again without figures, so its text is still printed."""
+        if args.no_figures or cannot:
+            return make(False)
+        try:
+            return make(True)
+        except OSError as exc:
+            where = exc.filename or folder
+            cannot.append(f"{where}: cannot write the figures: {exc.strerror or exc}")
+            return make(False)
 
     trees = []
     for path in args.results:
@@ -119,30 +193,30 @@ def _report(args) -> int:
         trees.append(tree)
         if len(args.results) > 1:
             print(f"== {path}")
-        print(report.summary_table(tree))
+        try:
+            print(report.summary_table(tree))
+        except StudyError as exc:  # a result file that is not what uqflow writes
+            raise exc.located(str(path)) from None
         notes = tree["statistics"].attrs.get("warnings", "") \
             if "statistics" in tree.children else ""
         for message in filter(None, notes.split("\n")):
             print(f"warning: {message}", file=sys.stderr)
-        if not args.no_figures:
-            folder = args.figures or report.figure_folder(path)
-            for fig in report.write_figures(tree, folder):
-                print(f"figure: {fig}")
-    text, figures = report.solver_report(trees, args.figures or
-                                         report.figure_folder(args.results[0]).parent,
-                                         figures=not args.no_figures, time=args.time,
-                                         reference=args.reference)
-    if text:
-        print(text)
-    for fig in figures:
-        print(f"figure: {fig}")
-    text, figures = cost_comparison(trees, args.figures or
-                                    report.figure_folder(args.results[0]).parent,
-                                    figures=not args.no_figures)
-    if text:
-        print(text)
-    for fig in figures:
-        print(f"figure: {fig}")
+        folder = args.figures or report.figure_folder(path)
+        for fig in draw(folder, lambda on: report.write_figures(tree, folder) if on else []):
+            print(f"figure: {fig}")
+    shared = args.figures or report.figure_folder(args.results[0]).parent
+    for make in (lambda on: report.solver_report(trees, shared, figures=on, time=args.time,
+                                                 reference=args.reference),
+                 lambda on: cost_comparison(trees, shared, figures=on)):
+        text, figures = draw(shared, make)
+        if text:
+            print(text)
+        for fig in figures:
+            print(f"figure: {fig}")
+    if cannot:
+        print(f"uqflow: error: {cannot[0]} (the tables above are complete; choose a folder "
+              f"with --figures or leave them out with --no-figures)", file=sys.stderr)
+        return EXIT_USAGE
     return 0
 
 
@@ -163,7 +237,11 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     handler = {"run": _run, "validate": _validate, "report": _report, "list": _list}
     try:
-        return handler[args.command](args)
+        code = handler[args.command](args)
+        sys.stdout.flush()  # a closed pipe shows here, not at exit
+        return code
+    except BrokenPipeError:
+        return _closed_pipe()
     except StudyError as exc:
         if os.environ.get("UQFLOW_DEBUG"):
             raise
@@ -176,7 +254,7 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_FAILED
     except KeyboardInterrupt:
         print("uqflow: interrupted; finish with --resume", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     except Exception as exc:  # last line of defence: a bug must still read as one line
         if os.environ.get("UQFLOW_DEBUG"):
             raise
@@ -184,6 +262,18 @@ def main(argv: list[str] | None = None) -> int:
               f"(a bug: rerun with UQFLOW_DEBUG=1 for the traceback and report it)",
               file=sys.stderr)
         return EXIT_INTERNAL
+
+
+def _closed_pipe() -> int:
+    """The reader of stdout went away: end quietly. What is still buffered for stdout cannot
+    be written; pointing stdout at /dev/null keeps Python's flush at exit from reporting it."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError):  # stdout without a file descriptor (a test's capture)
+        pass
+    return EXIT_BROKEN_PIPE
 
 
 if __name__ == "__main__":

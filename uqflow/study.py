@@ -361,8 +361,10 @@ def validation_error(exc: ValidationError, file: str, prefix: str = "",
 
 
 def read_toml(path: Path, file_label: str) -> tuple[dict, str]:
+    """A TOML file (study or scene) and its text. UTF-8, with or without the byte-order mark
+    some Windows editors write (TOML itself does not allow one)."""
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8-sig")
     except FileNotFoundError:
         raise StudyError("file not found", file=file_label) from None
     except (OSError, UnicodeDecodeError) as exc:
