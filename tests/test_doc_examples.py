@@ -538,3 +538,97 @@ def test_the_convergence_figure_is_drawn_where_the_results_page_says(tmp_path):
     assert figures("one", one_count) == ["y_histogram.png"]
     assert figures("two", two_counts) == ["y_convergence.png", "y_histogram.png"]
     assert figures("kl", two_counts, relabel="kl-weibull") == []
+
+
+# ----------------------------------------------------------------------------- error lines
+# The one-line errors the pages show for studies/plate.toml and studies/bad.toml, each made
+# by the study it describes and compared with what the command prints.
+ERROR_LINE = re.compile(r"(?:uqflow: error: )?(studies/(?:plate|bad)\.toml: [^`\n]+)")
+_TWO_NORMALS = """
+[[inputs]]
+name = "x1"
+distribution = "normal"
+mean = 1.0
+std = 0.1
+
+[[inputs]]
+name = "x2"
+distribution = "normal"
+mean = 1.0
+std = 0.1
+"""
+_CORRELATION = '\n[correlation]\ninputs = ["x1", "x2"]\nmatrix = [[1.0, {r}], [{r}, 1.0]]\n'
+ERROR_CASES = {   # (file, key) -> (command, the study's tables after its solver and scene)
+    ("bad", "inputs[0].cv"): ("validate", '\n[[inputs]]\nname = "x1"\ndistribution = "normal"'
+                              '\nmean = 1.0\ncv = -0.1\n\n[method]\nkind = "monte-carlo"\n'),
+    ("plate", "inputs[1].upper"): ("validate", _TWO_NORMALS.rsplit("[[inputs]]", 1)[0]
+                                   + '[[inputs]]\nname = "x2"\ndistribution = "uniform"\n'
+                                     'lower = 0.0\nupper = 0.0\n\n[method]\n'
+                                     'kind = "monte-carlo"\n'),
+    ("plate", "method.samples"): ("validate", _TWO_NORMALS + '\n[method]\nkind = "monte-carlo"'
+                                              '\nsamples = "many"\n'),
+    ("plate", "correlation.matrix"): ("validate", _TWO_NORMALS + _CORRELATION.format(r=1.0)
+                                      + '\n[method]\nkind = "monte-carlo"\n'),
+    ("plate", "method.kind"): ("validate", _TWO_NORMALS + _CORRELATION.format(r=0.5)
+                               + '\n[method]\nkind = "sobol"\n'),
+    ("plate", "output.path"): ("run", _TWO_NORMALS + '\n[method]\nkind = "monte-carlo"\n'
+                                                     'samples = 4\n'),
+}
+
+
+def documented_error_lines() -> list[tuple[str, str]]:
+    return [(page.name, line.strip()) for page in PAGES
+            for line in ERROR_LINE.findall(page.read_text(encoding="utf-8"))]
+
+
+def printed_error(case: tuple[str, str], folder: Path, capsys) -> str:
+    name, _ = case
+    command, tables = ERROR_CASES[case]
+    (folder / "studies").mkdir(exist_ok=True)
+    study = folder / "studies" / f"{name}.toml"
+    study.write_text(f'name = "{name}"\nsolver = "analytic"\nscene = {{ model = "linear", '
+                     f'coefficients = [1.0, 1.0] }}\n{tables}', encoding="utf-8")
+    if case[1] == "output.path":                  # a result already there
+        (folder / "studies" / "results").mkdir(exist_ok=True)
+        (folder / "studies" / "results" / f"{name}.nc").write_bytes(b"")
+    capsys.readouterr()
+    code = main([command, f"studies/{name}.toml"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2, err
+    return err.replace(str(folder.resolve()) + "/", "/home/me/project/")
+
+
+def test_the_pages_show_error_lines():
+    shown = documented_error_lines()
+    assert len(shown) >= 7
+    assert {page for page, _ in shown} >= {"README.md", "inputs.md", "study-files.md"}
+
+
+@pytest.mark.parametrize("page, line", documented_error_lines())
+def test_a_documented_error_line_is_what_uqflow_prints(page, line, tmp_path, monkeypatch,
+                                                      capsys):
+    file, key = re.match(r"studies/(\w+)\.toml: ([^:]+):", line).groups()
+    assert (file, key) in ERROR_CASES, f"{page}: add a case for {file}.toml {key}"
+    monkeypatch.chdir(tmp_path)
+    assert printed_error((file, key), tmp_path, capsys) == f"uqflow: error: {line}"
+
+
+# ----------------------------------------------------------------------------- named files
+NAMED_PATH = re.compile(r"(?<![\w/.$])((?:tests|uqflow|solvers|studies|benchmarks|docs|figures|"
+                        r"shared|\.ci)/[\w./-]*[\w])(?![\w{*\[])")
+# error examples: the study is described, not shipped (test_a_documented_error_line_...)
+EXAMPLE_FILES = {"studies/plate.toml", "studies/bad.toml"}
+
+
+def test_every_file_a_page_names_exists():
+    """A page names files of this project only (nothing outside it, such as a shared folder),
+    and each exists, or is a `# file:` block of that page or an error example."""
+    for page in PAGES:
+        text = page.read_text(encoding="utf-8")
+        shown = {b.marker[1] for b in BLOCKS if b.page == page and b.marker[0] == "file"}
+        for named in set(NAMED_PATH.findall(text)):
+            if named in EXAMPLE_FILES or named in shown:
+                continue
+            assert any((base / named).exists() for base in (ROOT, ROOT / "docs",
+                                                             ROOT / "studies")), \
+                f"{page.name} names {named}, which is not in the project"
