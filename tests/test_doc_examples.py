@@ -632,3 +632,24 @@ def test_every_file_a_page_names_exists():
             assert any((base / named).exists() for base in (ROOT, ROOT / "docs",
                                                              ROOT / "studies")), \
                 f"{page.name} names {named}, which is not in the project"
+
+
+def test_every_design_variable_is_on_the_results_page(tmp_path):
+    """docs/results.md, group runs: each variable and coordinate a method's design adds (over
+    the shipped analytic studies, and Monte Carlo with a control variate) is named there."""
+    from uqflow.study import load_study as load
+    text = RESULTS_PAGE.read_text(encoding="utf-8")
+    section = text[text.index("## Group `runs`"):text.index("## Group `statistics`")]
+    paths = [p for p in sorted((ROOT / "studies").rglob("*.toml")) if "scenes" not in p.parts
+             and tomllib.loads(p.read_text(encoding="utf-8")).get("solver") == "analytic"]
+    controlled = {**BASES["analytic"], "name": "controlled", "solver": "analytic",
+                  "method": {"kind": "monte-carlo", "samples": 16, "control": "taylor"}}
+    (tmp_path / "controlled.toml").write_text(to_toml(controlled) + "\n", encoding="utf-8")
+    named = set()
+    for path in [*paths, tmp_path / "controlled.toml"]:
+        study = load(path)
+        design = study.method.plan(study.space, study.fields, np.random.SeedSequence(0))
+        named |= set(design.data_vars) | set(design.coords)
+    assert {"role", "level", "stencil"} <= named
+    for name in sorted(named):
+        assert f"`{name}`" in section, f"docs/results.md, group runs, does not name {name}"
