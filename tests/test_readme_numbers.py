@@ -97,3 +97,11 @@ def test_sph_scenes_as_stated():
     numbers = sorted(int(n) for n in re.findall(r"sph_example(\d+)\.toml", " ".join(named)))
     listed = ", ".join(map(str, numbers[:-1])) + " and " if len(numbers) > 1 else ""
     assert f"examples {listed}{numbers[-1]} " in " ".join(sentence.split()), sentence
+
+
+def test_result_file_versions_as_stated():
+    """The packages whose versions the README says a result records are those it records."""
+    from uqflow.store import versions
+    listed = _stated(r"versions of (.*?),\s+`complete`").group(1)
+    names = {n.strip() for n in re.split(r",|\band\b", " ".join(listed.split())) if n.strip()}
+    assert names == {key.removeprefix("version_") for key in versions()}
