@@ -17,6 +17,15 @@
    kappa_± = [sum_i f_i / (kappa_i + mu_ref)]^-1 - mu_ref, mu_ref = max / min mu_i;
    mu_± = [sum_i f_i / (mu_i + z)]^-1 - z, z = mu k / (k + 2 mu) at (max k, max mu) / (min, min);
    and the in-plane Young's modulus E_2D = 4 kappa mu / (kappa + mu), monotone in both.
+   They bound the *effective* modulus of a statistically isotropic composite, not the apparent
+   modulus of one finite window (docs/sph.md § 8).
+3. Voigt–Reuss bounds of one window's apparent modulus under the solver's tension test (u_y
+   prescribed on top and bottom, no shear traction there, free sides):
+   E_Reuss = 1 / <S_yy>,  S_yy = C11 / (C11² - C12²)  (plane strain: (1 - nu²)/E),
+   E_Voigt = <C11> - <C12>² / <C11>,  C11 = lam + 2 mu, C12 = lam (in-plane Lamé constants),
+   <.> the area average. The uniform uniaxial stress is statically admissible (complementary
+   energy: Reuss below), the uniform strain (eps_xx chosen best) kinematically admissible
+   (potential energy: Voigt above), for every arrangement of the phases.
 """
 
 from __future__ import annotations
@@ -91,3 +100,16 @@ def hashin_shtrikman_2d(fraction, E_inclusion, nu_inclusion, E_matrix, nu_matrix
     young = lambda kk, mm: 4.0 * kk * mm / (kk + mm)  # noqa: E731
     return {"kappa": (k_lo, k_hi), "mu": (m_lo, m_hi),
             "E_2D": (young(k_lo, m_lo), young(k_hi, m_hi))}
+
+
+def voigt_reuss_2d(volume, E, nu, state="plane_strain"):
+    """(Reuss, Voigt) bounds of the apparent in-plane Young's modulus sigma_yy/eps_yy of a
+    window under the tension test, for per-particle moduli ``E``, ``nu`` weighted by the
+    particle ``volume`` (each phase's particles share its exact area)."""
+    w = np.asarray(volume, dtype=float)
+    w = w / w.sum()
+    lam, mu = lame(E, nu, state)
+    c11, c12 = lam + 2.0 * mu, lam
+    compliance = c11 / ((c11 - c12) * (c11 + c12))
+    mean11, mean12 = float(np.dot(w, c11)), float(np.dot(w, c12))
+    return 1.0 / float(np.dot(w, compliance)), mean11 - mean12 * mean12 / mean11

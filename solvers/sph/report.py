@@ -1,12 +1,23 @@
-"""`uqflow report` on sph results: the effective modulus against its Hashin–Shtrikman bounds,
-the macroscopic stress–strain envelope, and the probability that an inclusion has fully
-debonded by each strain, with its binomial standard error (docs/sph.md § 10)."""
+"""`uqflow report` on sph results (docs/sph.md § 10): per realization, the apparent modulus
+against its own Voigt–Reuss bounds; the ensemble's mean modulus, with its Monte Carlo standard
+error, against the Hashin–Shtrikman bounds; the macroscopic stress–strain envelope; and the
+proportion of realizations with a fully debonded inclusion by each strain, with its exact
+(Clopper–Pearson) interval. A multilevel or multifidelity result is reported level by level:
+its levels are different discretisations, not one sample."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
+from scipy import stats
+
+#: confidence of the interval of a proportion
+CONFIDENCE = 0.95
+#: the runs' variable naming the level of a multilevel/multifidelity result (uqflow.levels)
+LEVEL = "level"
+#: |mean - bound| within this many standard errors counts as consistent with the bound
+HS_STANDARD_ERRORS = 2.0
 
 
 def _runs(tree):
@@ -16,14 +27,70 @@ def _runs(tree):
         return None
     if "effective_modulus" not in runs or "status" not in runs:
         return None
-    return runs.isel(realization=np.flatnonzero(runs.status.values == "ok"))
+    keep = runs.status.values == "ok"
+    if "role" in runs:
+        keep &= runs.role.values != "control"     # a control-variate run is not a sample
+    return runs.isel(realization=np.flatnonzero(keep))
 
 
-def detach_probability(runs):
-    """P(at least one inclusion detached by step k) and its binomial standard error."""
+def clopper_pearson(k, n, confidence: float = CONFIDENCE):
+    """Exact two-sided interval of a binomial proportion with ``k`` successes in ``n`` trials
+    (arrays broadcast): the beta quantiles; 0 below at k = 0 and 1 above at k = n."""
+    k, n = np.asarray(k), np.asarray(n)
+    alpha = 1.0 - confidence
+    with np.errstate(invalid="ignore"):
+        lo = np.where(k > 0, stats.beta.ppf(alpha / 2, k, n - k + 1), 0.0)
+        hi = np.where(k < n, stats.beta.ppf(1 - alpha / 2, k + 1, n - k), 1.0)
+    return lo, hi
+
+
+def detach_counts(runs):
+    """Per step: realizations with at least one inclusion detached, and the realizations."""
     detached = runs.detached_inclusions.values > 0            # (realization, step)
-    p = detached.mean(axis=0)
-    return p, np.sqrt(p * (1.0 - p) / max(detached.shape[0], 1))
+    return detached.sum(axis=0), detached.shape[0]
+
+
+def _level_groups(runs):
+    """(label, runs) per level of a multilevel/multifidelity result, else one group."""
+    if LEVEL not in runs:
+        return [("", runs)]
+    levels = np.asarray(runs[LEVEL].values)
+    return [(f"level {int(lv)}", runs.isel(realization=np.flatnonzero(levels == lv)))
+            for lv in np.unique(levels)]
+
+
+def _modulus_lines(runs) -> list[str]:
+    E = runs.effective_modulus.values
+    n = E.size
+    sd = E.std(ddof=1) if n > 1 else np.nan
+    se = sd / np.sqrt(n)
+    lines = [f"  effective modulus  mean {E.mean():.6g} Pa, std {sd:.4g} Pa, "
+             f"stderr of the mean {se:.3g} Pa"]
+    if "modulus_reuss_bound" in runs:
+        reuss, voigt = runs.modulus_reuss_bound.values, runs.modulus_voigt_bound.values
+        inside = np.count_nonzero((E >= reuss) & (E <= voigt))
+        lines.append(f"  within its own Voigt-Reuss bounds (each window, its phase areas): "
+                     f"{inside} of {n}")
+    if "modulus_hs_lower" in runs:
+        lo, hi = runs.modulus_hs_lower.values.mean(), runs.modulus_hs_upper.values.mean()
+        if n > 1:
+            margin = min(E.mean() - lo, hi - E.mean())
+            gap = margin / se if se > 0 else np.copysign(np.inf, margin)
+            verdict = ("within" if gap >= 0 else
+                       "consistent with (within 2 standard errors of)"
+                       if gap >= -HS_STANDARD_ERRORS else "outside")
+            lines.append(f"  ensemble mean {verdict} the Hashin-Shtrikman bounds [{lo:.6g}, "
+                         f"{hi:.6g}] Pa of the volume fraction (mean/lower "
+                         f"{E.mean() / lo:.4f} ± {se / lo:.4f}); HS bounds the effective "
+                         f"modulus, not each window")
+    return lines
+
+
+def _debond_line(runs) -> str:
+    k, n = detach_counts(runs)
+    lo, hi = clopper_pearson(k[-1], n)
+    return (f"  P(an inclusion fully debonded by strain {runs.strain.values[0, -1]:.4g}): "
+            f"{int(k[-1])} of {n}, {CONFIDENCE:.0%} CI [{lo:.3g}, {hi:.3g}] (Clopper-Pearson)")
 
 
 def report(trees, folder, figures: bool = True) -> tuple[str, list[Path]]:
@@ -32,21 +99,18 @@ def report(trees, folder, figures: bool = True) -> tuple[str, list[Path]]:
         runs = _runs(tree)
         if runs is None or runs.sizes.get("realization", 0) == 0:
             continue
-        E = runs.effective_modulus.values
-        lo, hi = runs.modulus_lower_bound.values, runs.modulus_upper_bound.values
-        n = E.size
-        p, se = detach_probability(runs)
         name = tree.attrs.get("study_name", f"result {k}")
-        parts.append(
-            f"{name}: {n} realizations\n"
-            f"  effective modulus  mean {E.mean():.6g} Pa, std {E.std(ddof=1) if n > 1 else 0:.4g} "
-            f"Pa, stderr of the mean {(E.std(ddof=1) / np.sqrt(n)) if n > 1 else 0:.3g} Pa\n"
-            f"  within the Hashin-Shtrikman bounds of its volume fraction: "
-            f"{np.count_nonzero((E > lo) & (E < hi))} of {n}\n"
-            f"  P(an inclusion fully debonded by strain {runs.strain.values[0, -1]:.4g}) = "
-            f"{p[-1]:.3f} ± {se[-1]:.3f}")
-        if figures:
-            pngs += _figures(runs, Path(folder), f"sph_{k}")
+        groups = _level_groups(runs)
+        if len(groups) > 1 or groups[0][0]:
+            parts.append(f"{name}: {runs.sizes['realization']} runs over {len(groups)} levels, "
+                         f"reported per level (each level a discretisation of its own)")
+        for label, group in groups:
+            head = f"{name}, {label}" if label else name
+            parts.append("\n".join([f"{head}: {group.sizes['realization']} realizations",
+                                    *_modulus_lines(group), _debond_line(group)]))
+            if figures:
+                stem = f"sph_{k}" + (f"_{label.replace(' ', '')}" if label else "")
+                pngs += _figures(group, Path(folder), stem)
     return "\n\n".join(parts), pngs
 
 
@@ -66,16 +130,25 @@ def _figures(runs, folder, stem):
     axes[0].set(xlabel="applied strain", ylabel="mean σ_yy (kPa)", title="stress–strain")
     axes[0].legend()
     vf = runs.volume_fraction.values
-    axes[1].vlines(vf, runs.modulus_lower_bound.values / 1e6,
-                   runs.modulus_upper_bound.values / 1e6, color="0.7", label="HS bounds")
-    axes[1].plot(vf, runs.effective_modulus.values / 1e6, "o", label="effective modulus")
-    axes[1].set(xlabel="volume fraction", ylabel="MPa", yscale="log",
-                title="effective modulus")
-    axes[1].legend()
-    p, se = detach_probability(runs)
-    axes[2].errorbar(strain, p, yerr=se, fmt="-o", ms=3)
+    if "modulus_reuss_bound" in runs:
+        axes[1].vlines(vf, runs.modulus_reuss_bound.values / 1e6,
+                       runs.modulus_voigt_bound.values / 1e6, color="0.7",
+                       label="Voigt–Reuss (each window)")
+    if "modulus_hs_lower" in runs:
+        order = np.argsort(vf)
+        for var, style in (("modulus_hs_lower", "--"), ("modulus_hs_upper", ":")):
+            axes[1].plot(vf[order], runs[var].values[order] / 1e6, style, color="C1",
+                         label="Hashin–Shtrikman (effective)" if style == "--" else None)
+    axes[1].plot(vf, runs.effective_modulus.values / 1e6, "o", label="apparent modulus")
+    axes[1].set(xlabel="volume fraction", ylabel="modulus (MPa)", yscale="log",
+                title="apparent modulus")
+    axes[1].legend(fontsize=8)
+    k, n = detach_counts(runs)
+    lo, hi = clopper_pearson(k, n)
+    p = k / n
+    axes[2].errorbar(strain, p, yerr=[p - lo, hi - p], fmt="-o", ms=3)
     axes[2].set(xlabel="applied strain", ylabel="P(an inclusion fully debonded)",
-                ylim=(-0.05, 1.05), title="full debonding")
+                ylim=(-0.05, 1.05), title=f"full debonding ({CONFIDENCE:.0%} Clopper–Pearson)")
     fig.tight_layout()
     path = folder / f"{stem}_composite.png"
     fig.savefig(path, dpi=110)

@@ -9,6 +9,8 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+import numpy as np
+
 from solvers.sph.kernel import KERNELS
 from solvers.sph.problem import INTEGRATIONS, METHODS
 from solvers.sph.stiffness import STATES
@@ -150,6 +152,39 @@ def _random(v):
                       gap)
 
 
+def _particle_estimate(layout, width, height, outer, spacing) -> float:
+    """Particles of the lattice (or rings), per axis so that neither an underflowing
+    spacing² nor a plate thinner than one spacing hides the count (inf when it overflows)."""
+    with np.errstate(over="ignore"):
+        if layout == "polar":
+            return float(np.pi * np.float64(outer / spacing) ** 2 + 1.0)
+        return float((np.float64(width / spacing) + 1.0) * (np.float64(height / spacing) + 1.0))
+
+
+def _check_fits(inc: InclusionSpec, k: int, layout, width, height, outer):
+    """The ellipse inside the plate (or inside the polar disc): its interface particles are
+    counted from its perimeter, which an ellipse beyond the domain would make unbounded."""
+    a, b = inc.semi_axes
+    key = f"inclusions[{k}]"
+    if layout == "polar":
+        if not a < outer:
+            raise scene_error(f"{key}.semi_axes", f"radius {a:.4g} m is not inside the disc "
+                                                  f"of outer_radius {outer:.4g} m")
+        return
+    t = math.radians(inc.angle_deg)
+    # half extents of the rotated ellipse (hypot: no overflow of a² at 1e308)
+    ex = math.hypot(a * math.cos(t), b * math.sin(t))
+    ey = math.hypot(a * math.sin(t), b * math.cos(t))
+    if not (2.0 * ex < width and 2.0 * ey < height):
+        raise scene_error(f"{key}.semi_axes", f"an ellipse {2 * ex:.4g} x {2 * ey:.4g} m across "
+                                              f"does not fit the {width:.4g} x {height:.4g} m "
+                                              f"plate")
+    cx, cy = inc.centre
+    if not (abs(cx) + ex < 0.5 * width and abs(cy) + ey < 0.5 * height):
+        raise scene_error(f"{key}.centre", f"the ellipse at {[cx, cy]!r} reaches beyond the "
+                                           f"plate (the plate is centred at [0, 0])")
+
+
 def parse(scene: Mapping) -> Config:
     """Validate ``scene`` and return its Config (geometry checks beyond single keys — overlap,
     distance to the boundary, supports — happen when the layout is built)."""
@@ -175,10 +210,15 @@ def parse(scene: Mapping) -> Config:
         width = number(s["width"], "width", positive=True)
         height = number(s["height"], "height", positive=True)
         area = width * height
-    if area / spacing ** 2 > MAX_PARTICLES:
+    count = _particle_estimate(layout, width, height, outer, spacing)
+    if not count <= MAX_PARTICLES:
         raise scene_error("spacing" if resolution == 1.0 else "resolution",
-                          f"about {area / spacing ** 2:,.0f} particles; at most {MAX_PARTICLES:,}")
+                          f"about {count:,.0f} particles; at most {MAX_PARTICLES:,}"
+                          if count < 1e15 else f"about {count:.3g} particles; at most "
+                                               f"{MAX_PARTICLES:,}")
     inclusions = _inclusions(s.get("inclusions", []))
+    for k, inc in enumerate(inclusions):
+        _check_fits(inc, k, layout, width, height, outer)
     rnd = None
     if layout == "random":
         if "random" not in s:
@@ -187,6 +227,11 @@ def parse(scene: Mapping) -> Config:
             raise scene_error("inclusions", "is not used by layout = \"random\" (its inclusions "
                                             "come from [random])")
         rnd = _random(s["random"])
+        widest = max(rnd.semi_axes_max)
+        if not 2.0 * widest < min(width, height):
+            raise scene_error("random.semi_axes_max", f"an ellipse {2 * widest:.4g} m across "
+                                                      f"does not fit the {width:.4g} x "
+                                                      f"{height:.4g} m plate")
     elif "random" in s:
         raise scene_error("random", f"applies only to layout = \"random\", not {layout!r}")
     if layout == "polar" and (len(inclusions) != 1 or inclusions[0].centre != (0.0, 0.0)
@@ -221,6 +266,10 @@ def parse(scene: Mapping) -> Config:
     steps = integer(s.get("steps", 1), "steps", 1, MAX_STEPS)
     if loading == "tension" and "step" not in s:
         raise scene_error("step", "is required by loading = \"tension\" (m per load step)")
+    step = number(s.get("step", 0.0), "step", nonnegative=True)
+    if loading == "tension" and layout != "polar" and not 2.0 * step * steps <= height:
+        raise scene_error("step", f"{steps} steps of {step:.4g} m stretch the {height:.4g} m "
+                                  f"plate by more than 100 %: outside small strain")
     return Config(
         layout=layout, width=width, height=height, outer_radius=outer, spacing=spacing,
         inclusions=inclusions, random=rnd,
@@ -243,4 +292,4 @@ def parse(scene: Mapping) -> Config:
         loading=loading,
         eigenstrain=number(s.get("eigenstrain", 0.01), "eigenstrain", lo=-0.5, hi=0.5),
         eigenstrain_mode=mode, edge=edge,
-        step=number(s.get("step", 0.0), "step", nonnegative=True), steps=steps)
+        step=step, steps=steps)

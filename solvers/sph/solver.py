@@ -25,6 +25,10 @@ from uqflow.solver import Solver, register_solver
 UNITS = {"matrix.E": "Pa", "matrix.nu": "", "inclusion.E": "Pa", "inclusion.nu": "",
          "interface.strength": "Pa", "load.eigenstrain": ""}
 FIELDS = ("matrix.E", "inclusion.E", "interface.strength")
+#: outputs that describe the computation, not the composite: the Solver contract's
+#: ``output_kind = "diagnostic"`` (stored in the runs; no statistics, figures or allocation)
+DIAGNOSTICS = ("particles", "constraint_residual", "pair_error", "time_neighbours",
+               "time_assembly", "time_transformation", "time_solve")
 #: random sequential addition: placements tried per inclusion before giving up
 ATTEMPTS_PER_INCLUSION = 2_000
 
@@ -165,11 +169,16 @@ class SPHSolver(Solver):
                          "intact_pairs": (("step",), np.full(c.steps, nan), "1"),
                          "detached_inclusions": (("step",), np.full(c.steps, nan), "1"),
                          "effective_modulus": ((), nan, "Pa"),
-                         "modulus_lower_bound": ((), nan, "Pa"),
-                         "modulus_upper_bound": ((), nan, "Pa"),
+                         "modulus_reuss_bound": ((), nan, "Pa"),
+                         "modulus_voigt_bound": ((), nan, "Pa"),
+                         "modulus_hs_lower": ((), nan, "Pa"),
+                         "modulus_hs_upper": ((), nan, "Pa"),
                          "inclusion_detach_step": (("inclusion",), np.full(n_incl, nan), "1")})
             coords.update({"step": np.arange(1, c.steps + 1), "inclusion": np.arange(n_incl)})
-        return xr.Dataset({k: xr.Variable(d, v, {"units": u}) for k, (d, v, u) in data.items()},
+        def attrs(name, unit):
+            kind = {"output_kind": "diagnostic"} if name in DIAGNOSTICS else {}
+            return {"units": unit, **kind}
+        return xr.Dataset({k: xr.Variable(d, v, attrs(k, u)) for k, (d, v, u) in data.items()},
                           coords=coords)
 
     # -- one realization -------------------------------------------------------------------
@@ -290,17 +299,24 @@ class SPHSolver(Solver):
 
 
 def _bounds(layout, E, nu, state) -> dict:
-    """Hashin–Shtrikman bounds of the in-plane Young's modulus for this run's volume fraction;
-    with moduli varying over the particles (fields), the lower bound takes each phase's
-    softest and the upper its stiffest (HS bounds grow with the phase moduli)."""
+    """Bounds of the apparent in-plane Young's modulus of this window.
+
+    Voigt–Reuss (area averages of the particles' own moduli) bound it for every arrangement
+    of the phases under the tension test's boundary conditions. Hashin–Shtrikman, for the
+    window's volume fraction, bound the *effective* modulus of a statistically isotropic
+    composite, which only the ensemble of windows estimates (docs/sph.md § 8); with moduli
+    varying over the particles (fields) the HS lower bound takes each phase's softest and
+    the upper its stiffest (HS bounds grow with the phase moduli)."""
     inside = layout.phase > 0
+    reuss, voigt = exact.voigt_reuss_2d(layout.volume, E, nu, state)
     lo = exact.hashin_shtrikman_2d(layout.volume_fraction, E[inside].min(),
                                    nu[inside].mean(), E[~inside].min(), nu[~inside].mean(),
                                    state)["E_2D"][0]
     hi = exact.hashin_shtrikman_2d(layout.volume_fraction, E[inside].max(),
                                    nu[inside].mean(), E[~inside].max(), nu[~inside].mean(),
                                    state)["E_2D"][1]
-    return {"modulus_lower_bound": float(lo), "modulus_upper_bound": float(hi)}
+    return {"modulus_reuss_bound": reuss, "modulus_voigt_bound": voigt,
+            "modulus_hs_lower": float(lo), "modulus_hs_upper": float(hi)}
 
 
 def _variant(c: Config) -> str:

@@ -80,15 +80,6 @@ def example1_table(spacing=2.0):
     return rows
 
 
-if __name__ == "__main__":
-    print("| method | parameter | radial error | pair error | symmetry error | condition |")
-    print("|---|---|---|---|---|---|")
-    for row in example1_table():
-        p = row.get("threshold", row.get("penalty", ""))
-        print(f"| {row['method']} | {p} | {row['radial_error']:.2e} | {row['pair_error']:.1e} "
-              f"| {row['symmetry_error']:.1e} | {row['condition']:.1e} |")
-
-
 def rigid_rotation(x, u):
     """Least-squares rigid rotation (radians) of displacements ``u`` at points ``x``."""
     p = x - x.mean(axis=0)
@@ -120,3 +111,56 @@ def example2_rotations(layout, inclusion: int, kept_pairs, methods, pull=0.05e-6
         out[(method, penalty)] = rigid_rotation(layout.x[members],
                                                 sol.displacement[members]) / strain
     return out
+
+
+def study_realization_seed(study_seed: int, index: int) -> int:
+    """The layout seed uqflow gives realization ``index`` of a study seeded ``study_seed``
+    (uqflow.execute: a SeedSequence spawned by realization index)."""
+    return int(np.random.SeedSequence(study_seed, spawn_key=(index,)).generate_state(1)[0])
+
+
+def window_refinement(scene: dict, layout_seed: int, resolutions=(1, 2, 3, 4),
+                      methods=("master-slave-local", "master-slave"), params=None):
+    """The apparent modulus of one random window, its ellipses held fixed, at finer spacings:
+    rows (method, resolution, particles, E, E/HS lower, E/Reuss, E/Voigt)."""
+    import math
+
+    from solvers.sph.solver import SPHSolver
+    base = dict(scene, steps=1)
+    layout = SPHSolver.from_scene(base)._layout(layout_seed)
+    fixed = dict(base, layout="regular",
+                 inclusions=[dict(centre=[e.cx, e.cy], semi_axes=[e.a, e.b],
+                                  angle_deg=math.degrees(e.angle)) for e in layout.inclusions])
+    fixed.pop("random", None)
+    rows = []
+    for method in methods:
+        for r in resolutions:
+            ds = SPHSolver.from_scene(dict(fixed, constraints=method, resolution=float(r))) \
+                .run(params or {})
+            E = ds.effective_modulus.item()
+            rows.append((method, r, int(ds.particles.item()), E, E / ds.modulus_hs_lower.item(),
+                         E / ds.modulus_reuss_bound.item(), E / ds.modulus_voigt_bound.item()))
+    return rows
+
+
+if __name__ == "__main__":
+    import sys
+    if sys.argv[1:] == ["--window"]:
+        # docs/sph.md § 8: realization 2 of studies/sph/composite_mc.toml (study seed 2021)
+        import tomllib
+        from pathlib import Path
+        with open(Path(__file__).parents[2] / "studies/scenes/sph_example3.toml", "rb") as fh:
+            scene = tomllib.load(fh)
+        print("| constraints | resolution | particles | E (Pa) | E / HS lower | E / Reuss | "
+              "E / Voigt |")
+        print("|---|---|---|---|---|---|---|")
+        for m, r, n, E, hs, reuss, voigt in window_refinement(
+                scene, study_realization_seed(2021, 2)):
+            print(f"| {m} | {r} | {n:,} | {E:.6g} | {hs:.4f} | {reuss:.4f} | {voigt:.4f} |")
+    else:
+        print("| method | parameter | radial error | pair error | symmetry error | condition |")
+        print("|---|---|---|---|---|---|")
+        for row in example1_table():
+            p = row.get("threshold", row.get("penalty", ""))
+            print(f"| {row['method']} | {p} | {row['radial_error']:.2e} | {row['pair_error']:.1e} "
+                  f"| {row['symmetry_error']:.1e} | {row['condition']:.1e} |")

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from solvers.sph.exact import (VARIANTS, eshelby_constant, eshelby_displacement,
-                               eshelby_radial, hashin_shtrikman_2d)
+                               eshelby_radial, hashin_shtrikman_2d,
+                               voigt_reuss_2d)
 from solvers.sph.stiffness import lame
 
 SEED = (0.01, 1000.0, 0.28, 900.0, 0.33)
@@ -95,3 +96,31 @@ def test_hashin_shtrikman_bounds_behave():
     f = 1e-6
     lo = hashin_shtrikman_2d(f, 150e6, 0.3, 1e6, 0.4)["kappa"][0]
     assert (lo - km) / f == pytest.approx((ki - km) * (km + mm) / (ki + mm), rel=1e-4)
+
+
+def test_voigt_reuss_bounds_of_the_apparent_modulus():
+    # equal phases: both are the plane-strain (plane-stress) modulus; a few roundings of
+    # O(1) quotients, 1e-14
+    for state, E in (("plane_strain", 1e6 / (1 - 0.16)), ("plane_stress", 1e6)):
+        r, v = voigt_reuss_2d([1.0, 3.0], [1e6, 1e6], [0.4, 0.4], state)
+        assert r == pytest.approx(E, rel=1e-14) and v == pytest.approx(E, rel=1e-14)
+    rng = np.random.default_rng(1)
+    for _ in range(50):
+        f = rng.uniform(0.01, 0.99)
+        Ei, Em = 10 ** rng.uniform(5, 9, 2)
+        ni, nm = rng.uniform(0.05, 0.45, 2)
+        r, v = voigt_reuss_2d([f, 1 - f], [Ei, Em], [ni, nm])
+        # Reuss: the area mean of the plane-strain uniaxial compliance (1 - nu^2)/E
+        reuss = 1 / (f * (1 - ni ** 2) / Ei + (1 - f) * (1 - nm ** 2) / Em)
+        assert r == pytest.approx(reuss, rel=1e-12)      # sums of two positive terms
+        # Voigt: the uniform strain (e, 1) at its best e (the two forms differ by a
+        # cancellation of at most 1/(1 - (nu/(1 - nu))^2) < 4: 1e-12)
+        (li, mi), (lm, mm) = lame(Ei, ni, "plane_strain"), lame(Em, nm, "plane_strain")
+        c11, c12 = f * (li + 2 * mi) + (1 - f) * (lm + 2 * mm), f * li + (1 - f) * lm
+        energy = lambda e: c11 * (1 + e * e) + 2 * c12 * e  # noqa: E731
+        best = -c12 / c11
+        assert v == pytest.approx(energy(best), rel=1e-12)
+        assert energy(best) < min(energy(best - 1e-3), energy(best + 1e-3))
+        # the effective-modulus bounds of an isotropic mixture lie between them
+        lo, hi = hashin_shtrikman_2d(f, Ei, ni, Em, nm)["E_2D"]
+        assert r * (1 - 1e-12) <= lo <= hi <= v * (1 + 1e-12)

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from solvers.sph import SPHSolver
+from solvers.sph.verification import study_realization_seed
 from uqflow.errors import SceneError, SolverError
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -47,6 +48,37 @@ def test_bad_scenes_name_their_key(change, key):
     assert "\n" not in str(e.value)
 
 
+@pytest.mark.parametrize("scene, key", [
+    # the issue's case: a perimeter of 4e308 m made the interface particle count infinite
+    (example1("regular", inclusions=[dict(centre=[0.0, 0.0], semi_axes=[1e308, 1e308])]),
+     "scene.inclusions[0].semi_axes"),
+    (example1(inclusions=[dict(centre=[0.0, 0.0], semi_axes=[1e308, 1e308])]),
+     "scene.inclusions[0].semi_axes"),
+    (example1("regular", edge="fixed",
+              inclusions=[dict(centre=[50.0, 0.0], semi_axes=[5.0, 20.0], angle_deg=90.0)]),
+     "scene.inclusions[0].centre"),
+    (example3(random=dict(count=2, semi_axes_min=[1e-6, 1e-6], semi_axes_max=[1e308, 1e-6])),
+     "scene.random.semi_axes_max"),
+    (example1("regular", spacing=1e-300), "scene.spacing"),        # spacing² underflows to 0
+    (example1("regular", width=1e300, height=1e-300, spacing=1.0), "scene.spacing"),
+    (example1(resolution=1e308), "scene.resolution"),
+    (example3(step=1e308), "scene.step"),
+])
+def test_extreme_scene_values_are_one_line_errors_naming_their_key(scene, key):
+    with pytest.raises(SceneError) as e:
+        SPHSolver.from_scene(scene)
+    assert e.value.key == key
+    assert "\n" not in str(e.value)
+
+
+def test_the_template_marks_timings_and_counters_as_diagnostics():
+    template = SPHSolver.from_scene(example3(**SMALL3)).outputs()
+    diagnostic = {name for name, var in template.data_vars.items()
+                  if var.attrs.get("output_kind") == "diagnostic"}
+    assert diagnostic == {"particles", "constraint_residual", "pair_error", "time_neighbours",
+                          "time_assembly", "time_transformation", "time_solve"}
+
+
 def test_a_random_layout_too_crowded_to_place_is_a_scene_error():
     scene = example3(random=dict(count=40, semi_axes_min=[9e-6, 9e-6],
                                  semi_axes_max=[10e-6, 10e-6]))
@@ -78,15 +110,36 @@ def test_a_random_layout_follows_the_realization_seed():
     assert np.allclose(a.strain.values, 2 * 0.05e-6 * np.arange(1, 4) / 100e-6, rtol=1e-12)
 
 
-def test_effective_moduli_lie_within_the_hashin_shtrikman_bounds():
-    # the seed's plate: 9 well-separated ellipses sit close above the lower bound (the coated
-    # inclusion geometry that attains it); measured 1.0005-1.026 times it
-    solver = SPHSolver.from_scene(example3(steps=1))
-    for seed in range(8):
-        for E_inclusion in (20e6, 150e6):
+def test_every_window_lies_within_its_voigt_reuss_bounds_and_the_mean_near_hs():
+    # the seed's plate under the shipped study's constraints (MS2), five windows, two
+    # contrasts; realization 2 of studies/sph/composite_mc.toml among them (below HS lower)
+    solver = SPHSolver.from_scene(example3(steps=1, constraints="master-slave-local"))
+    seeds = [0, 1, 2, 3, study_realization_seed(2021, 2)]
+    for E_inclusion in (20e6, 150e6):
+        ratios = []
+        for seed in seeds:
             ds = solver.run({"inclusion.E": E_inclusion}, seed=seed)
             E = ds.effective_modulus.item()
-            assert ds.modulus_lower_bound.item() < E < ds.modulus_upper_bound.item()
+            # rigorous for the exact apparent modulus of the window under these boundary
+            # conditions; the discrete one is within 1 % of it (docs/sph.md § 8 refinement),
+            # the bounds 5 % (Reuss) and a factor 2 (Voigt) away
+            assert ds.modulus_reuss_bound.item() < E < ds.modulus_voigt_bound.item()
+            ratios.append(E / ds.modulus_hs_lower.item())
+        # HS bounds the effective modulus, which the windows' mean estimates: the mean sits
+        # above the lower bound within two of its standard errors
+        ratios = np.array(ratios)
+        assert ratios.mean() > 1 - 2 * ratios.std(ddof=1) / np.sqrt(ratios.size)
+
+
+def test_the_hs_lower_bound_does_not_bound_one_window():
+    # realization 2 of the shipped Monte Carlo study: 0.989 x HS lower at its spacing, and
+    # 0.996 x refined (docs/sph.md § 8); Reuss holds for it
+    scene = example3(steps=1, constraints="master-slave-local")
+    ds = SPHSolver.from_scene(scene).run({}, seed=study_realization_seed(2021, 2))
+    E = ds.effective_modulus.item()
+    # the docs quote 3 digits; the ratio moves by < 1e-4 with the moduli the study draws
+    assert E / ds.modulus_hs_lower.item() == pytest.approx(0.9890, abs=5e-4)
+    assert E / ds.modulus_reuss_bound.item() == pytest.approx(1.051, abs=5e-3)
 
 
 def test_equal_phases_give_the_plane_strain_modulus():
@@ -212,3 +265,16 @@ def test_a_singular_system_fails_its_realization_with_where_it_shows():
     assert runs.status.values.tolist() == ["ok", "failed"]
     assert "is singular to working precision" in runs.message.values[1]
     assert "at unknown" in runs.message.values[1]
+
+
+def test_the_example2_scene_is_the_plate_of_example3_under_the_penalty():
+    import tomllib
+    scenes = Path(__file__).parents[3] / "studies" / "scenes"
+    with open(scenes / "sph_example2.toml", "rb") as fh2, \
+            open(scenes / "sph_example3.toml", "rb") as fh3:
+        two, three = (SPHSolver.from_scene(tomllib.load(fh)) for fh in (fh2, fh3))
+    assert two.cfg.constraints == "penalty" and two.cfg.penalty == 1e6
+    # the listed ellipses are the drawn ones to the digit (repr round trip; the angle through
+    # degrees and back within an ulp or two), so the particles are the same
+    assert np.allclose(two.layout.x, three.layout.x, rtol=0, atol=1e-20)
+    assert np.array_equal(two.layout.phase, three.layout.phase)
