@@ -653,3 +653,13 @@ def test_every_design_variable_is_on_the_results_page(tmp_path):
     assert {"role", "level", "stencil"} <= named
     for name in sorted(named):
         assert f"`{name}`" in section, f"docs/results.md, group runs, does not name {name}"
+
+
+def test_the_exit_codes_table_is_the_command_lines():
+    """docs/execution.md, "Exit codes of `uqflow`": one row per exit code the CLI has."""
+    from uqflow import cli
+    text = (ROOT / "docs" / "execution.md").read_text(encoding="utf-8")
+    table = text[text.index("## Exit codes of `uqflow`"):].split("\n\n")[1]
+    documented = {int(code) for code in re.findall(r"^\| (\d+) \|", table, re.M)}
+    codes = {0} | {v for k, v in vars(cli).items() if k.startswith("EXIT_")}
+    assert documented == codes
