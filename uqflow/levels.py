@@ -31,6 +31,8 @@ from uqflow.errors import SceneError, SolverError, StudyError
 
 #: design variables of a study with levels
 LEVEL_VARIABLE, SEED_KEY_VARIABLE = "level", "seed_key"
+#: most values a [levels] table takes
+MAX_LEVELS = 16
 
 
 class LevelsSpec(BaseModel):
@@ -39,7 +41,7 @@ class LevelsSpec(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False)
 
     key: str = Field(min_length=1, description="the scene key that sets the fidelity")
-    values: list[int | float] = Field(min_length=2, max_length=16,
+    values: list[int | float] = Field(min_length=2, max_length=MAX_LEVELS,
                                       description="its values, coarsest first")
     align: Literal["exact", "interpolate"] = "exact"
 
@@ -91,19 +93,44 @@ def resolve_levels(spec: LevelsSpec, scene: dict, solver_class, outputs: list[st
     if len(set(values)) != len(values):
         raise StudyError(f"values must differ, got {values}", key="levels.values")
     scenes, solvers = [], []
-    for i, value in enumerate(values):
-        level_scene = scene_with(scene, spec.key, value)
-        try:
-            solvers.append(solver_class.from_scene(level_scene))
-        except SceneError as exc:
-            raise StudyError(f"{spec.key} = {value!r} (level {i}) gives a bad scene: "
-                             f"{exc.key or 'scene'}: {exc.reason}", key="levels.values") \
-                from None
-        scenes.append(level_scene)
+    for i in range(len(values)):
+        solvers.append(level_solver(spec, scene, solver_class, i))
+        scenes.append(scene_with(scene, spec.key, values[i]))
     finest = solvers[-1].outputs()
     alignments = [_alignment(solvers[i].outputs(), finest, outputs, i, values[i], spec)
                   for i in range(len(values))]
     return Levels(spec, scenes, solvers, alignments)
+
+
+def level_solver(spec: LevelsSpec, scene: dict, solver_class, level: int):
+    """The solver of ``level``: ``scene`` with the levels' key set to that level's value.
+
+    A scene that fails only because of the levels is the levels' fault, named as such: an
+    unknown key is ``levels.key``, a value the scene refuses (at that key or, through it, at
+    another) ``levels.values``. A scene that fails the same way without the levels' value is
+    its own fault: its ``SceneError`` is raised unchanged."""
+    value = spec.values[level]
+    try:
+        return solver_class.from_scene(scene_with(scene, spec.key, value))
+    except SceneError as exc:
+        broke = exc.key or "scene"
+        if broke in (spec.key, f"scene.{spec.key}"):
+            if exc.reason.startswith("unknown key"):
+                raise StudyError(f"'{spec.key}' is not a key of this scene: {exc.reason}",
+                                 key="levels.key") from None
+        elif _fails_alone(scene, solver_class, broke):
+            raise
+        raise StudyError(f"{spec.key} = {value!r} (level {level}) gives a bad scene: "
+                         f"{broke}: {exc.reason}", key="levels.values") from None
+
+
+def _fails_alone(scene: dict, solver_class, key: str) -> bool:
+    """Whether ``scene`` as written (without the levels' value) fails at ``key`` too."""
+    try:
+        solver_class.from_scene(scene)
+    except SceneError as exc:
+        return (exc.key or "scene") == key
+    return False
 
 
 def _alignment(template: xr.Dataset, finest: xr.Dataset, outputs: list[str], level: int,

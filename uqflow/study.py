@@ -26,7 +26,7 @@ from pydantic import (AfterValidator, BaseModel, BeforeValidator, ConfigDict, Fi
 
 from uqflow.errors import SceneError, StudyError
 from uqflow.inputs import DISTRIBUTIONS, InputSpace, RandomInput
-from uqflow.levels import Levels, LevelsSpec, resolve_levels, scene_with
+from uqflow.levels import Levels, LevelsSpec, level_solver, resolve_levels, scene_with
 from uqflow.methods import PropagationMethod, get_method
 from uqflow.methods.base import MAX_REALIZATIONS
 from uqflow.solver import Solver, get_solver
@@ -406,12 +406,15 @@ def _resolve(spec: StudySpec, path: Path, text: str, label: str) -> Study:
     scene, scene_label, scene_text = _load_scene(spec.scene, folder, label)
     read_files = {} if scene_label is None else \
         {"scene": (scene_label, hashlib.sha256(scene_text.encode()).hexdigest())}
-    if spec.levels is not None:
-        # the levels set their key: the scene is checked at the finest value, not at the one
-        # it may hold for itself
-        scene = scene_with(scene, spec.levels.key, spec.levels.values[-1])
     try:
-        solver = solver_class.from_scene(scene)
+        if spec.levels is None:
+            solver = solver_class.from_scene(scene)
+        else:
+            # the levels set their key: the scene is checked at the finest value, not at the
+            # one it may hold for itself, and a value it refuses is the levels' fault
+            finest = len(spec.levels.values) - 1
+            solver = level_solver(spec.levels, scene, solver_class, finest)
+            scene = scene_with(scene, spec.levels.key, spec.levels.values[finest])
     except SceneError as exc:
         raise SceneError(exc.reason, file=scene_label or label, key=exc.key) from None
 

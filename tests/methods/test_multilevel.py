@@ -302,3 +302,21 @@ def test_multifidelity_with_the_taylor_surrogate_reaches_the_rmse_at_near_optima
     assert_conformant(results, SURROGATE_EPS, truth, truth, optimum)
     # the surrogate takes the place of the coarse level where it is better correlated
     assert results[0]["y_correlation"].values[-1] == pytest.approx(rho[2], abs=1e-3)
+
+
+def test_measured_costs_leave_out_numba_compile_time():
+    # numba compiles once per process: with five workers, five of every eight pilot runs of a
+    # level may carry the compilation, which moves the median of the wall times
+    steps = (4, 8, 16)
+    method = with_levels(Multilevel(target_rmse=0.01, pilot=8), steps)
+    design = method.plan(space(), None, np.random.SeedSequence(3))
+    runs = evaluate(design, steps)
+    per_run = np.array([1e-3, 2e-3, 4e-3])
+    compiling = np.where(np.arange(design.sizes["realization"]) % 8 < 5, 0.5, 0.0)
+    runs["wall_time"].values[:] = per_run[design["level"].values] + compiling
+    runs["compile_time"] = ("realization", compiling)
+    # wall - compile is exact but for the rounding at 0.5: ulp(0.5) = 1.1e-16, 1.1e-13 of 1e-3
+    np.testing.assert_allclose(method.run_costs(runs), per_run, rtol=1e-12, atol=0)
+    # an older result without compile times: the wall times as they are
+    older = runs.drop_vars("compile_time")
+    assert method.run_costs(older).tolist() == (per_run + 0.5).tolist()

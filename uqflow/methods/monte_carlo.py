@@ -77,8 +77,9 @@ class MonteCarloOptions(SampleStatisticsOptions):
         "none", description="control variate: the second-order Taylor surrogate from the "
                             "solver's local derivatives (1 extra run) or from central "
                             "differences (2n+1 extra runs)")
-    control_step: float = Field(0.1, gt=0, description="control = \"taylor\": the stencil "
-                                                        "step as a fraction of each input's std")
+    # at most taylor.MAX_STEP (a std): Taylor refuses a wider stencil
+    control_step: float = Field(0.1, gt=0, le=1.0, description="control = \"taylor\": the "
+                                "stencil step as a fraction of each input's std")
 
     @field_validator("samples")
     @classmethod

@@ -29,6 +29,7 @@ import xarray as xr
 from pydantic import Field
 from scipy import stats as sps
 
+from uqflow.errors import StudyError
 from uqflow.levels import LEVEL_VARIABLE
 from uqflow.methods import control_variate as cv
 from uqflow.methods.base import finish_statistics, output_names, register_method
@@ -41,6 +42,16 @@ from uqflow.realization import SENSITIVITY_FLAG
 STREAM = 0
 #: the surrogate's run (at the input means) has a seed key of its own
 SURROGATE_STREAM = 1
+
+
+def _surrogate_error(err: StudyError) -> StudyError:
+    """The control variates' refusal of the Taylor surrogate, in this method's words: the
+    key is ``method.surrogate``, the alternative ``surrogate = "none"``."""
+    return StudyError(err.reason.replace("control = \"taylor\"", "no surrogate")
+                      .replace("use control = \"none\"", "use surrogate = \"none\"")
+                      .replace("use control", "use surrogate")
+                      .replace("a control needs", "the surrogate needs"),
+                      key="method.surrogate")
 
 
 def pointwise_correlation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -71,21 +82,18 @@ class Multifidelity(FidelitySampling):
     def check(self, space, fields):
         super().check(space, fields)
         if self.surrogate:
-            cv.check_space("taylor-local", 0.1, space)
+            try:
+                cv.check_space("taylor-local", 0.1, space)
+            except StudyError as err:
+                raise _surrogate_error(err) from None
 
     def check_solver(self, solver, outputs, parameter_names):
         super().check_solver(solver, outputs, parameter_names)
         if self.surrogate:
             try:
                 cv.check_solver("taylor-local", solver, outputs, parameter_names)
-            except Exception as err:
-                from uqflow.errors import StudyError
-
-                if not isinstance(err, StudyError):
-                    raise
-                raise StudyError(err.reason.replace("control = \"taylor\"", "no surrogate")
-                                 .replace("use control", "use surrogate"),
-                                 key="method.surrogate") from None
+            except StudyError as err:
+                raise _surrogate_error(err) from None
 
     def pilot_design(self) -> xr.Dataset:
         n = self.options.pilot
@@ -181,7 +189,10 @@ class Multifidelity(FidelitySampling):
             return None
         rows, drawn, _ = self.samples(runs)
         surrogate = self.surrogates(design, runs)
+        # the allocation depends on the costs' ratios alone: scaled to the dearest, a stated
+        # cost of 1e300 or 1e-300 neither overflows nor underflows
         w = self.model_costs(runs)
+        w = w / w.max()
         if surrogate is None:
             w = w[:self.n_levels]
         wanted = np.zeros(w.size, dtype=np.int64)
@@ -197,7 +208,8 @@ class Multifidelity(FidelitySampling):
                 if not s[0, p] > 0 or not np.isfinite(eps2[p]) or not eps2[p] > 0:
                     continue
                 r = np.nan_to_num(rho[:, p], nan=0.0)
-                got = mfmc_allocation(float(s[0, p]), r, w, float(eps2[p]))
+                got = mfmc_allocation(float(s[0, p]), r, w, float(eps2[p]),
+                                      most=self.options.max_samples)
                 if got is not None:
                     wanted = np.maximum(wanted, got)
         wanted = np.minimum(wanted[:self.n_levels], self.options.max_samples)
@@ -260,13 +272,9 @@ class Multifidelity(FidelitySampling):
                                          for k in self.allocating(runs)}, runs)
         for name, eps2 in targets.items():
             stderr = data[name][1].reshape(6, -1)[3]
-            # a target met exactly may differ from it by the roundings of the sums: 1e-9 ≫ eps
-            short = np.flatnonzero(stderr**2 > eps2 * (1 + 1e-9))
-            if short.size:
-                k = int(short[np.argmax(stderr[short])])
-                warnings.append(f"{name}: stderr {stderr[k]:.3g} (point {k}) is above the "
-                                f"target {np.sqrt(eps2[k]):.3g}: max_samples or max_rounds "
-                                f"reached")
+            short = self.target_not_met(runs, name, stderr, eps2, drawn)
+            if short:
+                warnings.append(short)
         coords = {"statistic": ["mean", "variance", "std", "stderr", "ci_low", "ci_high"],
                   "model": np.arange(models)}
         coords.update({d: runs[d] for name in output_names(runs)

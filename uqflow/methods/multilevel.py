@@ -31,7 +31,7 @@ from scipy import stats as sps
 from uqflow.levels import LEVEL_VARIABLE
 from uqflow.methods.base import finish_statistics, output_names, register_method
 from uqflow.methods.fidelity_sampling import (FidelityOptions, FidelitySampling, flat,
-                                              output_shape)
+                                              output_shape, point_label)
 from uqflow.methods.multilevel_estimators import (giles_counts, level_rate, mlmc_bias,
                                                   mlmc_level_terms)
 
@@ -97,7 +97,10 @@ class Multilevel(FidelitySampling):
             return None
         pairs = self.pairs(runs)
         drawn = np.array([p[2] for p in pairs])
+        # the allocation depends on the costs' ratios alone: scaled to the dearest, a stated
+        # cost of 1e300 or 1e-300 neither overflows nor underflows in the sums
         c = self.run_costs(runs)
+        c = c / c.max()
         C = c + np.concatenate([[0.0], c[:-1]])
         V, target = [], []
         means = {}
@@ -107,8 +110,8 @@ class Multilevel(FidelitySampling):
             V.append(np.stack([t["V"] for t in terms]))
         for name, eps2 in self.variance_targets(means, runs).items():
             target.append(eps2 * self.options.variance_share)
-        wanted = giles_counts(np.concatenate(V, axis=1), C, np.concatenate(target))
-        wanted = np.minimum(wanted, self.options.max_samples)
+        wanted = giles_counts(np.concatenate(V, axis=1), C, np.concatenate(target),
+                              most=self.options.max_samples)
         if not np.any(wanted > drawn):
             return None
         return self.rows(self._blocks(drawn, np.maximum(wanted, drawn)), rounds + 1)
@@ -159,24 +162,21 @@ class Multilevel(FidelitySampling):
                                 f"two correction levels with a nonzero mean); the bias "
                                 f"estimate assumes first order (alpha = 1)")
         targets = self.variance_targets({k: means[k] for k in self.allocating(runs)}, runs)
+        drawn = np.array([p[2] for p in pairs])
         for name, eps2 in targets.items():
             stat = data[name][1].reshape(9, -1)
             bias, stderr = stat[7], stat[3]
-            over = np.flatnonzero(bias**2 > (1 - theta) * eps2)
+            with np.errstate(invalid="ignore"):
+                over = np.flatnonzero(bias**2 > (1 - theta) * eps2)
             if over.size:
                 k = int(over[np.argmax(bias[over])])
-                warnings.append(f"{name}: the finest level's estimated bias {bias[k]:.3g} "
-                                f"(point {k}) exceeds its share of the target, "
-                                f"sqrt(1 - theta) eps = {np.sqrt((1 - theta) * eps2[k]):.3g}: "
-                                f"add a finer level")
-            # a target met exactly may differ from it by the roundings of the sums: 1e-9 ≫ eps
-            short = np.flatnonzero(stderr**2 > theta * eps2 * (1 + 1e-9))
-            if short.size:
-                k = int(short[np.argmax(stderr[short])])
-                why = "max_samples" if np.any(n >= self.options.max_samples) else "max_rounds"
-                warnings.append(f"{name}: stderr {stderr[k]:.3g} (point {k}) is above the "
-                                f"target's sampling share {np.sqrt(theta * eps2[k]):.3g}: "
-                                f"{why} reached")
+                warnings.append(f"{point_label(runs, name, k)}: the finest level's "
+                                f"estimated bias {bias[k]:.3g} exceeds its share of the "
+                                f"target, sqrt(1 - theta) eps = "
+                                f"{np.sqrt((1 - theta) * eps2[k]):.3g}: add a finer level")
+            short = self.target_not_met(runs, name, stderr, theta * eps2, drawn)
+            if short:
+                warnings.append(short)
         if failed.any():
             warnings.append(f"failed pairs dropped per level {failed.tolist()} (a pair with a "
                             f"failed run at either level leaves its correction); the "

@@ -34,10 +34,12 @@ import math
 import numpy as np
 
 
-def giles_counts(V: np.ndarray, C: np.ndarray, variance_target: np.ndarray) -> np.ndarray:
+def giles_counts(V: np.ndarray, C: np.ndarray, variance_target: np.ndarray,
+                 most: int = 2**62) -> np.ndarray:
     """Optimal N_l, shape (levels,), for the variances ``V`` (levels, points), the costs per
     sample ``C`` (levels,) and the estimator variance wanted at each point
-    (``variance_target``, (points,)): the largest over the points (each point is met)."""
+    (``variance_target``, (points,)): the largest over the points (each point is met), at
+    most ``most`` (capped before rounding: a count too large for an integer stays ``most``)."""
     V = np.maximum(np.asarray(V, dtype=float), 0.0)
     C = np.asarray(C, dtype=float)
     target = np.asarray(variance_target, dtype=float)
@@ -45,9 +47,11 @@ def giles_counts(V: np.ndarray, C: np.ndarray, variance_target: np.ndarray) -> n
     if not live.any():
         return np.zeros(V.shape[0], dtype=np.int64)
     V, target = V[:, live], target[live]
-    total = np.sqrt(V * C[:, None]).sum(axis=0)                 # (points,)
-    N = np.sqrt(V / C[:, None]) * total / target                # (levels, points)
-    return np.ceil(N.max(axis=1)).astype(np.int64)
+    with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+        total = np.sqrt(V * C[:, None]).sum(axis=0)                 # (points,)
+        N = np.sqrt(V / C[:, None]) * total / target                # (levels, points)
+    N = np.where(V > 0, N, 0.0)      # a level without variance needs no samples (not 0 * inf)
+    return np.ceil(np.minimum(N.max(axis=1), most)).astype(np.int64)
 
 
 def optimal_mlmc_cost(V: np.ndarray, C: np.ndarray, variance_target: float) -> float:
@@ -146,12 +150,15 @@ def mfmc_best(sigma: float, rho: np.ndarray, w: np.ndarray,
 
 
 def mfmc_allocation(sigma: float, rho: np.ndarray, w: np.ndarray,
-                    variance_target: float) -> np.ndarray:
-    """Whole sample counts per model (0 for a model left out) of ``mfmc_best``."""
+                    variance_target: float, most: int = 2**62) -> np.ndarray:
+    """Whole sample counts per model (0 for a model left out) of ``mfmc_best``, each at most
+    ``most`` (capped before rounding: a count too large for an integer stays ``most``)."""
     chosen, r, m1, _ = mfmc_best(sigma, rho, w, variance_target)
     counts = np.zeros(len(w), dtype=np.int64)
     finite = np.isfinite(r)          # a free model is never run
-    counts[np.asarray(chosen)[finite]] = np.ceil(np.maximum(m1 * r[finite], 1.0)).astype(
+    with np.errstate(over="ignore", invalid="ignore"):
+        wanted = np.minimum(np.maximum(m1 * r[finite], 1.0), most)
+    counts[np.asarray(chosen)[finite]] = np.ceil(np.nan_to_num(wanted, nan=most)).astype(
         np.int64)
     return counts
 

@@ -15,7 +15,7 @@ from typing import Literal
 
 import numpy as np
 import xarray as xr
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from uqflow.errors import AccuracyWarning, StudyError
 from uqflow.methods.base import (MethodOptions, PropagationMethod, finish_statistics,
@@ -25,6 +25,14 @@ LABELS = ["mean", "variance", "std", "nominal"]
 # Relative rounding granted to every solver value when telling a derivative from noise:
 # a few dozen ulps, what a chain of floating-point operations typically accumulates.
 NOISE = 64 * np.finfo(float).eps
+# Largest step, as a fraction of the std: the central differences err by (h/sigma)^2 relative
+# to the terms the expansion keeps (docs/taylor.md, "Stencil and cost"), so at h = sigma the
+# "derivative" is as much the function's spread over the distribution as its slope at the
+# mean, and a stencil beyond it leaves the inputs' bulk (and a positive input's support).
+MAX_STEP = 1.0
+# Largest step_tolerance: the step check's change |d(h) - d(h/2)| / max(|d(h)|, |d(h/2)|) is
+# at most 2 (triangle inequality), so a tolerance of 2 or more could never report anything.
+MAX_STEP_TOLERANCE = 2.0
 
 
 class TaylorOptions(MethodOptions):
@@ -44,6 +52,24 @@ class TaylorOptions(MethodOptions):
                             "the order-2 mean, every pair for the second-order variance)")
     cv_warning: float = Field(0.15, ge=0, description="warn about inputs with a larger C.V. "
                                                       "(seed 000 sec. 4.1)")
+
+    @field_validator("step")
+    @classmethod
+    def _step_within_a_std(cls, step):
+        if step > MAX_STEP:
+            raise ValueError(f"must be <= {MAX_STEP:g} (a fraction of each input's std: a "
+                             f"larger stencil leaves the inputs' bulk and the differences no "
+                             f"longer measure a derivative at the mean), got {step!r}")
+        return step
+
+    @field_validator("step_tolerance")
+    @classmethod
+    def _tolerance_can_fire(cls, tolerance):
+        if tolerance >= MAX_STEP_TOLERANCE:
+            raise ValueError(f"must be < {MAX_STEP_TOLERANCE:g} (the step check's relative "
+                             f"change is at most 2, so it would never report; set "
+                             f"step_check = false to skip the check), got {tolerance!r}")
+        return tolerance
 
     @model_validator(mode="after")
     def _mixed_need_curvature(self):
