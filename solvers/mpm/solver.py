@@ -28,6 +28,12 @@ CORE_SET = ("det_x", "det_y", "burn_width")   # explosive parameters the core se
 BURN_WIDTH_CELLS = 1.5                         # programmed-burn ramp width, cells (β of jwl.py)
 SERIAL_BELOW = 20_000    # particles: below this, one thread (a parallel launch costs more)
 DT_FLOOR_FRACTION = 1e-3                       # default dt floor: this × the first step's dt
+# How the run went, not what it predicts: stored per realization in the runs, never given
+# statistics, figures or a sample allocation (``output_kind``, uqflow.solver.Solver).
+DIAGNOSTIC_KIND = "diagnostic"
+DIAGNOSTIC_OUTPUTS = {"time_steps": ("1", "time steps the run took (CFL-limited: its cost)"),
+                      "dt_min": ("s", "smallest time step the run took"),
+                      "dt_max": ("s", "largest time step the run took")}
 UNITS_BY_NAME = {"rho0": "kg m-3", "shear_modulus": "Pa", "E": "Pa", "D": "m s-1",
                  "eos.C": "m s-1", "eos.A": "Pa", "eos.B": "Pa", "eos.E0": "J m-3",
                  "jc.A": "Pa", "jc.B": "Pa", "jc.eps0_dot": "s-1", "jc.T_room": "K",
@@ -144,6 +150,9 @@ class MPMSolver(Solver):
                                      {"units": units, "long_name": long})
         for name, units in ENERGY_OUTPUTS.items():
             data[name] = xr.Variable(("time",), np.full(nt, np.nan), {"units": units})
+        for name, (units, long) in DIAGNOSTIC_OUTPUTS.items():
+            data[name] = xr.Variable((), np.nan, {"units": units, "long_name": long,
+                                                  "output_kind": DIAGNOSTIC_KIND})
         coords = {"time": xr.Variable(("time",), self.times, {"units": "s"}),
                   "probe": [p.name for p in self.cfg.probes]}
         return xr.Dataset(data, coords=coords)
@@ -234,6 +243,9 @@ class MPMSolver(Solver):
         ds = self._template.copy(deep=True)
         for name, arr in run.recorder.results().items():
             ds[name].values[...] = arr
+        ds["time_steps"].values[...] = run.step_no
+        ds["dt_min"].values[...] = run.dt_used_min
+        ds["dt_max"].values[...] = run.dt_used_max
         if outputs:
             ds = ds.assign_coords(parameter=("parameter", wrt), parameter_j=("parameter_j", wrt))
             sens = run.sensitivities

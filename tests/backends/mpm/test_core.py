@@ -235,7 +235,8 @@ def test_outputs_template_and_run_match():
     tpl = sol.outputs()
     assert set(tpl.data_vars) == {"pressure", "S11", "velocity_x", "kinetic_energy",
                                   "internal_energy", "plastic_work", "explosive_release",
-                                  "total_energy", "momentum_x", "momentum_y"}
+                                  "total_energy", "momentum_x", "momentum_y",
+                                  "time_steps", "dt_min", "dt_max"}     # the diagnostics
     assert tpl.pressure.dims == ("time", "probe") and tpl.sizes == {"time": 5, "probe": 1}
     assert tpl.kinetic_energy.dims == ("time",)
     assert all("units" in v.attrs for v in tpl.data_vars.values())
