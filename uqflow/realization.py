@@ -15,9 +15,12 @@ never taken for outputs.
 
 from __future__ import annotations
 
+import importlib.util
 import inspect
+import threading
 import time
 import traceback
+from contextlib import contextmanager
 
 import numpy as np
 import xarray as xr
@@ -114,6 +117,9 @@ def empty_runs(design: xr.Dataset, template: xr.Dataset) -> xr.Dataset:
     runs["status"] = ("realization", np.full(n, STATUS_PENDING, dtype=object))
     runs["message"] = ("realization", np.full(n, "", dtype=object))
     runs["wall_time"] = ("realization", np.full(n, np.nan), {"units": "s"})
+    runs["compile_time"] = ("realization", np.full(n, np.nan), {
+        "units": "s", "long_name": "part of wall_time numba spent compiling (0 when every "
+                                   "kernel was compiled or loaded from the cache before)"})
     if any(str(v).startswith("germ_") for v in design.data_vars):
         runs["clipped_points"] = ("realization", np.zeros(n, dtype=np.int64), {
             "long_name": "field values clipped into the parameter's physical range"})
@@ -205,6 +211,60 @@ def run_one(solver, params: dict, fields, outputs: list[str], seed: int | None =
     return status, " ".join(message.split()), values, time.perf_counter() - start
 
 
+class _CompileTime:
+    """Seconds numba spent compiling on the installing thread: the outermost START..END
+    intervals of its "numba:compile" events (a kernel calling another nests them; a dask
+    worker's other threads compile for their own runs)."""
+
+    def __init__(self):
+        self.seconds = 0.0
+        self._thread = threading.get_ident()
+        self._depth = 0
+        self._started = 0.0
+
+    def on_start(self, event):
+        if threading.get_ident() != self._thread:
+            return
+        if self._depth == 0:
+            self._started = time.perf_counter()
+        self._depth += 1
+
+    def on_end(self, event):
+        if threading.get_ident() != self._thread or self._depth == 0:
+            return
+        self._depth -= 1
+        if self._depth == 0:
+            self.seconds += time.perf_counter() - self._started
+
+
+_NUMBA_LISTENER = []  # [(numba.core.event, listener class) or None], looked up once
+
+
+def _numba_listener():
+    if not _NUMBA_LISTENER:
+        found = None
+        if importlib.util.find_spec("numba") is not None:
+            from numba.core import event
+            found = (event, type("CompileListener", (_CompileTime, event.Listener), {}))
+        _NUMBA_LISTENER.append(found)
+    return _NUMBA_LISTENER[0]
+
+
+@contextmanager
+def compile_clock():
+    """Measure numba's compile time inside the block: yields an object whose ``seconds`` holds
+    it at the end (always 0 without numba). A solver's first run in a process compiles its
+    kernels; counted in its wall time alone, that would make one run look like many."""
+    numba = _numba_listener()
+    if numba is None:
+        yield _CompileTime()
+        return
+    event, listener_class = numba
+    listener = listener_class()
+    with event.install_listener("numba:compile", listener):
+        yield listener
+
+
 def run_batch(solver, names: list[str], values: np.ndarray, outputs: list[str],
               fields: list | None = None, germs: dict | None = None,
               seeds: np.ndarray | None = None, budget: float | None = None,
@@ -223,7 +283,7 @@ def run_batch(solver, names: list[str], values: np.ndarray, outputs: list[str],
     start = time.perf_counter()
     # once per batch: inspect is slow next to a run
     seeded = {False: takes_seed(solver), True: takes_seed(solver, "run_with_sensitivities")}
-    statuses, messages, times, clipped, evaluated = [], [], [], [], []
+    statuses, messages, times, compiling, clipped, evaluated = [], [], [], [], [], []
     results = {name: [] for name in outputs}
     derivatives = []
     for i, row in enumerate(values):
@@ -234,8 +294,10 @@ def run_batch(solver, names: list[str], values: np.ndarray, outputs: list[str],
                                           for f in fields})
         flagged = sensitivities is not None and bool(sensitivities[i])
         seed = int(seeds[i]) if seeds is not None and seeded[flagged] else None
-        status, message, got, wall = run_one(solver, params, sample, outputs, seed,
-                                             wrt=list(names) if flagged else None)
+        with compile_clock() as compiled:
+            status, message, got, wall = run_one(solver, params, sample, outputs, seed,
+                                                 wrt=list(names) if flagged else None)
+        compiling.append(min(compiled.seconds, wall))
         clipped.append(sum(sample.clipped.values()) if sample is not None else 0)
         evaluated.append(sample.evaluated if sample is not None else {})
         statuses.append(status)
@@ -247,7 +309,8 @@ def run_batch(solver, names: list[str], values: np.ndarray, outputs: list[str],
                            if flagged else None)
         if budget is not None and time.perf_counter() - start >= budget:
             break
-    return {"status": statuses, "message": messages, "wall_time": times, "outputs": results,
+    return {"status": statuses, "message": messages, "wall_time": times,
+            "compile_time": compiling, "outputs": results,
             "clipped_points": clipped, "field_values": evaluated,
             "sensitivities": derivatives}
 
@@ -277,6 +340,8 @@ def store_batch(runs: xr.Dataset, indices: np.ndarray, batch: dict) -> None:
         runs["status"].values[idx] = batch["status"][k]
         runs["message"].values[idx] = batch["message"][k]
         runs["wall_time"].values[idx] = batch["wall_time"][k]
+        if "compile_time" in runs and "compile_time" in batch:
+            runs["compile_time"].values[idx] = batch["compile_time"][k]
         if "clipped_points" in runs:
             runs["clipped_points"].values[idx] = batch["clipped_points"][k]
         for parameter, values in batch.get("field_values", [{}] * len(indices))[k].items():

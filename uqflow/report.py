@@ -15,7 +15,9 @@ interactive session (a notebook calling ``write_figures``) is left alone.
 
 from __future__ import annotations
 
+import json
 import math
+import re
 import warnings
 from pathlib import Path
 
@@ -27,7 +29,8 @@ from uqflow.errors import StudyError
 from uqflow.report_levels import LEVEL_METHODS, level_lines, levels_figure, method_cell
 from uqflow.store import open_result
 
-__all__ = ["open_result", "summary_table", "write_figures", "figure_folder", "FigureWarning"]
+__all__ = ["open_result", "summary_table", "write_figures", "figure_folder", "figure_path",
+           "safe_file_name", "FigureWarning"]
 
 #: Individual Monte Carlo runs drawn faintly behind the mean ± 2 std band of a field output.
 FAINT_RUNS = 12
@@ -35,6 +38,26 @@ FAINT_RUNS = 12
 
 class FigureWarning(UserWarning):
     """A figure could not be drawn; the others are still written."""
+
+
+def safe_file_name(text: str) -> str:
+    """``text`` as one file name: characters other than [A-Za-z0-9._-] become '_' (no path
+    separator, no drive, nothing a shell or another OS reads specially), and no leading '.'
+    (no hidden file, no '..')."""
+    name = re.sub(r"[^A-Za-z0-9._-]", "_", str(text))
+    return "_" + name[1:] if not name or name.startswith(".") else name
+
+
+def figure_path(folder: Path, *parts: str, suffix: str = ".png") -> Path:
+    """The path of a figure named from ``parts`` (output names, kinds) inside ``folder``.
+
+    Names come from solvers and study files (an output or a probe called '../x' or 'G/K'):
+    every figure a result writes goes through here, so it stays inside its folder."""
+    folder = Path(folder)
+    path = folder / (safe_file_name("_".join(map(str, parts))) + suffix)
+    if path.resolve().parent != folder.resolve():
+        raise StudyError(f"figure name {path.name!r} leaves the figures folder {folder}")
+    return path
 
 
 def figure_folder(result_path: Path) -> Path:
@@ -188,12 +211,16 @@ def summary_table(tree: xr.DataTree) -> str:
 
     outs = _outputs(stats)
     extra_header, extra = _method_column(stats, method)
+    variance_header, variance_cell = _variance_column(stats, outs)
     rows, notes = [], []
     for out in outs:
         focus = _focus(stats, out)
         at = stats[out].isel(focus)
-        row = [out, _units(stats, runs, out) or "-", _where(stats, focus) or "-",
+        unit = _units(stats, runs, out)
+        row = [out, unit or "-", _where(stats, focus) or "-",
                _cell(stats, out, "mean", focus), _cell(stats, out, "std", focus)]
+        if variance_header:
+            row.append(variance_cell(out, focus))
         if extra_header:
             row.append(extra(out, focus, at))
         rows.append(row)
@@ -203,15 +230,18 @@ def summary_table(tree: xr.DataTree) -> str:
             span = f"{_num(finite.min())} .. {_num(finite.max())}" if finite.size else "nan"
             notes.append(f"{out} is a field of {mean.size} points "
                          f"({', '.join(stats[out].dims[1:])}): its row is at the point of "
-                         f"largest std; the mean ranges over {span}")
-    header = ["output", "units", "at", "mean", "std"] + ([extra_header] if extra_header else [])
+                         f"largest std; the mean ranges over {span}{_unit_suffix(unit)}")
+    # Rows differ in units: the column 'unit u' gives each row's, the headers say in what
+    # power of it a column is.
+    header = ["output", "unit u", "at", "mean [u]", "std [u]"] + \
+        ([variance_header] if variance_header else []) + ([extra_header] if extra_header else [])
     if not any(r[2] != "-" for r in rows):  # scalar outputs only: no 'at' column
         header.pop(2)
         for r in rows:
             r.pop(2)
-        right = {2, 3}
-    else:
-        right = {3, 4}
+    right = set(range(header.index("mean [u]"), header.index("std [u]") + 1))
+    if variance_header:
+        right.add(header.index(variance_header))
     lines += _grid(header, rows, right) if rows else ["(no outputs)"]
     lines += notes
     if stats.attrs.get("stderr_note"):
@@ -219,18 +249,59 @@ def summary_table(tree: xr.DataTree) -> str:
         lines.append(f"standard error and interval of the mean: {stats.attrs['stderr_note']}")
     lines += _control_lines(stats, outs)
     if method in LEVEL_METHODS:
-        lines += [""] + level_lines(stats, method, outs, lambda o: _focus(stats, o))
+        lines += [""] + level_lines(stats, method, outs, lambda o: _focus(stats, o),
+                                    lambda o: _units(stats, runs, o))
     lines.append("")
     lines.append(_cost_line(stats, attrs, method))
+    lines += _compile_lines(stats, runs)
     failure = _first_failure(runs)
     if failure:
         lines.append(failure)
-    lines += [""] + _inputs_table(stats)
-    n_warn = len([w for w in str(stats.attrs.get("warnings", "")).split("\n") if w])
-    if n_warn:
+    lines += [""] + _inputs_table(stats, runs)
+    recorded = [w for w in str(stats.attrs.get("warnings", "")).split("\n") if w]
+    if recorded:
+        n_warn = len(recorded)
         lines += ["", f"{n_warn} warning{'s' if n_warn > 1 else ''} recorded with the "
-                      f"statistics (attribute 'warnings')"]
+                      f"statistics (attribute 'warnings'):"]
+        lines += [f"  - {w}" for w in recorded]
     return "\n".join(lines).rstrip()
+
+
+VARIANCE_HEADER = "variance [u^2]"
+VARIANCE_STDERR_HEADER = "variance ± stderr [u^2]"
+
+
+def _unit_suffix(unit: str) -> str:
+    return f" {unit}" if unit and unit != "-" else ""
+
+
+def _variance_stderr(stats: xr.Dataset, out: str) -> xr.DataArray | None:
+    """The standard error of an output's variance, where its method gives one: a statistic
+    ``variance_stderr`` (multilevel) or a variable ``{out}_variance_stderr`` (a control
+    variate); None where it is absent or not a number anywhere."""
+    found = _stat(stats, out, "variance_stderr")
+    if found is None and f"{out}_variance_stderr" in stats:
+        found = stats[f"{out}_variance_stderr"]
+    if found is None or not np.any(np.isfinite(np.asarray(found.values, dtype=float))):
+        return None
+    return found
+
+
+def _variance_column(stats: xr.Dataset, outs: list[str]):
+    """Header and cell function of the variance column (None: no output has a variance).
+    The '±' appears only with a method that gives the variance's standard error."""
+    if not any(_stat(stats, out, "variance") is not None for out in outs):
+        return None, None
+    errors = {out: _variance_stderr(stats, out) for out in outs}
+
+    def cell(out, focus):
+        value = _cell(stats, out, "variance", focus)
+        if errors[out] is None:
+            return value
+        return f"{value} ± {_num(errors[out].isel(focus))}"
+
+    has_error = any(e is not None for e in errors.values())
+    return (VARIANCE_STDERR_HEADER if has_error else VARIANCE_HEADER), cell
 
 
 def _method_column(stats: xr.Dataset, method: str):
@@ -241,7 +312,7 @@ def _method_column(stats: xr.Dataset, method: str):
         def ci(out, focus, at):
             return f"{_num(at.sel(statistic='ci_low'))} .. {_num(at.sel(statistic='ci_high'))}"
 
-        return f"{100 * level:g} % CI of the mean", ci
+        return f"{100 * level:g} % CI of the mean [u]", ci
     if method == "taylor":
         order = stats.attrs.get("order", "?")
         variance = stats.attrs.get("variance", "")
@@ -265,8 +336,8 @@ def _method_column(stats: xr.Dataset, method: str):
 
         return "S1/ST per input (largest ST first)", top
     if method in LEVEL_METHODS:
-        return "how sure, what it saved", lambda out, focus, at: method_cell(stats, method,
-                                                                             out, focus)
+        return "how sure [u], what it saved", lambda out, focus, at: method_cell(
+            stats, method, out, focus)
     if method == "pce":
         def fit(out, focus, at):
             if f"{out}_loo_error" not in stats or f"{out}_order" not in stats:
@@ -294,9 +365,67 @@ def _cost_line(stats: xr.Dataset, attrs: dict, method: str) -> str:
             + (f" ({', '.join(detail)})" if detail else ""))
 
 
-def _inputs_table(stats: xr.Dataset) -> list[str]:
+def _compile_lines(stats: xr.Dataset, runs: xr.Dataset | None) -> list[str]:
+    """numba's compile time apart from the runs' own: the first runs in each process compile
+    the solver's kernels, so the summed wall time over-states what one more run costs."""
+    if "solver_compile_time" not in stats.attrs and (runs is None or "compile_time" not in runs):
+        return []
+    compiling = stats.attrs.get("solver_compile_time")
+    line = (f"compile time (numba, part of the solver wall time above): "
+            f"{_seconds(compiling)}")
+    if runs is not None and "compile_time" in runs and "status" in runs:
+        ok = _status(runs) == "ok"
+        own = (np.asarray(runs["wall_time"].values, float)
+               - np.asarray(runs["compile_time"].values, float))[ok]
+        own = own[np.isfinite(own)]
+        if own.size:
+            line += (f"; per run without it: median {_seconds(np.median(own))} over "
+                     f"{own.size} ok run{'s' if own.size > 1 else ''}")
+    return [line]
+
+
+def _field_rows(stats: xr.Dataset, runs: xr.Dataset | None) -> list[list[str]]:
+    """One row per random field of the study: what it drives, its kernel and KL modes."""
+    try:
+        germs = json.loads(stats.attrs.get("fields", "{}"))  # field name -> germ variable
+    except (TypeError, ValueError):
+        germs = {}
+    if runs is not None:
+        for var in runs.data_vars:
+            if str(var).startswith("germ_") and str(var) not in germs.values():
+                germs[str(runs[var].attrs.get("field", str(var)[len("germ_"):]))] = str(var)
+    rows = []
+    for name, var in germs.items():
+        key = f"field_{str(var)[len('germ_'):]}"
+
+        def attr(what, default="?"):
+            return str(stats.attrs.get(f"{key}_{what}", default))
+
+        modes = attr("modes", "")
+        if not modes and runs is not None and var in runs:
+            modes = str(runs[var].shape[-1])
+        captured = stats.attrs.get(f"{key}_captured_fraction")
+        length = stats.attrs.get(f"{key}_correlation_length")
+        rows.append([name, attr("parameters"), attr("kernel"),
+                     _num(length) if length is not None else "?",
+                     (modes or "?") + (f" ({100 * float(captured):.3g} % of the variance)"
+                                       if captured is not None else ""),
+                     attr("germ"), _num(stats.attrs[f"{key}_amplitude"])
+                     if f"{key}_amplitude" in stats.attrs else "?"])
+    return rows
+
+
+def _inputs_table(stats: xr.Dataset, runs: xr.Dataset | None = None) -> list[str]:
+    """The uncertain inputs: scalar inputs, then random fields (both are uncertain inputs)."""
+    lines = []
+    fields = _field_rows(stats, runs)
+    if fields:
+        lines += ["random fields (KL expansion; value = mean (1 + amplitude sum_j "
+                  "sqrt(lambda_j) phi_j(x) xi_j)):"]
+        lines += _grid(["field", "parameters", "kernel", "correlation length", "KL modes",
+                        "germs xi_j", "amplitude"], fields, {3})
     if "parameter" not in stats.coords or stats.sizes.get("parameter", 0) == 0:
-        return ["inputs: none uncertain"]
+        return lines or ["inputs: none uncertain"]
     params = [str(p) for p in stats["parameter"].values]
     units = [str(u) for u in stats["parameter_units"].values] \
         if "parameter_units" in stats.coords else [""] * len(params)
@@ -312,7 +441,8 @@ def _inputs_table(stats: xr.Dataset) -> list[str]:
         cv_text = "n/a (mean 0)" if mean[k] == 0 else f"{cv[k]:.3g}"
         rows.append([p, units[k] or "-", _num(mean[k]), _num(std[k]), cv_text,
                      f"{skew[k]:.3g}"])
-    return _grid(["input", "units", "mean", "std", "C.V.", "skewness"], rows, {2, 3, 4, 5})
+    table = _grid(["input", "units", "mean", "std", "C.V.", "skewness"], rows, {2, 3, 4, 5})
+    return table + ([""] + lines if lines else [])
 
 
 def _status(runs: xr.Dataset) -> np.ndarray:
@@ -343,7 +473,9 @@ def _unfinished(name: str, method: str, attrs: dict, runs: xr.Dataset | None) ->
     lines.append(f"runs: {status.size} planned: "
                  + ", ".join(f"{n} {s}" for s, n in counts.items()))
     wall = runs["wall_time"].values if "wall_time" in runs else np.array([np.nan])
-    lines.append(f"solver wall time so far {_seconds(np.nansum(wall))}")
+    compiling = (f" (numba compiling {_seconds(np.nansum(runs['compile_time'].values))} of it)"
+                 if "compile_time" in runs else "")
+    lines.append(f"solver wall time so far {_seconds(np.nansum(wall))}{compiling}")
     failure = _first_failure(runs)
     if failure:
         lines.append(failure)
@@ -379,7 +511,9 @@ def write_figures(tree: xr.DataTree, folder: Path) -> list[Path]:
             if fig is None:
                 continue
             folder.mkdir(parents=True, exist_ok=True)
-            path = folder / f"{out}_{kind}.png"
+            path = figure_path(folder, out, kind)
+            if path in written:  # two names that differ only in characters made '_'
+                path = figure_path(folder, out, kind, len(written))
             _save(fig, path)
             written.append(path)
     return written

@@ -16,7 +16,8 @@ def _g(x) -> str:
 
 
 def method_cell(stats: xr.Dataset, method: str, out: str, focus: dict) -> str:
-    """The summary table's method column: how sure, and what it saved."""
+    """The summary table's method column: how sure (in the output's unit u), and what it
+    saved."""
     at = stats[out].isel(focus)
     ratio = stats[f"{out}_cost_ratio"].isel(focus) if f"{out}_cost_ratio" in stats else np.nan
     parts = [f"stderr {_g(at.sel(statistic='stderr'))}"]
@@ -26,23 +27,31 @@ def method_cell(stats: xr.Dataset, method: str, out: str, focus: dict) -> str:
     return ", ".join(parts)
 
 
-def level_lines(stats: xr.Dataset, method: str, outs: list[str], focus_of) -> list[str]:
-    """The per-level (multilevel) or per-model (multifidelity) table."""
+def level_lines(stats: xr.Dataset, method: str, outs: list[str], focus_of,
+                units_of=lambda out: "") -> list[str]:
+    """The per-level (multilevel) or per-model (multifidelity) table; ``units_of(out)`` gives
+    an output's unit for the headers of its columns."""
     units = stats["level_run_cost" if method == "multilevel" else "model_run_cost"].attrs.get(
         "units", "")
     cost_unit = "s" if units == "s" else "stated units"
     if method == "multilevel":
+        # A sample of level l > 0 is a pair of runs (levels l and l - 1): its cost C_l is
+        # c_l + c_l-1, and the level's share of the study is N_l C_l.
         lines = [f"levels (cost per run in {cost_unit}; E_l, V_l: mean and variance of the "
-                 f"correction P_l - P_l-1 at each output's row point):"]
-        head = ["level", "value", "N_l", "failed pairs", "C_l run", "N_l C_l"]
+                 f"correction P_l - P_l-1 at each output's row point; a sample of level "
+                 f"l > 0 is the pair of runs at l and l - 1):"]
+        head = ["level", "value", "N_l", "failed pairs", f"run cost c_l [{cost_unit}]",
+                f"sample cost C_l [{cost_unit}]", f"level cost N_l C_l [{cost_unit}]"]
         for out in outs:
-            head += [f"E_l {out}", f"V_l {out}"]
+            unit = units_of(out) or "-"
+            head += [f"E_l {out} [{unit}]", f"V_l {out} [{unit}^2]"]
         rows = []
         for l in range(stats.sizes["level"]):
             n = int(stats["level_samples"].values[l])
             row = [str(l), _g(stats["level_value"].values[l]), str(n),
                    str(int(stats["level_failed_pairs"].values[l])),
                    _g(stats["level_run_cost"].values[l]),
+                   _g(stats["level_sample_cost"].values[l]),
                    _g(n * stats["level_sample_cost"].values[l])]
             for out in outs:
                 sel = {"level": l, **focus_of(out)}
@@ -83,40 +92,54 @@ def _table(head, rows) -> list[str]:
 
 
 def levels_figure(ctx, out: str):
-    """V_l and |E_l| (at the output's row point) against level, log2 scale, with the fitted
-    rates; C_l with gamma; the cost each level took. None for other methods."""
+    """V_l (unit^2) and |E_l| (unit) at the output's row point against level, each on its own
+    log2 axis with its fitted rate; the cost per run c_l with gamma; the cost each level took.
+    None for other methods."""
     if ctx.method != "multilevel" or f"{out}_level_variance" not in ctx.stats:
         return None
+    import textwrap
+
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from uqflow.report import _focus
+    from uqflow.report import _focus, _where
 
     stats = ctx.stats
     focus = _focus(stats, out)
+    unit = ctx.units(out) or "-"
+    cost_unit = "s" if stats["level_run_cost"].attrs.get("units") == "s" else "stated units"
     l = np.arange(stats.sizes["level"])
     V = np.asarray(stats[f"{out}_level_variance"].isel(focus).values, dtype=float)
     E = np.abs(np.asarray(stats[f"{out}_level_mean"].isel(focus).values, dtype=float))
     c = np.asarray(stats["level_run_cost"].values, dtype=float)
     spent = np.asarray(stats["level_samples"].values) * stats["level_sample_cost"].values
-    fig = Figure(figsize=(12.0, 3.8), layout="constrained")
+    fig = Figure(figsize=(9.0, 6.6), layout="constrained")
     FigureCanvasAgg(fig)
-    ax, cx, bx = fig.subplots(1, 3)
+    (vx, ex), (cx, bx) = fig.subplots(2, 2)
     alpha, beta = (float(v) for v in stats[f"{out}_rates"].values)
-    for values, label, rate, style in ((V, "V_l", beta, "o-"), (E, "|E_l|", alpha, "s-")):
+    for ax, values, label, rate, name, style, axis_unit in (
+            (vx, V, "V_l", beta, "beta", "o-", f"{unit}^2"),
+            (ex, E, "|E_l|", alpha, "alpha", "s-", unit)):
         ok = values > 0
-        ax.plot(l[ok], np.log2(values[ok]), style, label=f"{label}, rate {_g(rate)}")
-        if np.isfinite(rate):
-            ax.plot(l[1:], np.log2(values[-1]) - rate * (l[1:] - l[-1]), ":", color="0.5")
-    ax.set(xlabel="level", ylabel="log2", title=ctx.title(out, "corrections", focus))
-    ax.legend(fontsize=8)
-    cx.plot(l, np.log2(c), "^-", label=f"C_l, rate {_g(stats.attrs.get('gamma'))}")
-    cx.set(xlabel="level", ylabel="log2 cost per run", title="cost per run")
+        ax.plot(l[ok], np.log2(values[ok]), style, label=f"{label}, {name} = {_g(rate)}")
+        if np.isfinite(rate) and ok[-1]:
+            ax.plot(l[1:], np.log2(values[-1]) - rate * (l[1:] - l[-1]), ":", color="0.5",
+                    label=f"slope -{name}")
+        ax.set(xlabel="level", ylabel=f"log2 {label} [{axis_unit}]",
+               title=f"{label}: {'variance' if label == 'V_l' else 'mean'} of the correction")
+        ax.legend(fontsize=8)
+    cx.plot(l, np.log2(c), "^-", label=f"c_l, gamma = {_g(stats.attrs.get('gamma'))}")
+    cx.set(xlabel="level", ylabel=f"log2 c_l [{cost_unit}]", title="cost of one run")
     cx.legend(fontsize=8)
     bx.bar(l, spent, color="tab:blue")
-    bx.set(xlabel="level", ylabel="N_l C_l", title="cost each level took")
-    for a in (ax, cx, bx):
+    bx.set(xlabel="level", ylabel=f"N_l C_l [{cost_unit}]",
+           title="cost each level took (C_l: a pair of runs)")
+    for a in (vx, ex, cx, bx):
         a.set_xticks(l)
+    where = f" at {_where(stats, focus)}" if focus else ""
+    # ~95 characters fit across 9 inches at the suptitle's size: wrap rather than clip.
+    fig.suptitle("\n".join(textwrap.wrap(f"{ctx.study}: {out}{where}, multilevel levels",
+                                          width=90)))
     return fig
 
 
@@ -163,7 +186,9 @@ def cost_comparison(trees: list, folder, figures: bool = True) -> tuple[str, lis
              f"(plain MC at the finest level: "
              + ("s / sqrt(n) with its measured std and cost per run)" if plain else
                 "no plain Monte Carlo result or measured costs among them)")]
-    head = ["study", "method", "runs", "solver time (s)", "stderr", "plain MC time (s)"]
+    unit = str(parts[0][1][out].attrs.get("units", "")) or "-"
+    head = ["study", "method", "runs", "solver time (s)", f"stderr [{unit}]",
+            "plain MC time (s)"]
     table = []
     for name, method, runs, cost, se in rows:
         need = plain[0] ** 2 / se**2 * plain[1] if plain and se > 0 else np.nan
@@ -184,12 +209,14 @@ def cost_comparison(trees: list, folder, figures: bool = True) -> tuple[str, lis
         for (name, method, _, cost, se), marker in zip(rows, "os^vD<>p*h"):
             if np.isfinite(cost) and cost > 0 and se > 0:
                 ax.loglog(cost, se, marker, ms=8, label=f"{name} ({method})")
-        ax.set(xlabel="solver time (s)", ylabel=f"standard error of {out}",
+        ax.set(xlabel="solver time (s)", ylabel=f"standard error of {out} [{unit}]",
                title="error against cost")
         ax.legend(fontsize=8)
+        from uqflow.report import figure_path
+
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
-        path = folder / f"{out}_error_vs_cost.png"
+        path = figure_path(folder, out, "error_vs_cost")
         fig.savefig(path, dpi=110)
         written.append(path)
     return "\n".join(lines), written

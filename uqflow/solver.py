@@ -44,7 +44,16 @@ def get_solver(name: str) -> type["Solver"]:
 
 
 class Solver(abc.ABC):
-    """Base class of every solver back-end."""
+    """Base class of every solver back-end.
+
+    Outputs and diagnostics: every variable of the ``outputs()`` template is stored per
+    realization in the result's runs. One whose attribute ``output_kind`` is "diagnostic"
+    (``uqflow.methods.base.DIAGNOSTIC_KIND``) says how the run went rather than what it
+    predicts (a wall time per phase, a step or iteration count): it is stored in the runs
+    like the others, but no method gives it statistics, the report draws no figure of it, and
+    no method allocates samples on it (``uqflow.methods.base.is_diagnostic``). An output
+    without the attribute, or with ``output_kind = "quantity"``, is an uncertain quantity.
+    """
 
     name: ClassVar[str] = ""
 
@@ -59,7 +68,8 @@ class Solver(abc.ABC):
 
     @abc.abstractmethod
     def outputs(self) -> xr.Dataset:
-        """Template of ``run``'s result: names, dims, coords and ``units`` attributes."""
+        """Template of ``run``'s result: names, dims, coords and ``units`` attributes
+        (``output_kind = "diagnostic"`` on timings and counters, see the class docstring)."""
 
     @abc.abstractmethod
     def run(self, params: Mapping[str, float],

@@ -11,7 +11,10 @@ Design (xr.Dataset): dims ``realization`` and ``parameter``; variable ``inputs``
 variables and attributes.
 
 Runs (xr.Dataset): the design's ``inputs`` plus every output (realization, *output dims),
-``status`` ("ok", "failed" or "pending"), ``message`` and ``wall_time`` (s).
+``status`` ("ok", "failed" or "pending"), ``message``, ``wall_time`` (s) and ``compile_time``
+(s, the part of ``wall_time`` numba spent compiling). Outputs a solver marks as diagnostics
+(``is_diagnostic``: timings, counters) are stored there too, but are no uncertain quantity:
+``output_names`` leaves them out, so no method gives them statistics.
 
 Local sensitivities (an optional solver capability, ``uqflow.solver``): a design's boolean
 ``with_sensitivities`` (realization) asks the executor to run those realizations with the
@@ -20,8 +23,10 @@ the ``sensitivity_run`` dim (``uqflow.realization.sensitivity_arrays``). A metho
 the capability says so in ``check_solver``, called when the study is loaded.
 
 Statistics (xr.Dataset): every output with a leading ``statistic`` dimension, the input
-summary, and attributes ``method``, ``solver_runs``, ``failed_runs``, ``solver_wall_time``
-and ``warnings`` (one warning per line).
+summary, and attributes ``method``, ``solver_runs``, ``failed_runs``, ``solver_wall_time``,
+``solver_compile_time`` and ``warnings`` (one warning per line). Each output's statistics keep
+its dims (after ``statistic`` and the method's own dims); a method that reduces some away (a
+time series averaged to one number) gets a warning naming the output and the dims.
 """
 
 from __future__ import annotations
@@ -223,12 +228,23 @@ def make_design(space: InputSpace, values: np.ndarray, **variables) -> xr.Datase
 FIDELITY_DESIGN_VARIABLES = ("level", "group", "sample", "seed_key", "round")
 
 
+#: the attribute ``output_kind`` of a solver's output template variable that marks a diagnostic
+DIAGNOSTIC_KIND = "diagnostic"
+
+
+def is_diagnostic(variable: xr.DataArray) -> bool:
+    """Whether an output is a diagnostic of the run (a timing, a counter), not an uncertain
+    quantity: its attribute ``output_kind`` is "diagnostic" (``uqflow.solver.Solver``)."""
+    return str(variable.attrs.get("output_kind", "")) == DIAGNOSTIC_KIND
+
+
 def output_names(runs: xr.Dataset) -> list[str]:
-    """The solver outputs stored in ``runs`` (everything with a ``realization`` dim but ours)."""
-    skip = {"inputs", "status", "message", "wall_time", "realization_seed", "clipped_points",
-            "with_sensitivities", *FIDELITY_DESIGN_VARIABLES}
+    """The uncertain solver outputs stored in ``runs``: everything with a ``realization`` dim
+    but ours and the solver's diagnostics."""
+    skip = {"inputs", "status", "message", "wall_time", "compile_time", "realization_seed",
+            "clipped_points", "with_sensitivities", *FIDELITY_DESIGN_VARIABLES}
     return [v for v in runs.data_vars if v not in skip and "realization" in runs[v].dims
-            and not v.startswith(("germ_", "field_"))]
+            and not v.startswith(("germ_", "field_")) and not is_diagnostic(runs[v])]
 
 
 def ok_mask(runs: xr.Dataset) -> np.ndarray:
@@ -238,11 +254,14 @@ def ok_mask(runs: xr.Dataset) -> np.ndarray:
 def cost_attrs(runs: xr.Dataset) -> dict:
     status = runs["status"].values
     done = status != "pending"
-    return {
+    cost = {
         "solver_runs": int(done.sum()),
         "failed_runs": int((status == "failed").sum()),
         "solver_wall_time": float(np.nansum(runs["wall_time"].values[done])),
     }
+    if "compile_time" in runs:
+        cost["solver_compile_time"] = float(np.nansum(runs["compile_time"].values[done]))
+    return cost
 
 
 def failure_warning(runs: xr.Dataset) -> list[str]:
@@ -268,5 +287,21 @@ def finish_statistics(stats: xr.Dataset, design: xr.Dataset, runs: xr.Dataset,
             stats[name].attrs.setdefault("units", runs[owner].attrs.get("units", ""))
     stats.attrs.update(cost_attrs(runs))
     stats.attrs["method"] = method
-    stats.attrs["warnings"] = "\n".join(warnings)
+    stats.attrs["warnings"] = "\n".join([*warnings, *reduced_dims_warnings(stats, runs)])
     return stats
+
+
+def reduced_dims_warnings(stats: xr.Dataset, runs: xr.Dataset) -> list[str]:
+    """A warning per output whose statistics lack some of its dims in ``runs``: the method
+    reduced them (a time series averaged into one number), and a reader of the result
+    should know the numbers are not per point."""
+    found = []
+    for out in output_names(runs):
+        if out not in stats.data_vars or "statistic" not in stats[out].dims:
+            continue
+        lost = [d for d in runs[out].dims if d != "realization" and d not in stats[out].dims]
+        if lost:
+            found.append(f"the statistics of '{out}' have no dim {', '.join(map(repr, lost))} "
+                         f"of its runs: the method reduced them (its numbers are not per "
+                         f"point of {', '.join(lost)})")
+    return found

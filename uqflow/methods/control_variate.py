@@ -348,7 +348,7 @@ def control_variables(out, runs, dims, est: Estimates, n, shape, plain, surrogat
     def field(values, long_name, unit="1"):
         return (dims, np.reshape(values, shape), {"long_name": long_name, "units": unit})
 
-    return {
+    variables = {
         f"{out}_correlation": field(
             est.correlation, f"correlation rho of {out} with its control surrogate over the "
                              f"successful samples"),
@@ -372,6 +372,11 @@ def control_variables(out, runs, dims, est: Estimates, n, shape, plain, surrogat
             "long_name": f"exact mean and variance of the surrogate of {out} under the inputs",
             "units": units}),
     }
+    if not np.any(np.isfinite(est.variance_stderr)):
+        # Randomized QMC with replicates of one sample has no within-replicate variance to
+        # spread: no standard error of the variance, so none is written (not NaN everywhere).
+        del variables[f"{out}_variance_stderr"]
+    return variables
 
 
 def control_trace(surrogate, design, runs, out, dims, replicates, points):
