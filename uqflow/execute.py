@@ -36,7 +36,7 @@ from uqflow.realization import (SENSITIVITY_DIM, STATUS_FAILED, STATUS_PENDING,
 from uqflow.store import check_writable, now, read_runs, versions, write_result
 from uqflow.study import Study, scheduler_address_problem
 
-_RUN_COLUMNS = {"status", "message", "wall_time", "clipped_points"}
+_RUN_COLUMNS = {"status", "message", "wall_time", "compile_time", "clipped_points"}
 #: how long a client waits for a dask scheduler before saying it cannot reach it
 CONNECT_TIMEOUT_S = 30.0
 
