@@ -113,6 +113,7 @@ class GamutResult:
     loading: str
     runs: xr.Dataset
     ok: np.ndarray = field(repr=False)
+    source: str = "study"       # where the case was read: "study", "description" or ""
 
     @property
     def stochastic(self) -> bool:
@@ -154,12 +155,14 @@ class GamutResult:
                 GRIDS.index(self.grid) if self.grid in GRIDS else 9, self.stochastic)
 
 
-def _scene_of(attrs: dict) -> dict:
-    """The scene of the stored study text (a scene file is read relative to the study file;
-    the solver's description is the last resort)."""
+def _scene_of(attrs: dict) -> tuple[dict, str]:
+    """The scene of the stored study text (a scene file is read relative to the study file)
+    and where it came from: "study" or, as the last resort, "description" (the solver's
+    description names material, loading and grid, not property overrides); ({}, "") when
+    neither tells."""
     scene = None
     try:
-        study = tomllib.loads(str(attrs.get("study", "")))
+        study = tomllib.loads(str(attrs.get("study") or ""))
         scene = study.get("scene")
         if isinstance(scene, str):
             base = Path(str(attrs.get("study_file", "."))).parent
@@ -167,11 +170,21 @@ def _scene_of(attrs: dict) -> dict:
     except (tomllib.TOMLDecodeError, OSError, ValueError):
         scene = None
     if isinstance(scene, dict):
-        return scene
+        return scene, "study"
     # "gamut_bar/M1 monotonic, 500 local bonds, uniform grid"
     m = re.search(r"gamut_bar/(\w+) (\w+), \d+ local bonds, (\w+) grid",
                   str(attrs.get("solver_description", "")))
-    return {"material": m[1], "loading": m[2], "grid": m[3]} if m else {}
+    if m:
+        return {"material": m[1], "loading": m[2], "grid": m[3]}, "description"
+    return {}, ""
+
+
+def _without_study_text(attrs: dict) -> str:
+    """Why a result's scene is not read from its study text (one clause)."""
+    if str(attrs.get("study") or "").strip():
+        return "its study text names no scene this report reads"
+    return str(attrs.get("study_text_omitted") or "").split(";")[0] \
+        or "the result stores no study text"
 
 
 def identify(tree: xr.DataTree) -> GamutResult | None:
@@ -180,7 +193,8 @@ def identify(tree: xr.DataTree) -> GamutResult | None:
     attrs = dict(tree.attrs)
     if str(attrs.get("solver", "")) != "gamut_bar" or "runs" not in tree.children:
         return None
-    scene = dict(SCENE_DEFAULTS, **_scene_of(attrs))
+    found, source = _scene_of(attrs)
+    scene = dict(SCENE_DEFAULTS, **found)
     runs = tree["runs"].to_dataset()
     if "status" in runs:
         ok = np.asarray(runs["status"].values).astype(str) == "ok"
@@ -192,7 +206,7 @@ def identify(tree: xr.DataTree) -> GamutResult | None:
     return GamutResult(tree=tree, name=str(attrs.get("study_name", "?")), method=method,
                        material=str(scene["material"]), overrides=overrides,
                        grid=str(scene["grid"]), loading=str(scene["loading"]), runs=runs,
-                       ok=ok)
+                       ok=ok, source=source)
 
 
 # ------------------------------------------------------------------------------ mean curve
@@ -300,7 +314,9 @@ def _mpa(x, digits=1) -> str:
 
 
 def _rel(ours, ref) -> str:
-    if ours is None or ref is None or not np.isfinite(ours) or not ref:
+    """ours/ref - 1 in percent; "" when either is missing or not finite, or ref is 0 (a
+    deterministic bar that failed before the strain has no stress there)."""
+    if ours is None or ref is None or not np.isfinite(ours) or not np.isfinite(ref) or not ref:
         return ""
     return f"{100.0 * (ours / ref - 1.0):+.1f} %"
 
@@ -372,6 +388,9 @@ def _results_table(idx: _Index) -> Table:
                      f"{r.n_ok}/{r.total}" + ("" if complete else " (unfinished)")])
     notes = [f"ignored (same case, grid, loading and method as an earlier one): {r.name}"
              for r in idx.duplicates]
+    notes += [f"{r.name}: {_without_study_text(dict(r.tree.attrs))}; its case is read from the "
+              f"solver's description, which names no property override (such as n_ro)"
+              for r in idx.results if r.source == "description"]
     return Table("gamut_bar results", ["study", "case", "grid", "loading", "kind", "method",
                                        "ok runs"], rows, notes)
 
@@ -484,12 +503,27 @@ def _failure_table(idx: _Index) -> Table | None:
         return None
     props = {case: material_properties(r.material, r.overrides) for case, r in idx.cases()}
     eps_f = ", ".join(f"{c} {p['eps_f']:g}" for c, p in props.items())
+    header = ["case", "loading", "grid", "ok runs", "mean failure strain", "min .. max",
+              "deterministic", "mean/det.", "mean failure stress [MPa]", "det. [MPa]"]
+    notes = [f"material failure strain eps_f: {eps_f}"]
+    if not any(not r.stochastic for r in idx.results):
+        header, rows = _without(header, rows, DETERMINISTIC_FAILURE_COLUMNS)
+        notes.append(NO_DETERMINISTIC_NOTE)
     return Table("Failure: bar strain and stress at failure (cyclic: pulled to failure after "
-                 "the cycles)",
-                 ["case", "loading", "grid", "ok runs", "mean failure strain",
-                  "min .. max", "deterministic", "mean/det.", "mean failure stress [MPa]",
-                  "det. [MPa]"], rows,
-                 [f"material failure strain eps_f: {eps_f}"])
+                 "the cycles)", header, rows, notes)
+
+
+#: Columns of the curve and failure tables that need a deterministic result, left out when
+#: none is given (a study of random fields alone has no deterministic counterpart).
+DETERMINISTIC_CURVE_COLUMNS = ("deterministic [MPa]", "mean/det. - 1")
+DETERMINISTIC_FAILURE_COLUMNS = ("deterministic", "mean/det.", "det. [MPa]")
+NO_DETERMINISTIC_NOTE = ("no deterministic result given (the same scene with method "
+                         "\"nominal\"): the columns against the deterministic bar are left out")
+
+
+def _without(header: list[str], rows: list[list[str]], drop) -> tuple[list, list]:
+    keep = [i for i, name in enumerate(header) if name not in drop]
+    return [header[i] for i in keep], [[row[i] for i in keep] for row in rows]
 
 
 def _curve_table(idx: _Index, strains) -> Table | None:
@@ -517,14 +551,20 @@ def _curve_table(idx: _Index, strains) -> Table | None:
                          _rel(mean[k], ro[k]) or "–"])
     if not rows:
         return None
-    return Table("Monotonic curves (seed Figs. 21-24): mean stress of the realizations against "
-                 "the deterministic bar and Ramberg-Osgood",
-                 ["case", "grid", "strain", "mean stress [MPa]", "realizations counted",
-                  "deterministic [MPa]", "mean/det. - 1", "Ramberg-Osgood [MPa]",
-                  "mean/RO - 1"], rows,
-                 ["mean over the ok realizations whose path reaches the strain (a realization "
-                  "that failed before a strain does not count there); paths interpolated "
-                  "linearly; '–' where none (or the deterministic bar) reaches it"])
+    header = ["case", "grid", "strain", "mean stress [MPa]", "realizations counted",
+              "deterministic [MPa]", "mean/det. - 1", "Ramberg-Osgood [MPa]", "mean/RO - 1"]
+    notes = ["mean over the ok realizations whose path reaches the strain (a realization that "
+             "failed before a strain does not count there); paths interpolated linearly; '–' "
+             "where none (or the deterministic bar) reaches it, or no deterministic result of "
+             "the case is given"]
+    with_deterministic = any(idx.deterministic_for(case, "monotonic", grid)[0] is not None
+                             for case, grid in idx.groups("monotonic"))
+    title = ("Monotonic curves (seed Figs. 21-24): mean stress of the realizations against "
+             + ("the deterministic bar and " if with_deterministic else "") + "Ramberg-Osgood")
+    if not with_deterministic:
+        header, rows = _without(header, rows, DETERMINISTIC_CURVE_COLUMNS)
+        notes.append(NO_DETERMINISTIC_NOTE)
+    return Table(title, header, rows, notes)
 
 
 def _tables(results: list[GamutResult], strains=STRAINS) -> list[Table]:
@@ -537,7 +577,7 @@ def _tables(results: list[GamutResult], strains=STRAINS) -> list[Table]:
 
 def comparison_tables(trees, strains=STRAINS) -> list[Table]:
     """The report's tables (results, Table 1, spread, failure, mean curves) as ``Table``s."""
-    results = [r for r in map(identify, trees) if r is not None]
+    results = [r for r in map(identify, trees) if r is not None and r.source]
     return _tables(results, strains) if results else []
 
 
@@ -806,9 +846,13 @@ def report(trees, folder, figures: bool = True) -> tuple[str, list[Path]]:
     """Seed 002's comparisons for any set of gamut-bar results: the text (Table 1 with ours
     beside the seed's numbers, n'/K' spread, failure, mean monotonic curves) and the PNG
     figures written into ``folder`` (none with ``figures=False``)."""
-    results = [r for r in map(identify, trees) if r is not None]
+    found = [r for r in map(identify, trees) if r is not None]
+    results = [r for r in found if r.source]
+    left_out = [f"note: {r.name}: {_without_study_text(dict(r.tree.attrs))}, and the solver's "
+                f"description names no case: left out" for r in found if not r.source]
     if not results:
-        return "", []
-    text = "\n\n".join(t.text() for t in _tables(results))
+        return "\n".join(left_out), []
+    text = "\n\n".join([t.text() for t in _tables(results)] + (["\n".join(left_out)]
+                                                                 if left_out else []))
     pngs = _figures(results, Path(folder)) if figures else []
     return text, pngs

@@ -45,6 +45,13 @@ FIELDS = ("bar.E", "bar.R", "bar.w", "bar.rho")   # bar.w at nonlocal-bond midpo
 MAX_LOCAL_BONDS = 10**6
 MAX_FAMILIES = 10**3         # nonlocal degrees 2..cutoff × sigma_stdev
 MAX_BONDS = 10**7            # local bonds × (1 + families)
+# How the run went, not what it predicts: stored per realization in the runs, never given
+# statistics, figures or a sample allocation (``output_kind``, uqflow.solver.Solver).
+DIAGNOSTIC_KIND = "diagnostic"
+DIAGNOSTIC_OUTPUTS = {"load_steps": "load steps the run followed (not counting the bisection "
+                                    "of the failure load)",
+                      "newton_iterations": "Newton iterations of those load steps",
+                      "factorisations": "stiffness matrix factorisations of those load steps"}
 MAX_LOAD_STEPS = 10**6       # recorded load steps of one curve (monotonic or cyclic)
 MAX_CYCLES = 10**3           # amplitudes of a cyclic test
 MAX_CYCLE_REPEATS = 10**3
@@ -320,6 +327,9 @@ class GamutBarSolver(Solver):
             coords["loop"] = np.arange(lv)
         ds = xr.Dataset({k: xr.Variable(d, v, {"units": u}) for k, (d, v, u) in data.items()},
                         coords=coords)
+        for name, long in DIAGNOSTIC_OUTPUTS.items():
+            ds[name] = xr.Variable((), nan, {"units": "1", "long_name": long,
+                                             "output_kind": DIAGNOSTIC_KIND})
         return ds
 
     # -- one realization -------------------------------------------------------------------
@@ -393,6 +403,8 @@ class GamutBarSolver(Solver):
         else:
             out.update(self._cyclic(sim, q, A))
         out["bond_strain"] = np.diff(sim.u) / net.seg
+        out.update(load_steps=sim.steps, newton_iterations=sim.iterations,
+                   factorisations=sim.factorisations)
         for name, value in out.items():
             var = ds.variables[name]
             var.values = np.asarray(value, dtype=float).reshape(var.shape).copy()

@@ -174,6 +174,53 @@ def test_monotonic_tables(trees, tmp_path):
     assert list(count) == [int((fs >= e).sum()) for e in gb.STRAINS]
 
 
+def test_without_a_deterministic_result_its_columns_are_left_out(trees, tmp_path):
+    """A study of random fields alone has no deterministic counterpart: its curve table
+    printed "mean/det. - 1 ... +nan %". The columns against the deterministic bar are left
+    out, with a note; with a deterministic result they are there, and never NaN."""
+    alone = _by_name(trees, "m1-monotonic-stochastic-uniform")
+    text, _ = gb.report([alone], tmp_path, figures=False)
+    assert "nan" not in text.lower()
+    assert "mean/det." not in text and "deterministic [MPa]" not in text
+    assert text.count(gb.NO_DETERMINISTIC_NOTE) == 2          # curve and failure tables
+    assert "mean/RO - 1" in text
+    both = [alone, _by_name(trees, "m1-monotonic-deterministic-uniform")]
+    text, _ = gb.report(both, tmp_path, figures=False)
+    assert "mean/det. - 1" in text and "nan" not in text.lower()
+    assert gb.NO_DETERMINISTIC_NOTE not in text
+    assert gb._rel(1.0, float("nan")) == "" and gb._rel(float("nan"), 1.0) == ""
+
+
+def _without_study(tree, **attrs):
+    kept = {k: v for k, v in tree.attrs.items() if k != "study"}
+    return xr.DataTree.from_dict({"/": xr.Dataset(attrs={**kept, **attrs}),
+                                  "runs": tree["runs"].to_dataset()})
+
+
+def test_a_result_without_its_study_text_reports_with_a_note(trees, tmp_path):
+    """A study text larger than 1 MiB is not stored (its hash is): the case is read from the
+    solver's description, and the report says so in one line; without that either, the
+    result is left out, one line; nothing crashes."""
+    omitted = ("the study text (2000000 bytes) is larger than 1048576 bytes and is not "
+               "stored; study_text_sha256 identifies it")
+    big = _without_study(_by_name(trees, "m1-monotonic-stochastic-uniform"),
+                         study_text_omitted=omitted)
+    text, _ = gb.report([big], tmp_path, figures=False)
+    assert ("t-m1-monotonic-stochastic-uniform: the study text (2000000 bytes) is larger than "
+            "1048576 bytes and is not stored; its case is read from the solver's description, "
+            "which names no property override (such as n_ro)") in text
+    assert gb.identify(big).describe() == "M1, uniform grid, monotonic"
+    bare = _without_study(_by_name(trees, "m1-cyclic-stochastic-uniform"),
+                          solver_description="gamut_bar")
+    text, pngs = gb.report([big, bare], tmp_path, figures=False)
+    assert ("note: t-m1-cyclic-stochastic-uniform: the result stores no study text, and the "
+            "solver's description names no case: left out") in text
+    assert "cyclic" not in text.split("gamut_bar results")[1].split("\n\n")[0]
+    assert gb.report([bare], tmp_path) == (
+        "note: t-m1-cyclic-stochastic-uniform: the result stores no study text, and the "
+        "solver's description names no case: left out", [])
+
+
 def test_a_failed_realization_is_left_out(trees, tmp_path):
     tree = _by_name(trees, "m1-cyclic-stochastic-uniform")
     runs = tree["runs"].to_dataset()
