@@ -49,6 +49,7 @@ def test_registered_with_defaults():
             opts.basis, opts.loo_warning) == ("loo", 5, None, "sobol", "auto", "hermite", 1e-2)
 
 
+@pytest.mark.numerics
 def test_hermite_products_equal_chaospy_expansion():
     """The fast products are chaospy's d-variate orthonormal expansion, term for term."""
     rng = np.random.default_rng(1)
@@ -138,6 +139,7 @@ def mean_square_error(e, de, n):
     return np.mean(2 * np.abs(e) * de + de**2, axis=0) + n * EPS * np.mean(e**2, axis=0)
 
 
+@pytest.mark.numerics
 def test_loo_closed_form_equals_brute_force():
     rng = np.random.default_rng(3)
     z = rng.standard_normal((24, 2))

@@ -83,6 +83,7 @@ def test_second_order_variance_of_a_gaussian_quadratic_is_exact(rho):
     assert abs(float(stats["y"].sel(statistic="variance")) - exact) <= 32 * EPS * scale
 
 
+@pytest.mark.numerics
 def test_second_order_variance_of_independent_uniform_inputs_matches_taylor():
     space = _space(kind="uniform")
     local, _ = _statistics(QUADRATIC, space, variance="second-order")

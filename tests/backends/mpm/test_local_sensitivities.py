@@ -16,6 +16,8 @@ from solvers.mpm.solver import MPMSolver, _Run
 
 REPO = Path(__file__).resolve().parents[3]
 EPS = np.finfo(float).eps
+# pow, exp, log: within ULP units in the last place on any CPU (numpy's AVX-512 loops ≤ 4)
+ULP = 4
 # a shear rate that yields the 4340 steel in one step of DT_PLASTIC from rest
 # (2G γ̇ dt = 2·81.8e9·5e4·1e-7 ≈ 0.8 GPa ≈ A/√3·1.8)
 SHEAR_RATE, DT_PLASTIC = 5e4, 1e-7
@@ -401,9 +403,10 @@ def test_derivatives_without_a_local_dependence_are_exactly_zero(recorded):
     rate_factor = sol.cfg.materials["steel"].values
     r0 = 1.0 if rate_factor["seed_conventions"] == 0 else 1.0 + rate_factor["jc.C"] * np.log(
         jc.SEED_RATE_STAR_FLOOR)
-    # bound: r0 is 1 exactly (uqflow) or one log and two roundings (seed)
+    # bound: r0 is 1 exactly (uqflow) or 1 + C ln(floor) (seed): numba's libm log against
+    # numpy's (SIMD on AVX-512), each within ULP, grown by |C ln|/r0 in the sum, 1.5 roundings
     assert sens.gradient["flow_stress"][0, plate, wrt.index("steel.jc.A")] == pytest.approx(
-        r0, rel=4 * EPS)
+        r0, rel=2 * (ULP * abs(r0 - 1.0) / r0 + 1.5) * EPS)
 
 
 def test_averaging_probe_combines_its_members_derivatives(recorded):
