@@ -329,3 +329,21 @@ def test_level_table_columns_say_which_cost_they_are(multilevel_tree):
         assert [float(c) for c in cells[4:7]] == [run, sample, n * sample]
     assert "how sure [u], what it saved" in row(table, "output")
 
+
+
+def test_error_against_cost_leaves_the_compile_time_out(multilevel_tree):
+    from uqflow.report_levels import cost_comparison
+
+    k = RandomInput.from_spec({"name": "k", "distribution": "uniform", "lower": 0.5,
+                               "upper": 1.5})
+    runs, stats = analysed({"model": "euler_decay", "steps": 16}, InputSpace([k]),
+                           "monte-carlo", samples=8, rule="random")
+    # 10 s of wall time of which 8 s compiling: the 8 runs cost 2 s
+    stats.attrs.update(solver_wall_time=10.0, solver_compile_time=8.0)
+    plain = xr.DataTree.from_dict({"/": xr.Dataset(attrs={"study_name": "plain",
+                                                          "solver": "analytic"}),
+                                   "runs": runs, "statistics": stats})
+    text, _ = cost_comparison([plain, multilevel_tree], ".", figures=False)
+    cells = next(line.split() for line in text.splitlines() if line.strip().startswith("plain"))
+    assert cells[3] == "2" and cells[5] == "2"  # 8 runs at 0.25 s: exact in binary
+    assert "solver time without compile (s)" in text
