@@ -314,8 +314,9 @@ def test_fields_page_tables_match_the_code():
 # Every ```python block of README.md and docs/*.md runs as written: saved as a script in a
 # temporary folder that holds a copy of the project's studies/ (the studies and scenes it names
 # shrunk as for the shipped-study runs, [execution] left as written) and the page's
-# `# file:` blocks, then run with `python <block>.py` in a subprocess, so a script that starts
-# dask workers without `if __name__ == "__main__":` fails here as it does for a reader.
+# `# file:` blocks, then run as a script: a block that starts dask workers with
+# `python <block>.py` in a subprocess, so that without `if __name__ == "__main__":` it fails
+# here as it does for a reader; the others as `__main__` in this process (runpy).
 # The line before a block may say what it needs, as an HTML comment a reader sees in the source:
 #   <!-- after: uqflow run studies/x.toml -->  run that study first (in this process, shrunk)
 #   <!-- fragment: why -->  not a whole program (an excerpt, an interface, a cluster we lack);
@@ -411,6 +412,29 @@ def run_block(block: PyBlock, folder: Path) -> subprocess.CompletedProcess:
     return done
 
 
+def run_block_here(block: PyBlock, folder: Path, monkeypatch) -> None:
+    """Run a block that starts no worker processes as ``__main__`` in this process (saves a
+    Python start and uqflow's import): a fresh namespace, so a missing import still fails;
+    what it registers and the figures it opens do not outlive the test."""
+    import runpy
+
+    import matplotlib.pyplot as plt
+
+    from uqflow.methods.base import method_registry
+    from uqflow.solver import solver_registry
+    for registry in (method_registry, solver_registry):
+        for state in ("_classes", "_broken", "_entry_points_loaded"):   # restored as a whole
+            monkeypatch.setattr(registry, state, getattr(registry, state))
+        registry._classes, registry._broken = dict(registry._classes), dict(registry._broken)
+    monkeypatch.chdir(folder)
+    script = folder / "doc_block.py"
+    script.write_text(block.text, encoding="utf-8")
+    try:
+        runpy.run_path(str(script), run_name="__main__")
+    finally:
+        plt.close("all")
+
+
 def assert_results_keep_output_dims(folder: Path) -> None:
     """Every result a block wrote has statistics with the dims of the outputs they describe
     (a method that averaged y(t) into one number would teach the wrong thing)."""
@@ -457,15 +481,21 @@ def _starts_workers(block: PyBlock) -> bool:
                                    else b for b in RUNNABLE], ids=[b.id for b in RUNNABLE])
 def test_doc_python_block_runs(block, tmp_path, monkeypatch):
     prepare(block, tmp_path, monkeypatch)
-    run_block(block, tmp_path)
+    if _starts_workers(block):
+        run_block(block, tmp_path)            # the workers import the script: a real one
+    else:
+        run_block_here(block, tmp_path, monkeypatch)
     assert_results_keep_output_dims(tmp_path)
 
 
-def test_a_failing_block_fails(tmp_path):
+def test_a_failing_block_fails(tmp_path, monkeypatch):
     """The runner can fail: a block that raises, and one that reduces y(t) to one number."""
     bad = PyBlock(ROOT / "README.md", 0, "import math\nmath.sqrt(-1)\n", ("", ""))
     with pytest.raises(AssertionError, match="ValueError"):
         run_block(bad, tmp_path)
+    unimported = PyBlock(ROOT / "README.md", 0, "np.sqrt(2.0)\n", ("", ""))
+    with pytest.raises(NameError):                  # this module's imports do not leak in
+        run_block_here(unimported, tmp_path, monkeypatch)
     runs = xr.Dataset({"y": (("realization", "t"), np.ones((2, 3))),
                        "status": ("realization", ["ok", "ok"])}, coords={"t": [0.0, 1.0, 2.0]})
     stats = xr.Dataset({"y": (("statistic",), [1.0])}, coords={"statistic": ["mean"]})
