@@ -693,3 +693,14 @@ def test_the_exit_codes_table_is_the_command_lines():
     documented = {int(code) for code in re.findall(r"^\| (\d+) \|", table, re.M)}
     codes = {0} | {v for k, v in vars(cli).items() if k.startswith("EXIT_")}
     assert documented == codes
+
+
+def test_the_models_without_local_derivatives_are_named_right():
+    """README and study-files.md name the analytic models that taylor-local cannot use."""
+    from solvers.analytic.models import MODELS
+    without = {name for name, model in MODELS.items() if not hasattr(model, "derivatives")}
+    for page in (ROOT / "README.md", METHODS_PAGE):
+        text = " ".join(page.read_text(encoding="utf-8").split())
+        named = re.search(r"the analytic models other than `(\w+)` and `(\w+)`", text)
+        assert named, f"{page.name} does not say which analytic models lack local derivatives"
+        assert set(named.groups()) == without, page.name
