@@ -704,3 +704,12 @@ def test_the_models_without_local_derivatives_are_named_right():
         named = re.search(r"the analytic models other than `(\w+)` and `(\w+)`", text)
         assert named, f"{page.name} does not say which analytic models lack local derivatives"
         assert set(named.groups()) == without, page.name
+
+
+def test_the_field_cache_is_as_the_fields_page_says():
+    from uqflow import fields
+    text = " ".join((ROOT / "docs" / "fields.md").read_text(encoding="utf-8").split())
+    slots, power = re.search(r"for the last (\d+) point sets, up to 2(\S+) ", text).groups()
+    superscript = str.maketrans("⁰¹²³⁴⁵⁶⁷⁸⁹", "0123456789")
+    assert int(slots) == fields._CACHE_SLOTS
+    assert 2 ** int(power.translate(superscript)) == fields._CACHE_ENTRIES
