@@ -713,3 +713,28 @@ def test_the_field_cache_is_as_the_fields_page_says():
     superscript = str.maketrans("⁰¹²³⁴⁵⁶⁷⁸⁹", "0123456789")
     assert int(slots) == fields._CACHE_SLOTS
     assert 2 ** int(power.translate(superscript)) == fields._CACHE_ENTRIES
+
+
+def test_every_variable_and_attribute_of_a_result_is_on_the_results_page(tmp_path):
+    """docs/results.md: the runs group names every variable and coordinate a result's runs
+    have (a control-variate Monte Carlo study, run here), the statistics section (with the
+    control-variate page it links to) every attribute its statistics have."""
+    from uqflow.execute import run_study
+    from uqflow.methods.base import output_names
+    from uqflow.store import open_result
+    text = RESULTS_PAGE.read_text(encoding="utf-8")
+    runs_section = text[text.index("## Group `runs`"):text.index("## Group `statistics`")]
+    stats_section = text[text.index("## Group `statistics`"):text.index("## Post-processing")]
+    control = (ROOT / "docs" / "control_variates.md").read_text(encoding="utf-8")
+    stats_section += control[control.index("## What the statistics report"):]   # linked there
+    study = {**BASES["analytic"], "name": "controlled", "solver": "analytic",
+             "method": {"kind": "monte-carlo", "samples": 8, "control": "taylor"},
+             "execution": {"workers": 0}, "output": {"path": "controlled.nc", "figures": False}}
+    (tmp_path / "controlled.toml").write_text(to_toml(study) + "\n", encoding="utf-8")
+    tree = open_result(run_study(load_study(tmp_path / "controlled.toml"),
+                                 show_progress=False).path)
+    runs, stats = tree["runs"].to_dataset(), tree["statistics"]
+    for name in sorted(set(runs.variables) - set(output_names(runs))):
+        assert f"`{name}`" in runs_section, f"group runs does not name {name}"
+    for name in sorted(stats.attrs):
+        assert f"`{name}`" in stats_section, f"group statistics does not name attribute {name}"
