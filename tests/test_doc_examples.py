@@ -738,3 +738,34 @@ def test_every_variable_and_attribute_of_a_result_is_on_the_results_page(tmp_pat
         assert f"`{name}`" in runs_section, f"group runs does not name {name}"
     for name in sorted(stats.attrs):
         assert f"`{name}`" in stats_section, f"group statistics does not name attribute {name}"
+
+
+# ----------------------------------------------------------------------------- links
+LINK = re.compile(r"\]\(([^)\s]+)\)")
+
+
+def _anchors(page: Path) -> set[str]:
+    """GitHub's heading anchors: lower case, punctuation dropped, spaces to hyphens."""
+    return {re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+            for heading in re.findall(r"^#+\s+(.*)$", page.read_text(encoding="utf-8"), re.M)}
+
+
+def broken_links(page: Path, text: str) -> list[str]:
+    broken = []
+    for target in LINK.findall(text):
+        if target.startswith(("http://", "https://", "mailto:")):
+            continue
+        path, _, anchor = target.partition("#")
+        linked = page.parent / path if path else page
+        if not linked.exists() or (anchor and linked.suffix == ".md"
+                                   and anchor not in _anchors(linked)):
+            broken.append(target)
+    return broken
+
+
+def test_every_link_between_the_pages_resolves():
+    for page in PAGES:
+        assert broken_links(page, page.read_text(encoding="utf-8")) == [], page.name
+    readme = ROOT / "README.md"
+    assert broken_links(readme, "[x](docs/results.md#no-such-section) [y](docs/gone.md)") == \
+        ["docs/results.md#no-such-section", "docs/gone.md"]
