@@ -114,7 +114,10 @@ def level_solver(spec: LevelsSpec, scene: dict, solver_class, level: int):
         return solver_class.from_scene(scene_with(scene, spec.key, value))
     except SceneError as exc:
         broke = exc.key or "scene"
-        if broke in (spec.key, f"scene.{spec.key}"):
+        parts = spec.key.split(".")
+        # the key or a table on its way ("random" of "random.count") the scene does not take
+        own = {".".join(parts[:i]) for i in range(1, len(parts) + 1)}
+        if broke.removeprefix("scene.") in own:
             if exc.reason.startswith("unknown key"):
                 raise StudyError(f"'{spec.key}' is not a key of this scene: {exc.reason}",
                                  key="levels.key") from None

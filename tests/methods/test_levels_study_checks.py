@@ -61,10 +61,11 @@ def test_a_bad_finest_level_value_is_the_levels_values_fault(tmp_path):
     assert "steps = 0 (level 2) gives a bad scene: scene.steps: must be an integer" in err.reason
 
 
-def test_an_unknown_levels_key_is_the_levels_key_fault(tmp_path):
-    err = refused(study(tmp_path, key="stepz"))
+@pytest.mark.parametrize("key", ["stepz", "random.count"])
+def test_an_unknown_levels_key_is_the_levels_key_fault(tmp_path, key):
+    err = refused(study(tmp_path, key=key))
     assert err.key == "levels.key"
-    assert "'stepz' is not a key of this scene: unknown key" in err.reason
+    assert f"'{key}' is not a key of this scene: unknown key" in err.reason
 
 
 def test_a_scene_wrong_by_itself_stays_the_scenes_fault(tmp_path):
