@@ -591,6 +591,8 @@ _CORRELATION = '\n[correlation]\ninputs = ["x1", "x2"]\nmatrix = [[1.0, {r}], [{
 ERROR_CASES = {   # (file, key) -> (command, the study's tables after its solver and scene)
     ("bad", "inputs[0].cv"): ("validate", '\n[[inputs]]\nname = "x1"\ndistribution = "normal"'
                               '\nmean = 1.0\ncv = -0.1\n\n[method]\nkind = "monte-carlo"\n'),
+    ("bad", "inputs[0].std"): ("validate", '\n[[inputs]]\nname = "x1"\ndistribution = "normal"'
+                               '\nmean = 0.0\nstd = 1e77\n\n[method]\nkind = "monte-carlo"\n'),
     ("plate", "inputs[1].upper"): ("validate", _TWO_NORMALS.rsplit("[[inputs]]", 1)[0]
                                    + '[[inputs]]\nname = "x2"\ndistribution = "uniform"\n'
                                      'lower = 0.0\nupper = 0.0\n\n[method]\n'
