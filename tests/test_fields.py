@@ -365,6 +365,7 @@ def test_truncation_by_mode_count():
     assert capped.n_modes < 300 and capped.capped and "requested" in capped.warning
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("kernel", ["exponential", "squared_exponential"])
 @pytest.mark.parametrize("dim", [1, 2])
 def test_extreme_correlation_lengths(kernel, dim):
@@ -378,8 +379,10 @@ def test_extreme_correlation_lengths(kernel, dim):
         assert short.n_modes <= 60 and short.captured_fraction < 0.95
     else:
         # At the 300 points (the Nyström nodes) the field is white noise: 95 % of its
-        # variance takes 95 % of the modes.
-        assert short.n_modes >= 0.94 * 300 and short.captured_fraction >= 0.95
+        # variance takes 95 % of the modes. 285 equal eigenvalues are 0.95 exactly, so the
+        # rounding of eigh (any BLAS) and the 300-term sums decides the side: the code takes a
+        # sum within 1e-12 of its target (≫ 300 eps), and so does this check.
+        assert short.n_modes >= 0.94 * 300 and short.captured_fraction >= 0.95 * (1 - 1e-12)
     germs = short.spec.germ.draw(short.n_modes, rng)
     values, _ = short.realize(2.0, germs, pts)
     assert np.all(np.isfinite(values))

@@ -269,15 +269,17 @@ def test_jc_hessian_matches_central_differences_of_the_gradient():
     fd = central_difference_hessian(lambda t: johnson_cook_sensitivities(*t, *state)[1],
                                     theta, steps)
     # each gradient entry is a sum of terms of at most T = h r (1 + T*^m)(1 + n|ln εp|)
-    # (1 + m|ln T*|) in θ units, rounded to ~8 eps·T; differencing with the step θ_j η/widen_j
-    # turns that into 16 eps·T·widen_j/η (this is what bounds the FD near T* = 1, where the
+    # (1 + m|ln T*|) in θ units, rounded to (3 ULP + 8) eps·T (a pow and two logs or pows
+    # within ULP each, ≤ 8 roundings); differencing with the step θ_j η/widen_j turns that
+    # into 2 (3 ULP + 8) eps·T·widen_j/η (this is what bounds the FD near T* = 1, where the
     # gradient is 1 − T*^m ≈ m(1 − T*), 10⁻¹², computed from terms of order 1)
     A, B, C, n, m = theta
     power_T = np.where((T_star > 0) & (T_star < 1), np.abs(T_star) ** m, 0.0)
     hard = A + B * np.where(eps_p > 0, eps_p, 0.0) ** n
     terms = (hard * (1 + C * np.log(np.maximum(rate, 1.0))) * (1 + power_T)
              * (1 + n * log_eps) * (1 + m * log_T))
-    rounding = np.stack([16 * EPS * terms * w / FD_ETA * np.ones(N_STATES) for w in widen], -1)
+    rounding = np.stack([2 * (3 * ULP + 8) * EPS * terms * w / FD_ETA * np.ones(N_STATES)
+                         for w in widen], -1)
     assert_hessian_matches(fd, hess, grad, scales, FD_RTOL, "JC Hessian", rounding)
 
 
