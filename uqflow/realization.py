@@ -92,7 +92,11 @@ def _add_sensitivity_variables(runs: xr.Dataset, template: xr.Dataset) -> xr.Dat
         "long_name": "realization run with local sensitivities"})})
     if "parameter_j" not in runs.coords:
         runs = runs.assign_coords(parameter_j=("parameter_j", parameters))
+    from uqflow.methods.base import is_diagnostic  # methods import this module
+
     for name, var in template.data_vars.items():
+        if is_diagnostic(var):  # a timing or a counter has no derivative
+            continue
         units = var.attrs.get("units", "")
         runs[gradient_variable(name)] = xr.Variable(
             (SENSITIVITY_DIM, *var.dims, "parameter"), np.full((m, *var.shape, n), np.nan),
@@ -167,12 +171,13 @@ def _derivatives(result: xr.Dataset, output: str, wrt: list[str], dims: tuple) -
 
 
 def run_one(solver, params: dict, fields, outputs: list[str], seed: int | None = None,
-            wrt: list[str] | None = None):
+            wrt: list[str] | None = None, derived: list[str] | None = None):
     """One realization: (status, message, {output: array}, wall time).
 
     With ``wrt`` (parameter names) the realization runs ``solver.run_with_sensitivities``
-    and the dict also holds each output's gradient and Hessian with respect to ``wrt``
-    (``gradient_variable(o)``, ``hessian_variable(o)``).
+    and the dict also holds the gradient and Hessian with respect to ``wrt``
+    (``gradient_variable(o)``, ``hessian_variable(o)``) of each output in ``derived``
+    (default: every output; a solver's diagnostics, a timing or a counter, have none).
 
     A ``SolverError`` or any other exception, and any non-finite output or derivative, make
     the realization failed with a one-line message; nothing propagates. ``seed`` goes to
@@ -185,7 +190,8 @@ def run_one(solver, params: dict, fields, outputs: list[str], seed: int | None =
             if fields:
                 raise SolverError("a realization with sensitivities takes no random fields "
                                   "(run_with_sensitivities has no fields argument)")
-            result = solver.run_with_sensitivities(params, wrt=list(wrt), outputs=list(outputs),
+            derived = list(outputs) if derived is None else list(derived)
+            result = solver.run_with_sensitivities(params, wrt=list(wrt), outputs=derived,
                                                    **kwargs)
         elif fields:
             result = solver.run(params, fields, **kwargs)
@@ -193,7 +199,7 @@ def run_one(solver, params: dict, fields, outputs: list[str], seed: int | None =
             result = solver.run(params, **kwargs)
         values = {name: np.asarray(result[name].values, dtype=float) for name in outputs}
         if wrt is not None:
-            for name in outputs:
+            for name in derived:
                 values.update(_derivatives(result, name, wrt, result[name].dims))
         bad = [name for name, v in values.items() if not np.all(np.isfinite(v))]
         if bad:
@@ -286,6 +292,12 @@ def run_batch(solver, names: list[str], values: np.ndarray, outputs: list[str],
     statuses, messages, times, compiling, clipped, evaluated = [], [], [], [], [], []
     results = {name: [] for name in outputs}
     derivatives = []
+    derived = None
+    if sensitivities is not None and np.any(sensitivities) and hasattr(solver, "outputs"):
+        from uqflow.methods.base import is_diagnostic  # methods import this module
+
+        template = solver.outputs()
+        derived = [o for o in outputs if o not in template or not is_diagnostic(template[o])]
     for i, row in enumerate(values):
         params = dict(zip(names, (float(v) for v in row)))
         sample = None
@@ -296,7 +308,8 @@ def run_batch(solver, names: list[str], values: np.ndarray, outputs: list[str],
         seed = int(seeds[i]) if seeds is not None and seeded[flagged] else None
         with compile_clock() as compiled:
             status, message, got, wall = run_one(solver, params, sample, outputs, seed,
-                                                 wrt=list(names) if flagged else None)
+                                                 wrt=list(names) if flagged else None,
+                                                 derived=derived)
         compiling.append(min(compiled.seconds, wall))
         clipped.append(sum(sample.clipped.values()) if sample is not None else 0)
         evaluated.append(sample.evaluated if sample is not None else {})

@@ -140,3 +140,20 @@ def test_methods_that_keep_the_dims_get_no_such_warning(kind, options):
     runs = evaluate_design(AnalyticSolver.from_scene({"model": "exponential_decay"}), design)
     stats = method.analyze(design, runs)
     assert "reduced" not in stats.attrs["warnings"]
+
+
+@pytest.mark.parametrize("kind, options", [("taylor-local", {}),
+                                           ("monte-carlo", {"samples": 4, "rule": "random",
+                                                            "control": "taylor-local"})])
+def test_a_sensitivity_run_asks_no_derivative_of_a_diagnostic(kind, options):
+    """A timing has no derivative: the method accepts the solver and its flagged run gives
+    derivatives of the uncertain outputs alone."""
+    solver = DecayWithTiming.from_scene({})
+    method = get_method(kind)(**options)
+    method.check_solver(solver, list(solver.outputs().data_vars), DECAY_SPACE.names)
+    design = method.plan(DECAY_SPACE, None, np.random.SeedSequence(2))
+    runs = evaluate_design(solver, design)
+    assert (runs["status"].values == "ok").all(), runs["message"].values
+    assert "y__gradient" in runs and "solve_time__gradient" not in runs
+    stats = method.analyze(design, runs)
+    assert [str(v) for v in stats.data_vars if "statistic" in stats[v].dims] == ["y"]

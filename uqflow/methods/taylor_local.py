@@ -21,7 +21,7 @@ from pydantic import Field
 
 from uqflow.errors import AccuracyWarning, StudyError
 from uqflow.methods.base import (MethodOptions, PropagationMethod, finish_statistics,
-                                 make_design, output_names, register_method)
+                                 is_diagnostic, make_design, output_names, register_method)
 from uqflow.methods.taylor import (LABELS, _label, _per_param, _second_order_variance,
                                    cv_warnings)
 from uqflow.realization import SENSITIVITY_FLAG, sensitivity_arrays
@@ -75,6 +75,10 @@ class TaylorLocal(PropagationMethod):
                              key="method.variance")
 
     def check_solver(self, solver, outputs, parameter_names):
+        # a diagnostic (a timing, a counter) is no uncertain quantity: it needs no derivative
+        # (a stand-in without the Solver base class may have no template to say so)
+        template = solver.outputs() if hasattr(solver, "outputs") else {}
+        outputs = [o for o in outputs if o not in template or not is_diagnostic(template[o])]
         available = solver.local_sensitivities()
         label = _solver_label(solver)
         if not available:
