@@ -28,6 +28,12 @@ LINEAR_SOLVERS = ("auto", "direct", "iterative")
 MAX_PARTICLES = 100_000
 MAX_STEPS = 10_000
 MAX_INCLUSIONS = 1_000
+#: lambda + 2 mu of a phase (Pa): real solids are below 1e13; the headroom keeps the stiffness
+#: sums (times 1/h² and volumes h², ~100 terms a row) and the penalty weights (below
+#: MAX_PENALTY) far from overflow
+MAX_STIFFNESS = 1e200
+#: relative penalty weight: beyond 1/eps the stiffness itself is lost in the rounding
+MAX_PENALTY = 1e16
 #: below this smoothing ratio a square-lattice support holds fewer than 9 particles and the
 #: linear correction is poorly conditioned at edges and corners (h = 2a holds 21)
 MIN_SMOOTHING_RATIO = 1.0
@@ -109,7 +115,17 @@ def _material(v, key):
     nu = number(tbl["nu"], f"{key}.nu")
     if not 0.0 < nu < 0.5:
         raise scene_error(f"{key}.nu", f"must be in (0, 0.5), got {nu!r}")
+    if not stiffness_scale(E, nu) <= MAX_STIFFNESS:
+        raise scene_error(f"{key}.E", f"E = {E!r} with nu = {nu!r} gives lambda + 2 mu above "
+                                      f"{MAX_STIFFNESS:g} Pa: the stiffness would overflow")
     return E, nu
+
+
+def stiffness_scale(E: float, nu: float) -> float:
+    """lambda + 2 mu of plane strain, the largest entry of the elastic matrix (inf when it
+    overflows; plane stress's is smaller)."""
+    with np.errstate(over="ignore"):
+        return float(np.float64(E) * (1.0 - nu) / ((1.0 + nu) * (1.0 - 2.0 * nu)))
 
 
 def _inclusions(v):
@@ -232,6 +248,11 @@ def parse(scene: Mapping) -> Config:
             raise scene_error("random.semi_axes_max", f"an ellipse {2 * widest:.4g} m across "
                                                       f"does not fit the {width:.4g} x "
                                                       f"{height:.4g} m plate")
+        if rnd.min_gap is not None and not 2.0 * (max(rnd.semi_axes_min) + rnd.min_gap) < \
+                min(width, height):
+            raise scene_error("random.min_gap", f"{rnd.min_gap:.4g} m around even the smallest "
+                                                f"ellipse does not fit the {width:.4g} x "
+                                                f"{height:.4g} m plate")
     elif "random" in s:
         raise scene_error("random", f"applies only to layout = \"random\", not {layout!r}")
     if layout == "polar" and (len(inclusions) != 1 or inclusions[0].centre != (0.0, 0.0)
@@ -286,7 +307,7 @@ def parse(scene: Mapping) -> Config:
         cutoff_threshold=number(s.get("cutoff_threshold", 1e-12), "cutoff_threshold",
                                 nonnegative=True, hi=1.0),
         cutoff_radius=cutoff_radius,
-        penalty=number(s.get("penalty", 1e4), "penalty", positive=True),
+        penalty=number(s.get("penalty", 1e4), "penalty", positive=True, hi=MAX_PENALTY),
         min_support=integer(s.get("min_support", 5), "min_support", 3, 100),
         linear_solver=_choice(s.get("linear_solver", "auto"), "linear_solver", LINEAR_SOLVERS),
         loading=loading,

@@ -17,7 +17,7 @@ from solvers.sph.linear import LinearSolveError
 from solvers.sph.loading import run_tension
 from solvers.sph.problem import ElasticProblem
 from solvers.sph.report import report as _report
-from solvers.sph.scene import Config, parse
+from solvers.sph.scene import MAX_STIFFNESS, Config, parse, stiffness_scale
 from solvers.sph.stiffness import Discretisation
 from uqflow.errors import SceneError, SolverError
 from uqflow.solver import Solver, register_solver
@@ -197,6 +197,10 @@ class SPHSolver(Solver):
                 raise SolverError(f"{phase}.E = {p[f'{phase}.E']!r} is not > 0")
             if not 0.0 < p[f"{phase}.nu"] < 0.5:
                 raise SolverError(f"{phase}.nu = {p[f'{phase}.nu']!r} is not in (0, 0.5)")
+            if not stiffness_scale(p[f"{phase}.E"], p[f"{phase}.nu"]) <= MAX_STIFFNESS:
+                raise SolverError(f"{phase}.E = {p[f'{phase}.E']!r} with nu = "
+                                  f"{p[f'{phase}.nu']!r} gives lambda + 2 mu above "
+                                  f"{MAX_STIFFNESS:g} Pa: the stiffness would overflow")
         if not p["interface.strength"] > 0:
             raise SolverError(f"interface.strength = {p['interface.strength']!r} is not > 0")
         return p

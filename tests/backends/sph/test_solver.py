@@ -63,6 +63,10 @@ def test_bad_scenes_name_their_key(change, key):
     (example1("regular", width=1e300, height=1e-300, spacing=1.0), "scene.spacing"),
     (example1(resolution=1e308), "scene.resolution"),
     (example3(step=1e308), "scene.step"),
+    (example3(random=dict(count=2, semi_axes_min=[1e-6, 1e-6], semi_axes_max=[2e-6, 2e-6],
+                          min_gap=1e308)), "scene.random.min_gap"),
+    (example3(matrix=dict(E=1e308, nu=0.4)), "scene.matrix.E"),     # lambda + 2 mu overflows
+    (example3(constraints="penalty", penalty=1e308), "scene.penalty"),
 ])
 def test_extreme_scene_values_are_one_line_errors_naming_their_key(scene, key):
     with pytest.raises(SceneError) as e:
@@ -153,6 +157,8 @@ def test_a_bad_parameter_fails_the_realization_with_its_reason():
     solver = SPHSolver.from_scene(example1(spacing=4.0))
     with pytest.raises(SolverError, match="matrix.nu = 0.5 is not in"):
         solver.run({"matrix.nu": 0.5})
+    with pytest.raises(SolverError, match="inclusion.E = 1e.308 with nu = 0.28 gives lambda"):
+        solver.run({"inclusion.E": 1e308})
 
 
 STUDY = """
