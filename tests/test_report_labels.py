@@ -347,3 +347,11 @@ def test_error_against_cost_leaves_the_compile_time_out(multilevel_tree):
     cells = next(line.split() for line in text.splitlines() if line.strip().startswith("plain"))
     assert cells[3] == "2" and cells[5] == "2"  # 8 runs at 0.25 s: exact in binary
     assert "solver time without compile (s)" in text
+
+
+@pytest.mark.parametrize("unit, expected", [("Pa", "Pa^2"), ("m s-1", "(m s-1)^2"), ("-", "-"),
+                                            ("", "-"), ("1", "-")])
+def test_a_dimensionless_variance_stays_dimensionless(unit, expected):
+    from uqflow.report_levels import squared
+
+    assert squared(unit) == expected

@@ -15,6 +15,13 @@ def _g(x) -> str:
     return "nan" if not np.isfinite(x) else f"{x:.4g}"
 
 
+def squared(unit: str) -> str:
+    """The unit of a variance: ``unit^2``, or '-' for a dimensionless output."""
+    if unit in ("", "-", "1"):
+        return "-"
+    return f"{unit}^2" if unit.isalpha() else f"({unit})^2"  # m s-1 -> (m s-1)^2
+
+
 def method_cell(stats: xr.Dataset, method: str, out: str, focus: dict) -> str:
     """The summary table's method column: how sure (in the output's unit u), and what it
     saved."""
@@ -44,7 +51,7 @@ def level_lines(stats: xr.Dataset, method: str, outs: list[str], focus_of,
                 f"sample cost C_l [{cost_unit}]", f"level cost N_l C_l [{cost_unit}]"]
         for out in outs:
             unit = units_of(out) or "-"
-            head += [f"E_l {out} [{unit}]", f"V_l {out} [{unit}^2]"]
+            head += [f"E_l {out} [{unit}]", f"V_l {out} [{squared(unit)}]"]
         rows = []
         for l in range(stats.sizes["level"]):
             n = int(stats["level_samples"].values[l])
@@ -118,7 +125,7 @@ def levels_figure(ctx, out: str):
     (vx, ex), (cx, bx) = fig.subplots(2, 2)
     alpha, beta = (float(v) for v in stats[f"{out}_rates"].values)
     for ax, values, label, rate, name, style, axis_unit in (
-            (vx, V, "V_l", beta, "beta", "o-", f"{unit}^2"),
+            (vx, V, "V_l", beta, "beta", "o-", squared(unit)),
             (ex, E, "|E_l|", alpha, "alpha", "s-", unit)):
         ok = values > 0
         ax.plot(l[ok], np.log2(values[ok]), style, label=f"{label}, {name} = {_g(rate)}")
