@@ -135,13 +135,15 @@ def _figures(runs, folder, stem):
                        runs.modulus_voigt_bound.values / 1e6, color="0.7",
                        label="Voigt–Reuss (each window)")
     if "modulus_hs_lower" in runs:
-        order = np.argsort(vf)
-        for var, style in (("modulus_hs_lower", "--"), ("modulus_hs_upper", ":")):
-            axes[1].plot(vf[order], runs[var].values[order] / 1e6, style, color="C1",
-                         label="Hashin–Shtrikman (effective)" if style == "--" else None)
+        # each window's own: its volume fraction and (with random moduli) its phases
+        for var in ("modulus_hs_lower", "modulus_hs_upper"):
+            axes[1].plot(vf, runs[var].values / 1e6, "_", color="C1", ms=12,
+                         label="Hashin–Shtrikman (effective)" if var.endswith("lower")
+                         else None)
     axes[1].plot(vf, runs.effective_modulus.values / 1e6, "o", label="apparent modulus")
     axes[1].set(xlabel="volume fraction", ylabel="modulus (MPa)", yscale="log",
                 title="apparent modulus")
+    axes[1].xaxis.set_major_locator(plt.MaxNLocator(4))
     axes[1].legend(fontsize=8)
     k, n = detach_counts(runs)
     lo, hi = clopper_pearson(k, n)
