@@ -120,10 +120,16 @@ def test_variance_column_has_its_stderr_where_the_method_gives_one():
     assert stats["y_variance_stderr"].attrs["units"] == "(Pa)^2"
 
 
-def test_no_variance_stderr_is_written_or_shown_where_the_method_has_none():
+@pytest.mark.parametrize("scene, space", [
+    (LINEAR, SPACE),
+    # alpha fixed (std 0): y(t = 0) = alpha is the same in every run
+    ({"model": "exponential_decay"}, InputSpace([normal("alpha", 1.5, 0.0),
+                                                 normal("beta", 0.15, 0.02)]))])
+def test_no_variance_stderr_is_written_or_shown_where_the_method_has_none(scene, space):
     """Randomized QMC with replicates of one sample (the quickstart's design) has no
-    within-replicate variance: no all-NaN variable, no '±' and no 'n/a'."""
-    runs, stats = analysed(LINEAR, SPACE, "monte-carlo", samples=8, rule="sobol",
+    within-replicate variance: no all-NaN variable (nor one of zeros where the output is
+    constant), no '±' and no 'n/a'."""
+    runs, stats = analysed(scene, space, "monte-carlo", samples=8, rule="sobol",
                            control="taylor-local")
     assert stats.attrs["replicates"] == 8
     assert "y_variance_stderr" not in stats
@@ -175,8 +181,11 @@ figures = false
 """
 
 
-def test_random_fields_are_listed_as_uncertain_inputs(tmp_path):
-    (tmp_path / "bar.toml").write_text(BAR)
+@pytest.mark.parametrize("method", ['kind = "kl-weibull"\nrealizations = 4',
+                                    'kind = "nominal"'])
+def test_random_fields_are_listed_as_uncertain_inputs(tmp_path, method):
+    (tmp_path / "bar.toml").write_text(BAR.replace('kind = "kl-weibull"\nrealizations = 4',
+                                                   method))
     out = run_study(load_study(tmp_path / "bar.toml"), show_progress=False)
     table = report.summary_table(uqflow.open_result(out.path))
     assert "none uncertain" not in table

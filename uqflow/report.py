@@ -296,9 +296,8 @@ def _variance_column(stats: xr.Dataset, outs: list[str]):
 
     def cell(out, focus):
         value = _cell(stats, out, "variance", focus)
-        if errors[out] is None:
-            return value
-        return f"{value} ± {_num(errors[out].isel(focus))}"
+        error = np.nan if errors[out] is None else float(errors[out].isel(focus))
+        return f"{value} ± {_num(error)}" if math.isfinite(error) else value
 
     has_error = any(e is not None for e in errors.values())
     return (VARIANCE_STDERR_HEADER if has_error else VARIANCE_HEADER), cell
@@ -385,33 +384,28 @@ def _compile_lines(stats: xr.Dataset, runs: xr.Dataset | None) -> list[str]:
 
 
 def _field_rows(stats: xr.Dataset, runs: xr.Dataset | None) -> list[list[str]]:
-    """One row per random field of the study: what it drives, its kernel and KL modes."""
+    """One row per random field of the study: what it drives, its kernel and KL modes, from
+    the statistics' ``field_<name>_*`` attributes (kl-weibull), else from the germs in the
+    runs ('?' where a detail was not recorded)."""
     try:
-        germs = json.loads(stats.attrs.get("fields", "{}"))  # field name -> germ variable
+        germs = dict(json.loads(stats.attrs.get("fields", "{}")))  # field -> germ variable
     except (TypeError, ValueError):
         germs = {}
     if runs is not None:
-        for var in runs.data_vars:
-            if str(var).startswith("germ_") and str(var) not in germs.values():
-                germs[str(runs[var].attrs.get("field", str(var)[len("germ_"):]))] = str(var)
+        for var in map(str, runs.data_vars):
+            if var.startswith("germ_") and var not in germs.values():
+                germs[str(runs[var].attrs.get("field", var[len("germ_"):]))] = var
     rows = []
     for name, var in germs.items():
-        key = f"field_{str(var)[len('germ_'):]}"
-
-        def attr(what, default="?"):
-            return str(stats.attrs.get(f"{key}_{what}", default))
-
-        modes = attr("modes", "")
-        if not modes and runs is not None and var in runs:
-            modes = str(runs[var].shape[-1])
-        captured = stats.attrs.get(f"{key}_captured_fraction")
-        length = stats.attrs.get(f"{key}_correlation_length")
-        rows.append([name, attr("parameters"), attr("kernel"),
-                     _num(length) if length is not None else "?",
-                     (modes or "?") + (f" ({100 * float(captured):.3g} % of the variance)"
-                                       if captured is not None else ""),
-                     attr("germ"), _num(stats.attrs[f"{key}_amplitude"])
-                     if f"{key}_amplitude" in stats.attrs else "?"])
+        prefix = f"field_{str(var)[len('germ_'):]}_"
+        info = {k[len(prefix):]: v for k, v in stats.attrs.items() if k.startswith(prefix)}
+        modes = str(info.get("modes", runs[var].shape[-1] if runs is not None and var in runs
+                             else "?"))
+        if "captured_fraction" in info:
+            modes += f" ({100 * float(info['captured_fraction']):.3g} % of the variance)"
+        rows.append([name, str(info.get("parameters", "?")), str(info.get("kernel", "?")),
+                     _num(info.get("correlation_length", "?")), modes,
+                     str(info.get("germ", "?")), _num(info.get("amplitude", "?"))])
     return rows
 
 

@@ -227,7 +227,7 @@ class Estimates:
     stderr: np.ndarray
     dof: int
     variance: np.ndarray
-    variance_stderr: np.ndarray
+    variance_stderr: np.ndarray | None  # None: the design gives no estimate of it
     correlation: np.ndarray
     beta: np.ndarray
     fold_means: np.ndarray  # (folds, P): each fold's (replicate's) estimate of the mean
@@ -248,7 +248,7 @@ def estimate(y, g, fold, folds, surrogate_mean, surrogate_variance, rqmc: bool) 
     p = y.shape[1]
     nan = np.full(p, np.nan)
     if n < 2:
-        return Estimates(nan, nan, 0, nan, nan, nan, nan, np.full((folds, p), np.nan))
+        return Estimates(nan, nan, 0, nan, None, nan, nan, np.full((folds, p), np.nan))
     varies = ~(np.all(g == g[0], axis=0) | np.all(y == y[0], axis=0))
     # Centring is for the digits only: every slope below is unchanged by a shift.
     y_mean, g_mean = y.mean(axis=0), g.mean(axis=0)
@@ -310,7 +310,10 @@ def estimate(y, g, fold, folds, surrogate_mean, surrogate_variance, rqmc: bool) 
     mean = np.where(const_y, y[0], mean)
     stderr = np.where(const_y, 0.0, stderr)
     variance = np.where(const_y, 0.0, variance)
-    variance_stderr = np.where(const_y, 0.0, variance_stderr)
+    if np.any(np.isfinite(variance_stderr)):
+        variance_stderr = np.where(const_y, 0.0, variance_stderr)
+    else:  # randomized QMC with replicates of one sample: no within-replicate variance
+        variance_stderr = None
     return Estimates(mean, stderr, dof, variance, variance_stderr, rho, beta, fold_means)
 
 
@@ -360,9 +363,6 @@ def control_variables(out, runs, dims, est: Estimates, n, shape, plain, surrogat
         f"{out}_control_slope": field(
             est.beta, f"pooled regression slope of {out} on its surrogate (the folds use "
                       f"leave-one-fold-out slopes)"),
-        f"{out}_variance_stderr": field(
-            est.variance_stderr, f"standard error of the control-variate variance of {out}",
-            f"({units})^2" if units else "1"),
         f"{out}_plain": (("plain_statistic", *dims), np.stack(plain), {
             "long_name": f"plain Monte Carlo mean, variance and stderr of the mean of {out} "
                          f"over the same samples", "units": units}),
@@ -372,10 +372,12 @@ def control_variables(out, runs, dims, est: Estimates, n, shape, plain, surrogat
             "long_name": f"exact mean and variance of the surrogate of {out} under the inputs",
             "units": units}),
     }
-    if not np.any(np.isfinite(est.variance_stderr)):
-        # Randomized QMC with replicates of one sample has no within-replicate variance to
-        # spread: no standard error of the variance, so none is written (not NaN everywhere).
-        del variables[f"{out}_variance_stderr"]
+    # Without a standard error of the variance (randomized QMC with replicates of one
+    # sample) none is written, rather than a variable of NaN (or of zeros where y is constant).
+    if est.variance_stderr is not None:
+        variables[f"{out}_variance_stderr"] = field(
+            est.variance_stderr, f"standard error of the control-variate variance of {out}",
+            f"({units})^2" if units else "1")
     return variables
 
 

@@ -86,7 +86,7 @@ class KLWeibull(MonteCarlo):
             variables[var] = ((("realization", f"mode_{safe}"), germs,
                                {"field": field.name, "germ": field.spec.germ.kind,
                                 "long_name": f"KL germs of random field '{field.name}'"}))
-            attrs.update(_field_attrs(field, safe))
+            attrs.update(field_attrs(field))
         design = make_design(space, space.from_unit_hypercube(u), **variables)
         design.attrs["rule"] = "random"
         design.attrs["realizations"] = n
@@ -96,17 +96,25 @@ class KLWeibull(MonteCarlo):
 
     def analyze(self, design, runs):
         stats = super().analyze(design, runs)
-        field_attrs = {k: v for k, v in design.attrs.items()
-                       if k == "fields" or k.startswith("field_")}
-        stats.attrs.update(field_attrs)
-        warnings = [v for k, v in field_attrs.items() if k.endswith("_warning") and v]
+        described = fields_described(design)
+        stats.attrs.update(described)
+        warnings = [v for k, v in described.items() if k.endswith("_warning") and v]
         if warnings:
             old = stats.attrs.get("warnings", "")
             stats.attrs["warnings"] = "\n".join([w for w in [old, *warnings] if w])
         return stats
 
 
-def _field_attrs(field, safe: str) -> dict:
+def fields_described(design) -> dict:
+    """The design's attributes that describe its random fields (``field_attrs``), which the
+    statistics carry so that a report lists the fields among the uncertain inputs."""
+    return {k: v for k, v in design.attrs.items() if k == "fields" or k.startswith("field_")}
+
+
+def field_attrs(field) -> dict:
+    """Attributes ``field_<safe name>_*`` describing a random field: what it drives, its
+    kernel, correlation length, KL modes and captured variance, germs and amplitude."""
+    safe = _safe(field.name)
     spec = field.spec
     out = {
         f"field_{safe}_captured_fraction": float(field.captured_fraction),

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import xarray as xr
 
 from uqflow.fields import germ_variable
 from uqflow.methods.base import (PropagationMethod, failure_warning, finish_statistics,
                                  make_design, ok_mask, output_names, register_method)
+from uqflow.methods.kl_weibull import field_attrs, fields_described
 
 
 @register_method("nominal")
@@ -20,7 +23,10 @@ class Nominal(PropagationMethod):
     def plan(self, space, fields, seed):
         self.check(space, fields)
         design = make_design(space, space.means[None, :])
+        if fields:
+            design.attrs["fields"] = json.dumps({f.name: germ_variable(f.name) for f in fields})
         for field in fields or []:
+            design.attrs.update(field_attrs(field))
             # Zero germs: the KL sum vanishes and every field equals its mean exactly.
             design[germ_variable(field.name)] = (
                 ("realization", f"mode_{germ_variable(field.name)[5:]}"),
@@ -37,4 +43,5 @@ class Nominal(PropagationMethod):
         stats = xr.Dataset(data, coords={"statistic": ["mean", "variance", "std"]})
         stats = stats.assign_coords({d: runs[d] for d in runs.coords
                                      if d != "realization" and d in stats.dims})
+        stats.attrs.update(fields_described(design))
         return finish_statistics(stats, design, runs, self.name, failure_warning(runs))
