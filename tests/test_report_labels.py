@@ -98,6 +98,15 @@ def test_the_table_prints_compile_time_and_the_per_run_time_without_it():
     assert "solver wall time 7.25 s" in table
 
 
+def test_an_unfinished_result_says_how_much_of_its_time_was_compiling():
+    runs, _ = analysed(LINEAR, SPACE, "monte-carlo", samples=3, rule="random")
+    runs["wall_time"].values[:] = [5.5, 1.0, 1.0]
+    runs["compile_time"].values[:] = [4.5, 0.0, 0.0]
+    tree = xr.DataTree.from_dict({"/": xr.Dataset(attrs={"study_name": "t"}), "runs": runs})
+    assert "solver wall time so far 7.5 s (numba compiling 4.5 s of it)" in \
+        report.summary_table(tree)
+
+
 def test_statistics_carry_the_summed_compile_time():
     runs, stats = analysed(LINEAR, SPACE, "monte-carlo", samples=4, rule="random")
     assert stats.attrs["solver_compile_time"] == float(np.sum(runs["compile_time"].values))
