@@ -178,6 +178,7 @@ def test_loo_closed_form_equals_brute_force():
     assert (np.abs(fit.loo_mse - np.mean(brute**2, axis=0)) <= bound).all()
 
 
+@pytest.mark.numerics
 def test_sparse_regression_recovers_a_sparse_polynomial_with_fewer_runs_than_terms():
     """y = 1.5 + 2 x1 - x2 + 0.3 x3 x4 in six normal inputs: the order-3 basis has 84 terms,
     the design 40 runs; OMP keeps the 4 Hermite terms that represent y and no others."""
