@@ -18,6 +18,8 @@ import hashlib
 import json
 import logging
 import os
+import signal
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,7 +35,8 @@ from uqflow.realization import (SENSITIVITY_DIM, STATUS_FAILED, STATUS_PENDING,
                                 add_field_value_variables,
                                 batch_arguments, empty_runs, is_sensitivity_variable,
                                 realization_prefix, run_batch, store_batch)
-from uqflow.store import check_writable, now, read_runs, versions, write_result
+from uqflow.store import (check_unlocked, check_writable, now, read_runs, result_lock, versions,
+                          write_result)
 from uqflow.study import Study, scheduler_address_problem
 
 _RUN_COLUMNS = {"status", "message", "wall_time", "compile_time", "clipped_points"}
@@ -89,13 +92,27 @@ def _text_sha256(text: str) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
+#: the largest study text stored in the result (bytes of UTF-8); a larger one is stored by its
+#: hash alone, so that it is not rewritten at every checkpoint
+MAX_STORED_STUDY_BYTES = 1 << 20
+
+
+def _study_text_attrs(text: str) -> dict:
+    size = len(text.encode())
+    if size <= MAX_STORED_STUDY_BYTES:
+        return {"study": text}
+    return {"study_text_omitted": f"the study text ({size} bytes) is larger than "
+                                  f"{MAX_STORED_STUDY_BYTES} bytes and is not stored; "
+                                  f"study_text_sha256 identifies it"}
+
+
 def _root_attrs(study: Study, n_planned: int) -> dict:
     spec = study.spec
     return {
         "title": f"uqflow study '{study.name}'",
         "study_name": study.name,
         "study_file": str(study.path),
-        "study": study.text,
+        **_study_text_attrs(study.text),
         "study_sha256": study.sha256,
         "study_text_sha256": _text_sha256(study.text),
         "study_read_files": json.dumps(study.read_files, sort_keys=True),
@@ -171,7 +188,17 @@ def _prepare(study: Study, resume: bool, path: Path):
 def _planned_runs(study: Study) -> xr.Dataset:
     seed = np.random.SeedSequence(study.spec.execution.seed)
     design = study.method.plan(study.space, study.fields or None, seed)
+    if _empty(design):
+        # Checked here, before anything is written: an empty design would otherwise fail in
+        # the netCDF writer with a message about string types.
+        raise StudyError(f"the '{study.spec.method.kind}' method's design has no "
+                         f"realizations with these options; nothing to run",
+                         file=str(study.path), key="method")
     return _runs_of(design, study)
+
+
+def _empty(design) -> bool:
+    return isinstance(design, xr.Dataset) and design.sizes.get("realization", 0) == 0
 
 
 def _runs_of(design: xr.Dataset, study: Study) -> xr.Dataset:
@@ -348,6 +375,7 @@ def run_study(study: Study, *, workers: int | None = None, scheduler: str | None
             raise StudyError(f"a result file ends in .nc, got '{output}'", **where)
     else:
         path, where = study.output_path, {"file": str(study.path), "key": "output.path"}
+    check_unlocked(path, **where)  # before "exists": another run may be writing it now
     check_writable(path, replace=resume or force, **where)
     runs, attrs = _prepare(study, resume, path)
     pending = np.flatnonzero(runs["status"].values == STATUS_PENDING)
@@ -355,66 +383,70 @@ def run_study(study: Study, *, workers: int | None = None, scheduler: str | None
     design = _design_of(runs, study)
     in_process = workers == 0 and scheduler is None
 
-    with contextlib.ExitStack() as stack:
-        client = None if in_process else stack.enter_context(_dask_client(workers, scheduler,
-                                                                             source))
-        # In this process a chunk runs until the next write is due; on dask a task spends at
-        # most half the interval and the client writes at most every half interval, so in
-        # both cases a realization is on disk within checkpoint_interval (plus one run).
-        spacing = ex.checkpoint_interval if in_process else ex.checkpoint_interval / 2
-        checkpoint = _Checkpoint(path, attrs, spacing)
-        try:
-            checkpoint.write(runs)
-        except ResultFileError as exc:
-            raise StudyError(str(exc)) from None
-        bar = progress_mod.Progress(runs.sizes["realization"], resumed, enabled=show_progress)
-        execution = _Execution(study, runs, design, attrs, checkpoint, bar)
-        stop_reason = "enough" if execution.stopper.advance() else None
-        try:
-            while stop_reason is None:
-                if pending.size:
-                    if in_process:
-                        stop_reason = _run_in_process(execution, pending)
-                    else:
-                        stop_reason = _run_on_dask(execution, client, pending,
-                                                   workers if scheduler is None else 2,
-                                                   ex.checkpoint_interval / 2)
-                if stop_reason is not None or execution.stopper.keep is not None:
-                    break
-                # Every row so far has finished: a method that re-plans may add rows.
-                more = study.method.extend(execution.design, execution.runs)
-                if more is None:
-                    break
-                pending = execution.add(more)
-                checkpoint.write(execution.runs)
-        except KeyboardInterrupt:
-            if checkpoint.dirty:
-                checkpoint.write(execution.runs)  # Ctrl-C keeps everything finished so far
-            raise
-        runs, design = execution.runs, execution.design
-        if checkpoint.dirty and not in_process:
-            checkpoint.write(runs)  # closing a cluster takes seconds: save first
-        bar.close()
+    with contextlib.ExitStack() as held:  # the result's lock, once taken
+        with contextlib.ExitStack() as stack:
+            client = None if in_process else \
+                stack.enter_context(_dask_client(workers, scheduler, source))
+            # In this process a chunk runs until the next write is due; on dask a task spends
+            # at most half the interval and the client writes at most every half interval, so
+            # in both cases a realization is on disk within checkpoint_interval (plus one run).
+            spacing = ex.checkpoint_interval if in_process else ex.checkpoint_interval / 2
+            # From the first write to the last, this run alone writes the result.
+            held.enter_context(result_lock(path, **where))
+            checkpoint = _Checkpoint(path, attrs, spacing)
+            try:
+                checkpoint.write(runs)
+            except ResultFileError as exc:
+                raise StudyError(str(exc)) from None
+            bar = progress_mod.Progress(runs.sizes["realization"], resumed,
+                                        enabled=show_progress)
+            execution = _Execution(study, runs, design, attrs, checkpoint, bar)
+            stop_reason = "enough" if execution.stopper.advance() else None
+            try:
+                while stop_reason is None:
+                    if pending.size:
+                        if in_process:
+                            stop_reason = _run_in_process(execution, pending)
+                        else:
+                            stop_reason = _run_on_dask(execution, client, pending,
+                                                       workers if scheduler is None else 2,
+                                                       ex.checkpoint_interval / 2)
+                    if stop_reason is not None or execution.stopper.keep is not None:
+                        break
+                    # Every row so far has finished: a method that re-plans may add rows.
+                    more = study.method.extend(execution.design, execution.runs)
+                    if more is None or _empty(more):  # no new rows: the method is done
+                        break
+                    pending = execution.add(more)
+                    checkpoint.write(execution.runs)
+            except KeyboardInterrupt:
+                if checkpoint.dirty:
+                    checkpoint.write(execution.runs)  # Ctrl-C keeps everything finished
+                raise
+            runs, design = execution.runs, execution.design
+            if checkpoint.dirty and not in_process:
+                checkpoint.write(runs)  # closing a cluster takes seconds: save first
+            bar.close()
 
-    if stop_reason and stop_reason.startswith("failed:"):
-        checkpoint.write(runs)
-        raise StudyFailed(f"{study.path}: stopped: {stop_reason[7:]}; the runs so far are in "
-                          f"{path}")
-    keep = execution.stopper.keep
-    if keep is not None:
-        runs = realization_prefix(runs, keep)
-        design = realization_prefix(design, keep)
-        attrs["stopped_early"] = f"target reached after {keep} realizations"
-    statistics = study.method.analyze(design, runs)
-    attrs.update(complete=1, finished=now(),
-                 elapsed_time=float(attrs.get("elapsed_time", 0.0))
-                 + time.perf_counter() - started,
-                 solver_runs=statistics.attrs.get("solver_runs", 0),
-                 failed_runs=statistics.attrs.get("failed_runs", 0),
-                 workers=workers if scheduler is None else f"scheduler {scheduler}")
-    write_result(path, runs, statistics, attrs)
-    warnings = [w for w in statistics.attrs.get("warnings", "").split("\n") if w]
-    return Outcome(path, runs, statistics, attrs, resumed, warnings)
+        if stop_reason and stop_reason.startswith("failed:"):
+            checkpoint.write(runs)
+            raise StudyFailed(f"{study.path}: stopped: {stop_reason[7:]}; the runs so far are "
+                              f"in {path}")
+        keep = execution.stopper.keep
+        if keep is not None:
+            runs = realization_prefix(runs, keep)
+            design = realization_prefix(design, keep)
+            attrs["stopped_early"] = f"target reached after {keep} realizations"
+        statistics = study.method.analyze(design, runs)
+        attrs.update(complete=1, finished=now(),
+                     elapsed_time=float(attrs.get("elapsed_time", 0.0))
+                     + time.perf_counter() - started,
+                     solver_runs=statistics.attrs.get("solver_runs", 0),
+                     failed_runs=statistics.attrs.get("failed_runs", 0),
+                     workers=workers if scheduler is None else f"scheduler {scheduler}")
+        write_result(path, runs, statistics, attrs)
+        warnings = [w for w in statistics.attrs.get("warnings", "").split("\n") if w]
+        return Outcome(path, runs, statistics, attrs, resumed, warnings)
 
 
 def _run_in_process(execution: _Execution, pending: np.ndarray) -> str | None:
@@ -441,6 +473,29 @@ def _run_in_process(execution: _Execution, pending: np.ndarray) -> str | None:
 
 
 @contextlib.contextmanager
+def _ctrl_c_ignored():
+    """SIGINT ignored in this process for the ``with`` block (main thread only).
+
+    Around the start of a local cluster: Ctrl-C reaches every process of the terminal's
+    foreground group, local dask workers included, and each would print its own
+    KeyboardInterrupt traceback; only the client should react (it saves the runs and closes
+    the cluster, which ends the workers). An ignored signal stays ignored across fork and
+    exec, and Python then installs no handler of its own, so workers started here never see
+    it. Around the close of a cluster: the runs are saved by then, and a close cut short
+    leaves workers that log their lost scheduler and an exit that waits for them.
+    A Ctrl-C in these seconds is ignored; the next one interrupts.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield  # only the main thread may change signal handlers
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+@contextlib.contextmanager
 def _dask_client(workers: int, scheduler: str | None, source: dict):
     """A client of a new local cluster (``workers`` processes) or of ``scheduler``; a
     malformed or unreachable address is a one-line ``StudyError`` naming ``source`` (the
@@ -451,16 +506,18 @@ def _dask_client(workers: int, scheduler: str | None, source: dict):
     try:
         if scheduler is None:
             threads = str(max(1, (os.cpu_count() or 1) // max(workers, 1)))
-            cluster = LocalCluster(
-                n_workers=workers, threads_per_worker=1, processes=True,
-                dashboard_address=":0", silence_logs=logging.ERROR,
-                env={"NUMBA_NUM_THREADS": threads, "OMP_NUM_THREADS": threads,
-                     "OPENBLAS_NUM_THREADS": threads, "MKL_NUM_THREADS": threads})
+            with _ctrl_c_ignored():
+                cluster = LocalCluster(
+                    n_workers=workers, threads_per_worker=1, processes=True,
+                    dashboard_address=":0", silence_logs=logging.ERROR,
+                    env={"NUMBA_NUM_THREADS": threads, "OMP_NUM_THREADS": threads,
+                         "OPENBLAS_NUM_THREADS": threads, "MKL_NUM_THREADS": threads})
         client = Client(cluster if cluster is not None else scheduler,
                         timeout=CONNECT_TIMEOUT_S)
     except (OSError, ValueError, TypeError, TimeoutError) as exc:
         if cluster is not None:
-            cluster.close()
+            with _ctrl_c_ignored():
+                cluster.close()
         if scheduler is None:
             raise StudyError(f"cannot start a local dask cluster of {workers} workers: "
                              f"{exc}", key="execution.workers") from None
@@ -469,9 +526,10 @@ def _dask_client(workers: int, scheduler: str | None, source: dict):
     try:
         yield client
     finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+        with _ctrl_c_ignored():
+            client.close()
+            if cluster is not None:
+                cluster.close()
 
 
 def _run_on_dask(execution: _Execution, client, pending: np.ndarray, workers: int,

@@ -6,13 +6,22 @@ then renamed over the result, so a killed study leaves the last complete checkpo
 a write that fails removes its temporary file and leaves that checkpoint alone. The root
 attribute ``runs_sha256`` is a checksum of the stored runs, verified before a resume trusts
 them.
+
+One run at a time writes a result: from its first write to its last it holds a lock file
+beside it (``<result>.lock``, created exclusively, holding the writer's pid and host). Another
+run of the same result is refused with a one-line error naming the holder; a lock left by a
+process that is gone (killed) on this host is taken over with a note.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
+import socket
+import sys
 import tempfile
+import time
 from datetime import datetime, timezone
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -114,10 +123,101 @@ def check_writable(path: Path, *, replace: bool, file: str | None = None,
     # at the first write, so a study refused later (say, by its scheduler) leaves nothing.
     try:
         fd, probe = tempfile.mkstemp(dir=existing, prefix=f".{path.name}.", suffix=".probe")
-        os.close(fd)
-        os.remove(probe)
     except OSError as exc:
         raise refuse(f"cannot write in {existing}: {exc.strerror or exc}") from None
+    try:
+        os.close(fd)
+    finally:
+        with contextlib.suppress(OSError):
+            os.remove(probe)
+
+
+def lock_path(path: Path) -> Path:
+    """The lock file of the result at ``path``."""
+    path = Path(path)
+    return path.with_name(path.name + ".lock")
+
+
+def _lock_holder(lock: Path) -> tuple[int, str] | None:
+    """(pid, host) written in ``lock``; None when it cannot be read (gone, or unreadable)."""
+    for _ in range(10):  # a lock just created is empty until its writer's next line
+        try:
+            pid, host = lock.read_text(encoding="utf-8").split(maxsplit=1)
+            return int(pid), host.strip()
+        except FileNotFoundError:
+            return None
+        except (OSError, ValueError):
+            time.sleep(0.02)
+    return None
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    except (OSError, OverflowError):  # not a pid this system can have
+        return False
+    return True
+
+
+def _refuse_held(path: Path, holder: tuple[int, str] | None, file, key) -> StudyError:
+    lock = lock_path(path)
+    who = "another uqflow run" if holder is None else \
+        f"another uqflow run (pid {holder[0]} on {holder[1]})"
+    return StudyError(f"{path}: {who} is writing this result; wait for it to end (if no run "
+                      f"is going on, delete {lock})", file=file, key=key)
+
+
+def _stale(holder: tuple[int, str] | None) -> bool:
+    """A lock whose writer is known to be gone: on this host, its pid no longer runs."""
+    return holder is not None and holder[1] == socket.gethostname() and not _alive(holder[0])
+
+
+def check_unlocked(path: Path, *, file: str | None = None, key: str | None = None) -> None:
+    """Raise a one-line ``StudyError`` if another live run holds the lock of ``path``."""
+    lock = lock_path(path)
+    if lock.exists() and not _stale(_lock_holder(lock)):
+        raise _refuse_held(Path(path), _lock_holder(lock), file, key)
+
+
+@contextlib.contextmanager
+def result_lock(path: Path, *, file: str | None = None, key: str | None = None):
+    """Hold the lock of the result at ``path`` (creating its folder) for the ``with`` block;
+    it is removed however the block ends."""
+    path = Path(path)
+    lock = lock_path(path)
+    me = f"{os.getpid()} {socket.gethostname()}\n"
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise StudyError(f"{path}: cannot create its folder: {exc.strerror or exc}",
+                         file=file, key=key) from None
+    for attempt in range(2):
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            holder = _lock_holder(lock)
+            if attempt == 0 and _stale(holder):
+                lock.unlink(missing_ok=True)
+                print(f"uqflow: note: {lock}: took over the lock of pid {holder[0]}, which is "
+                      f"no longer running (a run that was killed)", file=sys.stderr)
+                continue
+            raise _refuse_held(path, holder, file, key) from None
+        except OSError as exc:
+            raise StudyError(f"{path}: cannot create its lock file {lock}: "
+                             f"{exc.strerror or exc}", file=file, key=key) from None
+        with os.fdopen(fd, "w", encoding="utf-8") as out:
+            out.write(me)
+        break
+    try:
+        yield lock
+    finally:
+        with contextlib.suppress(OSError):
+            if lock.read_text(encoding="utf-8") == me:  # never remove a lock taken over
+                lock.unlink()
 
 
 def write_result(path: Path, runs: xr.Dataset, statistics: xr.Dataset | None,
@@ -138,11 +238,15 @@ def write_result(path: Path, runs: xr.Dataset, statistics: xr.Dataset | None,
         path.parent.mkdir(parents=True, exist_ok=True)
         tree.to_netcdf(tmp, engine=ENGINE)
         os.replace(tmp, path)
-    except (OSError, RuntimeError) as exc:  # netCDF4 reports some HDF5 failures as RuntimeError
+    except BaseException as exc:
+        # Whatever stopped the write (a full disk, a value netCDF cannot hold, Ctrl-C), the
+        # temporary file goes; only the last complete checkpoint stays.
         try:
             tmp.unlink(missing_ok=True)
         except OSError:
             pass
+        if not isinstance(exc, (OSError, RuntimeError)):  # HDF5 failures may be RuntimeError
+            raise
         reason = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
         raise ResultFileError(f"{path}: cannot write the result: {reason}; the last complete "
                               f"checkpoint (if any) is unchanged") from None
@@ -155,9 +259,13 @@ def open_result(path: str | Path) -> xr.DataTree:
         raise StudyError("no such result file", file=str(path))
     try:
         with xr.open_datatree(path, engine=ENGINE) as tree:
-            return tree.load()
+            tree = tree.load()
     except (OSError, ValueError) as exc:
         raise StudyError(f"not a uqflow result file ({exc})", file=str(path)) from None
+    if not {"runs", "statistics"} & set(tree.children):
+        raise StudyError("has neither a 'runs' nor a 'statistics' group: not a uqflow result "
+                         "file", file=str(path))
+    return tree
 
 
 def read_runs(path: Path, verify: bool = False) -> tuple[xr.Dataset, dict]:
