@@ -28,7 +28,17 @@ from uqflow.errors import SceneError, SolverError
 from uqflow.registry import Registry
 
 __all__ = ["Solver", "SolverError", "SceneError", "register_solver", "get_solver",
-           "solver_registry"]
+           "solver_registry", "DIAGNOSTIC_KIND", "is_diagnostic"]
+
+#: the attribute ``output_kind`` of an output template variable that marks a diagnostic of the
+#: run (a timing, a counter) rather than an uncertain quantity (see ``Solver``)
+DIAGNOSTIC_KIND = "diagnostic"
+
+
+def is_diagnostic(variable: xr.DataArray) -> bool:
+    """Whether an output is a diagnostic of the run (a timing, a counter), not an uncertain
+    quantity: its attribute ``output_kind`` is ``DIAGNOSTIC_KIND``."""
+    return str(variable.attrs.get("output_kind", "")) == DIAGNOSTIC_KIND
 
 solver_registry = Registry("uqflow.solvers", "solver", builtins=("solvers.analytic", "solvers.gamut_bar",
                                                                "solvers.mpm", "solvers.sph"))

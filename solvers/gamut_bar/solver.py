@@ -18,7 +18,7 @@ from solvers.gamut_bar.network import (bond_weights, build_network, effective_si
                                        grid_correction, nonlocal_bonds, stochastic_grid,
                                        uniform_grid)
 from uqflow.errors import SceneError, SolverError
-from uqflow.solver import Solver, register_solver
+from uqflow.solver import DIAGNOSTIC_KIND, Solver, register_solver
 
 PROPERTIES = ("E", "sigma_y", "sigma_f", "eps_f", "n_ro", "K_ro", "rho", "nu", "R", "area",
               "length")
@@ -45,9 +45,6 @@ FIELDS = ("bar.E", "bar.R", "bar.w", "bar.rho")   # bar.w at nonlocal-bond midpo
 MAX_LOCAL_BONDS = 10**6
 MAX_FAMILIES = 10**3         # nonlocal degrees 2..cutoff × sigma_stdev
 MAX_BONDS = 10**7            # local bonds × (1 + families)
-# How the run went, not what it predicts: stored per realization in the runs, never given
-# statistics, figures or a sample allocation (``output_kind``, uqflow.solver.Solver).
-DIAGNOSTIC_KIND = "diagnostic"
 DIAGNOSTIC_OUTPUTS = {"load_steps": "load steps the run followed (not counting the bisection "
                                     "of the failure load)",
                       "newton_iterations": "Newton iterations of those load steps",

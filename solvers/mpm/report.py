@@ -37,7 +37,8 @@ import xarray as xr
 
 from solvers.mpm.scene import PROBE_QUANTITIES
 from uqflow.errors import StudyError
-from uqflow.report import _grid, _seconds
+from uqflow.solver import is_diagnostic
+from uqflow.report import _grid, _seconds, figure_path
 
 __all__ = ["report", "load_results", "seed_tables", "seed_moments", "seed_costs",
            "choose_reference", "table_time", "variance_error", "moments_tables", "cost_table",
@@ -212,12 +213,6 @@ def _method_label(method: str, stats: xr.Dataset | None, options: dict) -> str:
         order = a.get("order", options.get("order", "?"))
         return f"pce order {order}"
     return method
-
-
-def is_diagnostic(var: xr.DataArray) -> bool:
-    """A solver diagnostic (a timing, a counter; ``output_kind = "diagnostic"``): stored in
-    the runs, never compared as an uncertain quantity."""
-    return str(var.attrs.get("output_kind", "")) == "diagnostic"
 
 
 def _probe_outputs(ds: xr.Dataset | None, want_statistic: bool) -> list[str]:
@@ -556,8 +551,9 @@ def _result_rows(res, ref, out, k, j, probe, div, ref_mean, ref_var, ref_se,
         return rows
     if res is ref:
         mean_text = f"{_fmt(mean / div)} ± {_fmt(ref_se / div, 2)}"
-        var_text = f"{_fmt(var / div ** 2, 4)} ± " + (
-            _fmt(ref_var_se / div ** 2, 2) if np.isfinite(ref_var_se) else "n/a")
+        # no "± n/a": a variance without a standard error is printed alone (the notes say why)
+        var_text = _fmt(var / div ** 2, 4) + (
+            f" ± {_fmt(ref_var_se / div ** 2, 2)}" if np.isfinite(ref_var_se) else "")
         rows.append([probe, res.cv_text, res.file, res.label + " (ref)", f"{runs}",
                      mean_text, "-", var_text, "-"])
     else:
@@ -783,7 +779,8 @@ def draw_figures(results: list[MPMResult], outputs: list[str], folder: Path,
     written = []
     for out in outputs:
         for j, probe in enumerate(results[0].probes):
-            name = f"mpm_{out}_{probe}.png"
+            path = figure_path(Path(folder), "mpm", out, probe)
+            name = path.name
             try:
                 fig = _draw_one(with_stats, groups, refs, out, j, probe)
             except Exception as exc:  # one broken figure must not cost the others
@@ -791,7 +788,6 @@ def draw_figures(results: list[MPMResult], outputs: list[str], folder: Path,
                 warnings.warn(f"figure {name} not written: {type(exc).__name__}: {exc}",
                               FigureWarning, stacklevel=2)
                 continue
-            path = Path(folder) / name
             path.parent.mkdir(parents=True, exist_ok=True)
             fig.savefig(path, dpi=100, format="png")
             fig.clear()

@@ -22,15 +22,12 @@ from solvers.mpm.scene import ENERGY_OUTPUTS, PROBE_QUANTITIES, apply_convention
     auto_extent, parse, place_probes, probe_members, seed_particles
 from solvers.mpm.shapes import KINDS
 from uqflow.errors import SceneError, SolverError
-from uqflow.solver import Solver, register_solver
+from uqflow.solver import DIAGNOSTIC_KIND, Solver, register_solver
 
 CORE_SET = ("det_x", "det_y", "burn_width")   # explosive parameters the core sets from the scene
 BURN_WIDTH_CELLS = 1.5                         # programmed-burn ramp width, cells (β of jwl.py)
 SERIAL_BELOW = 20_000    # particles: below this, one thread (a parallel launch costs more)
 DT_FLOOR_FRACTION = 1e-3                       # default dt floor: this × the first step's dt
-# How the run went, not what it predicts: stored per realization in the runs, never given
-# statistics, figures or a sample allocation (``output_kind``, uqflow.solver.Solver).
-DIAGNOSTIC_KIND = "diagnostic"
 DIAGNOSTIC_OUTPUTS = {"time_steps": ("1", "time steps the run took (CFL-limited: its cost)"),
                       "dt_min": ("s", "smallest time step the run took"),
                       "dt_max": ("s", "largest time step the run took")}

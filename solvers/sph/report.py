@@ -12,6 +12,8 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
+from uqflow.report import figure_path
+
 #: confidence of the interval of a proportion
 CONFIDENCE = 0.95
 #: the runs' variable naming the level of a multilevel/multifidelity result (uqflow.levels)
@@ -152,7 +154,7 @@ def _figures(runs, folder, stem):
     axes[2].set(xlabel="applied strain", ylabel="P(an inclusion fully debonded)",
                 ylim=(-0.05, 1.05), title=f"full debonding ({CONFIDENCE:.0%} Clopper–Pearson)")
     fig.tight_layout()
-    path = folder / f"{stem}_composite.png"
+    path = figure_path(folder, stem, "composite")
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return [path]

@@ -20,7 +20,7 @@ from solvers.sph.report import report as _report
 from solvers.sph.scene import MAX_STIFFNESS, Config, parse, stiffness_scale
 from solvers.sph.stiffness import Discretisation
 from uqflow.errors import SceneError, SolverError
-from uqflow.solver import Solver, register_solver
+from uqflow.solver import DIAGNOSTIC_KIND, Solver, register_solver
 
 UNITS = {"matrix.E": "Pa", "matrix.nu": "", "inclusion.E": "Pa", "inclusion.nu": "",
          "interface.strength": "Pa", "load.eigenstrain": ""}
@@ -176,7 +176,7 @@ class SPHSolver(Solver):
                          "inclusion_detach_step": (("inclusion",), np.full(n_incl, nan), "1")})
             coords.update({"step": np.arange(1, c.steps + 1), "inclusion": np.arange(n_incl)})
         def attrs(name, unit):
-            kind = {"output_kind": "diagnostic"} if name in DIAGNOSTICS else {}
+            kind = {"output_kind": DIAGNOSTIC_KIND} if name in DIAGNOSTICS else {}
             return {"units": unit, **kind}
         return xr.Dataset({k: xr.Variable(d, v, attrs(k, u)) for k, (d, v, u) in data.items()},
                           coords=coords)

@@ -42,6 +42,7 @@ from pydantic import BaseModel, ConfigDict, field_validator
 from uqflow.errors import StudyError
 from uqflow.inputs import InputSpace
 from uqflow.registry import Registry
+from uqflow.solver import DIAGNOSTIC_KIND, is_diagnostic  # noqa: F401 (re-exported)
 
 method_registry = Registry("uqflow.methods", "method")
 
@@ -226,16 +227,6 @@ def make_design(space: InputSpace, values: np.ndarray, **variables) -> xr.Datase
 
 #: design variables of the methods that sample fidelity levels (uqflow.methods.fidelity_sampling)
 FIDELITY_DESIGN_VARIABLES = ("level", "group", "sample", "seed_key", "round")
-
-
-#: the attribute ``output_kind`` of a solver's output template variable that marks a diagnostic
-DIAGNOSTIC_KIND = "diagnostic"
-
-
-def is_diagnostic(variable: xr.DataArray) -> bool:
-    """Whether an output is a diagnostic of the run (a timing, a counter), not an uncertain
-    quantity: its attribute ``output_kind`` is "diagnostic" (``uqflow.solver.Solver``)."""
-    return str(variable.attrs.get("output_kind", "")) == DIAGNOSTIC_KIND
 
 
 def output_names(runs: xr.Dataset) -> list[str]:

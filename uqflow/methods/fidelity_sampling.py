@@ -24,6 +24,7 @@ from uqflow.errors import StudyError
 from uqflow.levels import LEVEL_VARIABLE, MAX_LEVELS, SEED_KEY_VARIABLE
 from uqflow.methods.base import (MAX_REALIZATIONS, MethodOptions, PropagationMethod,
                                  make_design, output_names)
+from uqflow.solver import is_diagnostic
 
 #: seed keys of stream s are s * STREAM_STRIDE + k
 STREAM_STRIDE = 2**32
@@ -32,9 +33,6 @@ RUNS_PER_SAMPLE = 2
 #: largest stated cost of a run: the study's total (every level's runs, up to max_samples
 #: samples each) must stay a finite float64
 MAX_COST = float(np.finfo(float).max) / (RUNS_PER_SAMPLE * MAX_LEVELS * MAX_REALIZATIONS)
-#: attribute ``output_kind`` of a solver output that is a diagnostic of the run (a timing), not
-#: an uncertain quantity (uqflow.methods.base): it never drives an allocation by default
-DIAGNOSTIC_KIND = "diagnostic"
 
 
 class FidelityOptions(MethodOptions):
@@ -259,11 +257,6 @@ class FidelitySampling(PropagationMethod):
         for axis, mask in enumerate(keep):
             full &= mask.reshape([-1 if a == axis else 1 for a in range(len(shape))])
         return full.reshape(-1)
-
-
-def is_diagnostic(variable: xr.DataArray) -> bool:
-    """Whether a solver output is a diagnostic of the run (attribute ``output_kind``)."""
-    return str(variable.attrs.get("output_kind", "")) == DIAGNOSTIC_KIND
 
 
 def _check_allocate_at(template: xr.Dataset, chosen: list[str], dim: str, wanted: list) -> None:

@@ -155,6 +155,16 @@ def test_relative_errors_against_the_reference(tmp_path):
     assert "C.V. 0.1: reference mc_big.nc" in text
 
 
+def test_a_reference_without_a_variance_error_prints_its_variance_alone(tmp_path):
+    """Control-variate RQMC with replicates of one reports no variance error: no "± n/a"."""
+    ref = write(tmp_path / "cvmc.nc", method="monte-carlo", mean=1.0e9, variance=5e15,
+                stderr=0.005e9, stats_attrs={"control": "taylor-local"})
+    results, outputs, _ = mpm_report.load_results(trees(ref))
+    text = mpm_report.moments_tables(results, outputs)
+    ref_row = next(l for l in text.splitlines() if l.startswith("H ") and "(ref)" in l)
+    assert "n/a" not in ref_row and "0.005" in ref_row
+
+
 def test_each_cv_has_its_own_reference_and_rows(tmp_path):
     a = write(tmp_path / "mc10.nc", method="monte-carlo", stderr=0.005e9)
     b = write(tmp_path / "mc15.nc", method="monte-carlo", stderr=0.007e9, cv=0.15)
