@@ -4,10 +4,12 @@
 #
 #   tools/cpu_paths.sh                  # every non-slow test, every configuration (long)
 #   tools/cpu_paths.sh -m numerics      # narrowed: pytest arguments are passed through
-#   CORES="Haswell Prescott" tools/cpu_paths.sh -m numerics
+#   CORES="Haswell Prescott" DISPATCH="on baseline" tools/cpu_paths.sh -m numerics
 #
 # OPENBLAS_CORETYPE forces OpenBLAS's kernel (numpy's and scipy's bundled OpenBLAS alike);
-# NPY_DISABLE_CPU_FEATURES turns numpy's AVX-512 loops off. A kernel the CPU cannot execute
+# NPY_DISABLE_CPU_FEATURES turns numpy's AVX-512 loops off (DISPATCH "avx512-off"; "baseline"
+# turns its AVX2/FMA3 loops off too, as the second numerics run of .ci/run does). Exit status 1
+# if any configuration failed. A kernel the CPU cannot execute
 # is skipped: OpenBLAS does not check, it dies with SIGILL (exit 132) at the first BLAS call.
 # A kernel OpenBLAS does not accept as OPENBLAS_CORETYPE ("Core not found", it then keeps the
 # one it detects) is skipped too: before each run the kernel in use is read back from both
@@ -16,6 +18,8 @@ set -uo pipefail
 cd "$(dirname "$0")/.."
 python="${PYTHON:-python}"
 cores="${CORES:-Haswell SkylakeX SapphireRapids Prescott Zen}"
+dispatches="${DISPATCH:-on avx512-off}"
+status=0
 has_m=0
 for arg in "$@"; do [ "$arg" = "-m" ] && has_m=1; done
 [ "$has_m" -eq 1 ] || set -- -m "not slow" "$@"
@@ -69,15 +73,20 @@ for core in $cores; do
         summary+=("$core: skipped, OPENBLAS_CORETYPE=$core gives kernel '$in_use' (not selectable in this OpenBLAS)")
         continue
     fi
-    for dispatch in on avx512-off; do
-        disabled=""
-        [ "$dispatch" = "avx512-off" ] && disabled="AVX512_SPR AVX512_ICL X86_V4"
+    for dispatch in $dispatches; do
+        case "$dispatch" in
+            on) disabled="" ;;
+            avx512-off) disabled="AVX512_SPR AVX512_ICL X86_V4" ;;
+            baseline) disabled="X86_V3 X86_V4 AVX512_ICL AVX512_SPR" ;;
+            *) echo "unknown DISPATCH value '$dispatch' (on, avx512-off, baseline)" >&2; exit 2 ;;
+        esac
         config="OPENBLAS_CORETYPE=$core (kernel $in_use), numpy dispatch $dispatch"
         xml="$results/$core-$dispatch.xml"
         echo "=== $config"
         OPENBLAS_CORETYPE="$core" NPY_DISABLE_CPU_FEATURES="$disabled" \
             "$python" -m pytest -q -p no:cacheprovider --junitxml="$xml" "$@"
         code=$?
+        [ "$code" -eq 0 ] || status=1
         line="$("$python" - "$xml" "$code" <<'PY'
 import sys
 import xml.etree.ElementTree as ET
@@ -92,8 +101,9 @@ for case in cases:
     kinds = {child.tag for child in case}
     if kinds & {"failure", "error"}:
         failed += 1
-        module = case.get("classname").replace(".", "/") + ".py"
-        ids.append(f"{module}::{case.get('name')}")
+        classname = case.get("classname") or ""
+        ids.append(f"{classname.replace('.', '/')}.py::{case.get('name')}" if classname
+                   else case.get("name"))          # a collection error names the module
     elif "skipped" in kinds:
         skipped += 1
     else:
@@ -108,3 +118,4 @@ done
 echo
 echo "=== summary ($*)"
 printf '%s\n' "${summary[@]}"
+exit "$status"
