@@ -135,7 +135,8 @@ def orthogonal_matching_pursuit(psi: np.ndarray, y: np.ndarray) -> Fit:
     for an output's time/probe points: simultaneous OMP), is largest, and refits by least
     squares on the active columns. Stops at n / OVERSAMPLING terms, when no column is left
     that correlates with the residual, or OMP_PATIENCE steps after the best leave-one-out
-    error; returns the fit with the smallest aggregate leave-one-out error.
+    error, or once a fit is exact to round-off; returns the fit with the smallest aggregate
+    leave-one-out error.
     """
     n, p = psi.shape
     norms = np.linalg.norm(psi, axis=0)
@@ -143,7 +144,10 @@ def orthogonal_matching_pursuit(psi: np.ndarray, y: np.ndarray) -> Fit:
     active = [0]
     fit = least_squares(psi, y, np.array(active))
     best, since_best = fit, 0
-    while len(active) < most and since_best < OMP_PATIENCE:
+    # A fit at round-off (ROUND_OFF_LOO) is exact: a further term can only win a rounding
+    # tie, which another BLAS kernel decides the other way, so the fewest terms are kept.
+    while len(active) < most and since_best < OMP_PATIENCE \
+            and best.aggregate_loo > ROUND_OFF_LOO:
         score = np.sum((psi.T @ fit.residual) ** 2, axis=1) / norms**2
         score[active] = -1.0
         j = int(np.argmax(score))
