@@ -27,6 +27,7 @@ import xarray as xr
 
 from uqflow.errors import SolverError
 from uqflow.fields import FieldSample, field_value_variable, germ_variable
+from uqflow.solver import is_diagnostic
 
 STATUS_OK, STATUS_FAILED, STATUS_PENDING = "ok", "failed", "pending"
 
@@ -92,8 +93,6 @@ def _add_sensitivity_variables(runs: xr.Dataset, template: xr.Dataset) -> xr.Dat
         "long_name": "realization run with local sensitivities"})})
     if "parameter_j" not in runs.coords:
         runs = runs.assign_coords(parameter_j=("parameter_j", parameters))
-    from uqflow.methods.base import is_diagnostic  # methods import this module
-
     for name, var in template.data_vars.items():
         if is_diagnostic(var):  # a timing or a counter has no derivative
             continue
@@ -294,8 +293,6 @@ def run_batch(solver, names: list[str], values: np.ndarray, outputs: list[str],
     derivatives = []
     derived = None
     if sensitivities is not None and np.any(sensitivities) and hasattr(solver, "outputs"):
-        from uqflow.methods.base import is_diagnostic  # methods import this module
-
         template = solver.outputs()
         derived = [o for o in outputs if o not in template or not is_diagnostic(template[o])]
     for i, row in enumerate(values):
