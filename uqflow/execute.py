@@ -146,7 +146,8 @@ class _Checkpoint:
             self.write(runs)
 
     def write(self, runs: xr.Dataset) -> None:
-        write_result(self.path, runs, None, self.attrs)
+        with _ctrl_c_deferred():
+            write_result(self.path, runs, None, self.attrs)
         self.last = time.monotonic()
         self.dirty = False
 
@@ -444,7 +445,8 @@ def run_study(study: Study, *, workers: int | None = None, scheduler: str | None
                      solver_runs=statistics.attrs.get("solver_runs", 0),
                      failed_runs=statistics.attrs.get("failed_runs", 0),
                      workers=workers if scheduler is None else f"scheduler {scheduler}")
-        write_result(path, runs, statistics, attrs)
+        with _ctrl_c_deferred():
+            write_result(path, runs, statistics, attrs)
         warnings = [w for w in statistics.attrs.get("warnings", "").split("\n") if w]
         return Outcome(path, runs, statistics, attrs, resumed, warnings)
 
@@ -493,6 +495,30 @@ def _ctrl_c_ignored():
         yield
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+@contextlib.contextmanager
+def _ctrl_c_deferred():
+    """A Ctrl-C during the ``with`` block (a result write) takes effect when it ends.
+
+    Raised inside the netCDF writer, a KeyboardInterrupt would abandon the write halfway, in
+    library code not written to be interrupted (and the first checkpoint, the file --resume
+    needs, would not exist); deferred, the write completes and the interrupt follows.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pressed = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: pressed.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if pressed:
+        if callable(previous):
+            previous(signal.SIGINT, None)  # Python's own handler raises KeyboardInterrupt
+        else:
+            os.kill(os.getpid(), signal.SIGINT)  # as the signal would have done
 
 
 @contextlib.contextmanager
