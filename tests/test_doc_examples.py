@@ -771,3 +771,11 @@ def test_every_link_between_the_pages_resolves():
     readme = ROOT / "README.md"
     assert broken_links(readme, "[x](docs/results.md#no-such-section) [y](docs/gone.md)") == \
         ["docs/results.md#no-such-section", "docs/gone.md"]
+
+
+def test_the_lock_file_is_named_as_the_execution_page_says():
+    from uqflow.store import lock_path
+    text = (ROOT / "docs" / "execution.md").read_text(encoding="utf-8")
+    named = re.search(r"lock file beside the result \(`<result>(\.\w+)`", text)
+    assert named, "docs/execution.md does not name the result's lock file"
+    assert lock_path(Path("r.nc")).name == "r.nc" + named.group(1)
