@@ -8,13 +8,33 @@ The Python API does everything the CLI does::
     tree = uqflow.open_result(outcome.path)      # xarray.DataTree: runs, statistics
 """
 
+import importlib
+
 from uqflow.errors import AccuracyWarning, SceneError, SolverError, StudyError
-from uqflow.inputs import InputSpace, RandomInput
-from uqflow.methods import PropagationMethod, get_method, register_method
-from uqflow.solver import Solver, get_solver, register_solver
-from uqflow.store import open_result
 
 __version__ = "0.1.0"
+
+# The rest of the API is imported on first use (PEP 562): `uqflow --version`, `--help` and a
+# Ctrl-C in the first second must not wait for (or print a traceback from) scipy, xarray and
+# chaospy being imported. The command line imports them inside its error handling.
+_LAZY = {"InputSpace": "uqflow.inputs", "RandomInput": "uqflow.inputs",
+         "PropagationMethod": "uqflow.methods", "get_method": "uqflow.methods",
+         "register_method": "uqflow.methods", "Solver": "uqflow.solver",
+         "get_solver": "uqflow.solver", "register_solver": "uqflow.solver",
+         "open_result": "uqflow.store"}
+
+
+def __getattr__(name):
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'uqflow' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))
 
 
 def load_study(path):

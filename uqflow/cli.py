@@ -253,7 +253,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"uqflow: {exc}", file=sys.stderr)
         return EXIT_FAILED
     except KeyboardInterrupt:
-        print("uqflow: interrupted; finish with --resume", file=sys.stderr)
+        resume = "; finish with --resume" if args.command == "run" else ""
+        print(f"uqflow: interrupted{resume}", file=sys.stderr)
         return EXIT_INTERRUPTED
     except Exception as exc:  # last line of defence: a bug must still read as one line
         if os.environ.get("UQFLOW_DEBUG"):

@@ -166,7 +166,7 @@ def _scene_of(attrs: dict) -> tuple[dict, str]:
         scene = study.get("scene")
         if isinstance(scene, str):
             base = Path(str(attrs.get("study_file", "."))).parent
-            scene = tomllib.loads((base / scene).read_text(encoding="utf-8"))
+            scene = tomllib.loads((base / scene).read_text(encoding="utf-8-sig"))
     except (tomllib.TOMLDecodeError, OSError, ValueError):
         scene = None
     if isinstance(scene, dict):

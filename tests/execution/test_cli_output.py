@@ -74,3 +74,23 @@ def test_every_positional_argument_has_help():
     assert {name for name, _ in positionals} == {"run", "validate", "report"}
     for name, action in positionals:
         assert action.help and len(action.help.split()) >= 3, (name, action.dest)
+
+
+def test_the_command_line_starts_without_the_numerical_stack():
+    """`uqflow --version`/`--help` answer at once, and a Ctrl-C while scipy, xarray or chaospy
+    load lands inside main's handler (one line), not in an import before it (a traceback)."""
+    code = ("import sys, uqflow.cli; "
+            "print(' '.join(m for m in ('numpy', 'scipy', 'xarray', 'chaospy', 'dask', 'numba')"
+            " if m in sys.modules))")
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                            check=True).stdout.strip()
+    assert loaded == ""
+
+
+def test_an_interrupt_in_another_command_says_nothing_of_resume(monkeypatch, capsys):
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("uqflow.cli._list", interrupted)
+    assert main(["list"]) == 130
+    assert capsys.readouterr().err == "uqflow: interrupted\n"
