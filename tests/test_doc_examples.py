@@ -523,12 +523,13 @@ def test_the_readme_selects_the_samples_the_statistics_use(tmp_path):
     (tmp_path / "controlled.toml").write_text(to_toml(study) + "\n", encoding="utf-8")
     tree = open_result(run_study(load_study(tmp_path / "controlled.toml"),
                                  show_progress=False).path)
-    namespace = {"tree": tree}
+    import uqflow
+    namespace = {"tree": tree, "uqflow": uqflow}
     exec(selection, namespace)
-    samples, runs = namespace["samples"], namespace["runs"]
+    samples, runs = np.asarray(namespace["samples"]), namespace["runs"]
     assert int(samples.sum()) == tree["statistics"].attrs["samples_ok"] == 16
     assert int((runs.status == "ok").sum()) > 16          # with the control runs
-    assert set(runs.role.values[samples.values]) == {"sample"}
+    assert set(runs.role.values[samples]) == {"sample"}
 
 
 # ----------------------------------------------------------------------------- figures

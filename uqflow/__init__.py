@@ -21,7 +21,7 @@ _LAZY = {"InputSpace": "uqflow.inputs", "RandomInput": "uqflow.inputs",
          "PropagationMethod": "uqflow.methods", "get_method": "uqflow.methods",
          "register_method": "uqflow.methods", "Solver": "uqflow.solver",
          "get_solver": "uqflow.solver", "register_solver": "uqflow.solver",
-         "open_result": "uqflow.store"}
+         "open_result": "uqflow.store", "sample_mask": "uqflow.methods"}
 
 
 def __getattr__(name):
@@ -51,4 +51,5 @@ def run_study(study, **kwargs):
 
 __all__ = ["AccuracyWarning", "InputSpace", "PropagationMethod", "RandomInput", "SceneError",
            "Solver", "SolverError", "StudyError", "get_method", "get_solver", "load_study",
-           "open_result", "register_method", "register_solver", "run_study", "__version__"]
+           "open_result", "register_method", "register_solver", "run_study", "sample_mask",
+           "__version__"]

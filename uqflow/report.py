@@ -26,6 +26,7 @@ import xarray as xr
 from scipy import stats as sps
 
 from uqflow.errors import StudyError
+from uqflow.methods.base import sample_mask
 from uqflow.report_levels import LEVEL_METHODS, level_lines, levels_figure, method_cell
 from uqflow.store import open_result
 
@@ -525,10 +526,7 @@ class _Context:
         variate's control realizations (stencil points at the means) are not samples."""
         if self.runs is None or out not in self.runs or "status" not in self.runs:
             return None
-        ok = _status(self.runs) == "ok"
-        if "role" in self.runs.coords:
-            ok &= np.asarray(self.runs["role"].values) != "control"
-        return np.asarray(self.runs[out].values, dtype=float)[ok]
+        return np.asarray(self.runs[out].values, dtype=float)[sample_mask(self.runs)]
 
     def title(self, out, what, focus=None):
         where = f" at {_where(self.stats, focus)}" if focus else ""

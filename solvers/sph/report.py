@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
+from uqflow.methods.base import sample_mask
 from uqflow.report import figure_path
 
 #: confidence of the interval of a proportion
@@ -29,10 +30,7 @@ def _runs(tree):
         return None
     if "effective_modulus" not in runs or "status" not in runs:
         return None
-    keep = runs.status.values == "ok"
-    if "role" in runs:
-        keep &= runs.role.values != "control"     # a control-variate run is not a sample
-    return runs.isel(realization=np.flatnonzero(keep))
+    return runs.isel(realization=np.flatnonzero(sample_mask(runs)))
 
 
 def clopper_pearson(k, n, confidence: float = CONFIDENCE):

@@ -157,3 +157,12 @@ def test_a_sensitivity_run_asks_no_derivative_of_a_diagnostic(kind, options):
     assert "y__gradient" in runs and "solve_time__gradient" not in runs
     stats = method.analyze(design, runs)
     assert [str(v) for v in stats.data_vars if "statistic" in stats[v].dims] == ["y"]
+
+
+def test_sample_mask_leaves_out_failed_and_control_runs():
+    import uqflow
+
+    runs = xr.Dataset({"status": ("realization", ["ok", "ok", "failed", "ok"]),
+                       "role": ("realization", ["control", "sample", "sample", "sample"])})
+    assert uqflow.sample_mask(runs).tolist() == [False, True, False, True]
+    assert uqflow.sample_mask(runs.drop_vars("role")).tolist() == [True, True, False, True]

@@ -242,6 +242,15 @@ def ok_mask(runs: xr.Dataset) -> np.ndarray:
     return np.asarray(runs["status"].values == "ok")
 
 
+def sample_mask(runs: xr.Dataset) -> np.ndarray:
+    """The runs that are draws from the inputs' distribution: ok, and not a control variate's
+    control runs (``role = "control"``: stencil points at and around the input means)."""
+    samples = ok_mask(runs)
+    if "role" in runs.variables:
+        samples &= np.asarray(runs["role"].values) != "control"
+    return samples
+
+
 def cost_attrs(runs: xr.Dataset) -> dict:
     status = runs["status"].values
     done = status != "pending"
