@@ -201,7 +201,8 @@ class FidelitySampling(PropagationMethod):
                 eps = self.options.target_rel_rmse * scale
             # numpy's square: a target whose square overflows is inf (met by any stderr),
             # not Python's OverflowError
-            out[name] = np.where(chosen, np.square(np.float64(eps)), np.nan)
+            with np.errstate(over="ignore"):
+                out[name] = np.where(chosen, np.square(np.float64(eps)), np.nan)
         return out
 
     def target_not_met(self, runs: xr.Dataset, name: str, stderr: np.ndarray,

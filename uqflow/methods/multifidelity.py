@@ -22,6 +22,7 @@ pilot both allocates and estimates (stated in docs/multilevel.md).
 from __future__ import annotations
 
 import math
+import warnings
 from typing import Literal
 
 import numpy as np
@@ -54,11 +55,19 @@ def _surrogate_error(err: StudyError) -> StudyError:
                       key="method.surrogate")
 
 
+def _quiet_std(y: np.ndarray) -> np.ndarray:
+    """The sample std over axis 1, NaN without two samples (the allocation then skips it)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return y.std(axis=1, ddof=1)
+
+
 def pointwise_correlation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Correlation of the columns of ``a`` and ``b`` (n, points), point by point (NaN where
     either is constant)."""
-    da, db = a - a.mean(axis=0), b - b.mean(axis=0)
-    with np.errstate(invalid="ignore", divide="ignore"):
+    with warnings.catch_warnings(), np.errstate(invalid="ignore", divide="ignore"):
+        warnings.simplefilter("ignore", RuntimeWarning)  # no samples: NaN, not a warning
+        da, db = a - a.mean(axis=0), b - b.mean(axis=0)
         return (da * db).sum(axis=0) / np.sqrt((da**2).sum(axis=0) * (db**2).sum(axis=0))
 
 
@@ -202,7 +211,7 @@ class Multifidelity(FidelitySampling):
             values = self.model_values(runs, name, rows, surrogate)
             shared = min(v.shape[0] for v in values)
             y = np.stack([v[:shared] for v in values])                    # (models, n, points)
-            s = y.std(axis=1, ddof=1)
+            s = _quiet_std(y)
             rho = np.stack([pointwise_correlation(y[0], y[m]) for m in range(len(values))])
             for p in range(y.shape[2]):
                 if not s[0, p] > 0 or not np.isfinite(eps2[p]) or not eps2[p] > 0:

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import warnings
 
 import numpy as np
 
@@ -175,8 +176,10 @@ def mfmc_estimate(values: list[np.ndarray], counts: list[int],
     previous model's samples); ``values[-1]`` must then cover those samples."""
     m1 = counts[0]
     f1 = values[0][:m1]
-    s1 = f1.std(axis=0, ddof=1)
-    estimate = f1.mean(axis=0)
+    with warnings.catch_warnings():  # fewer than two shared samples: NaN moments, said later
+        warnings.simplefilter("ignore", RuntimeWarning)
+        s1 = f1.std(axis=0, ddof=1)
+        estimate = f1.mean(axis=0)
     variance = s1**2 / m1
     prev = m1
     alphas = []
