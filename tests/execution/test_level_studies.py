@@ -298,6 +298,7 @@ def test_allocate_at_lets_only_the_chosen_points_drive_the_allocation(write_stud
     assert info.value.key == "method.allocate_at.probe"
 
 
+@pytest.mark.filterwarnings("error::RuntimeWarning")  # NaN moments are said, not warned
 @pytest.mark.parametrize("method", ["multilevel", "multifidelity"])
 def test_a_target_that_cannot_be_shown_met_says_so(write_study, method):
     # euler_decay fails where k h > 2: at 1 step every k in [2.5, 3] fails, so the coarsest
@@ -352,6 +353,7 @@ def test_stated_costs_allocate_alike_at_any_scale_they_take(write_study, method)
     assert plain > ([8, 8, 8] if method == "multilevel" else [8, 8, 8])
 
 
+@pytest.mark.filterwarnings("error::RuntimeWarning")  # NaN moments are said, not warned
 def test_a_target_whose_square_overflows_is_met_by_the_pilot(write_study):
     # eps^2 was Python's float power: OverflowError in the run; numpy's is inf, met by any
     # stderr, so the pilot alone answers and nothing is left unmet
