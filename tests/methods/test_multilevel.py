@@ -316,7 +316,7 @@ def test_measured_costs_leave_out_numba_compile_time():
     runs["wall_time"].values[:] = per_run[design["level"].values] + compiling
     runs["compile_time"] = ("realization", compiling)
     # wall - compile is exact but for the rounding at 0.5: ulp(0.5) = 1.1e-16, 1.1e-13 of 1e-3
-    np.testing.assert_allclose(method.run_costs(runs), per_run, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(method.run_costs(runs), per_run, rtol=1e-12, atol=0)  # ulp(0.5)/1e-3
     # an older result without compile times: the wall times as they are
     older = runs.drop_vars("compile_time")
     assert method.run_costs(older).tolist() == (per_run + 0.5).tolist()
