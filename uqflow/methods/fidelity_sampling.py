@@ -183,8 +183,7 @@ class FidelitySampling(PropagationMethod):
     def allocating(self, runs: xr.Dataset) -> list[str]:
         """The outputs whose chosen points must meet the target: ``allocate_on``, or every
         uncertain output (never a diagnostic such as a timing)."""
-        return list(self.options.allocate_on or
-                    [n for n in output_names(runs) if not is_diagnostic(runs[n])])
+        return list(self.options.allocate_on or output_names(runs))
 
     def variance_targets(self, means: dict[str, np.ndarray],
                          runs: xr.Dataset) -> dict[str, np.ndarray]:

@@ -22,7 +22,6 @@ pilot both allocates and estimates (stated in docs/multilevel.md).
 from __future__ import annotations
 
 import math
-import warnings
 from typing import Literal
 
 import numpy as np
@@ -36,7 +35,8 @@ from uqflow.methods import control_variate as cv
 from uqflow.methods.base import finish_statistics, output_names, register_method
 from uqflow.methods.fidelity_sampling import (FidelityOptions, FidelitySampling, flat,
                                               output_shape)
-from uqflow.methods.multilevel_estimators import mfmc_allocation, mfmc_estimate
+from uqflow.methods.multilevel_estimators import (mfmc_allocation, mfmc_estimate,
+                                                  nan_moments_quietly)
 from uqflow.realization import SENSITIVITY_FLAG
 
 #: all models draw from one stream: the same sample k at every level
@@ -55,18 +55,10 @@ def _surrogate_error(err: StudyError) -> StudyError:
                       key="method.surrogate")
 
 
-def _quiet_std(y: np.ndarray) -> np.ndarray:
-    """The sample std over axis 1, NaN without two samples (the allocation then skips it)."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return y.std(axis=1, ddof=1)
-
-
 def pointwise_correlation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Correlation of the columns of ``a`` and ``b`` (n, points), point by point (NaN where
     either is constant)."""
-    with warnings.catch_warnings(), np.errstate(invalid="ignore", divide="ignore"):
-        warnings.simplefilter("ignore", RuntimeWarning)  # no samples: NaN, not a warning
+    with nan_moments_quietly():
         da, db = a - a.mean(axis=0), b - b.mean(axis=0)
         return (da * db).sum(axis=0) / np.sqrt((da**2).sum(axis=0) * (db**2).sum(axis=0))
 
@@ -211,7 +203,8 @@ class Multifidelity(FidelitySampling):
             values = self.model_values(runs, name, rows, surrogate)
             shared = min(v.shape[0] for v in values)
             y = np.stack([v[:shared] for v in values])                    # (models, n, points)
-            s = _quiet_std(y)
+            with nan_moments_quietly():  # fewer than two samples: skipped below
+                s = y.std(axis=1, ddof=1)
             rho = np.stack([pointwise_correlation(y[0], y[m]) for m in range(len(values))])
             for p in range(y.shape[2]):
                 if not s[0, p] > 0 or not np.isfinite(eps2[p]) or not eps2[p] > 0:

@@ -23,8 +23,6 @@ sample variances), std, stderr (sqrt(sum V_l / N_l)), ci_low/ci_high (normal), v
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 import xarray as xr
 from pydantic import Field
@@ -35,20 +33,12 @@ from uqflow.methods.base import finish_statistics, output_names, register_method
 from uqflow.methods.fidelity_sampling import (FidelityOptions, FidelitySampling, flat,
                                               output_shape, point_label)
 from uqflow.methods.multilevel_estimators import (giles_counts, level_rate, mlmc_bias,
-                                                  mlmc_level_terms)
+                                                  mlmc_level_terms, nan_moments_quietly)
 
 
 class MultilevelOptions(FidelityOptions):
     variance_share: float = Field(0.5, gt=0, lt=1, description="share theta of the target "
                                   "mean-square error given to the sampling variance")
-
-
-def _largest_per_level(values: np.ndarray) -> np.ndarray:
-    """The largest value of each level's row, NaN for a level whose runs all failed (quietly:
-    the method says what that costs in its warnings)."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return np.nanmax(values, axis=1)
 
 
 @register_method("multilevel")
@@ -150,8 +140,9 @@ class Multilevel(FidelitySampling):
                 stderr = np.sqrt(np.sum(V / n[:, None], axis=0))
             variance = np.sum([t["var_term"] for t in terms], axis=0)
             variance_se = np.sqrt(np.sum([t["var_term_var"] for t in terms], axis=0))
-            alpha = level_rate(_largest_per_level(np.abs(E)))
-            beta = level_rate(_largest_per_level(V))
+            with nan_moments_quietly():  # a level whose runs all failed is NaN
+                alpha = level_rate(np.nanmax(np.abs(E), axis=1))
+                beta = level_rate(np.nanmax(V, axis=1))
             bias = mlmc_bias(E, alpha)
             rmse = np.sqrt(stderr**2 + bias**2)
             std = np.sqrt(np.maximum(variance, 0.0))

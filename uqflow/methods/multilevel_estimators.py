@@ -28,11 +28,21 @@ w_i, Var[s] = s_1^2 / m_1 * (1 - sum_{i>=2} (1/r_{i-1} - 1/r_i) rho_i^2).
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import math
 import warnings
 
 import numpy as np
+
+
+@contextlib.contextmanager
+def nan_moments_quietly():
+    """Moments of a level or model without (enough) successful runs are NaN without numpy's
+    RuntimeWarnings: the methods say what that costs in their own warnings."""
+    with warnings.catch_warnings(), np.errstate(invalid="ignore", divide="ignore"):
+        warnings.simplefilter("ignore", RuntimeWarning)
+        yield
 
 
 def giles_counts(V: np.ndarray, C: np.ndarray, variance_target: np.ndarray,
@@ -176,8 +186,7 @@ def mfmc_estimate(values: list[np.ndarray], counts: list[int],
     previous model's samples); ``values[-1]`` must then cover those samples."""
     m1 = counts[0]
     f1 = values[0][:m1]
-    with warnings.catch_warnings():  # fewer than two shared samples: NaN moments, said later
-        warnings.simplefilter("ignore", RuntimeWarning)
+    with nan_moments_quietly():  # fewer than two shared samples
         s1 = f1.std(axis=0, ddof=1)
         estimate = f1.mean(axis=0)
     variance = s1**2 / m1
