@@ -5,7 +5,7 @@ Ramberg–Osgood, with stochastic grids) and docs/figures/gamut_bar_cyclic.png (
 loops and the log–log fit of n′, K′), prints the benchmark figures quoted in the docs
 (stochastic grids, timings), and writes the deterministic validation tables of
 docs/gamut_bar.md between its "gamut-bar-validation" markers (``validation_markdown``; the
-test tests/backends/gamut_bar/test_doc_numbers.py recomputes them and compares).
+test tests/solvers/gamut_bar/test_doc_numbers.py recomputes them and compares).
 
     python benchmarks/gamut_bar_figures.py [--stochastic 5] [--no-docs]
 """
@@ -74,7 +74,7 @@ def validation_markdown(rows) -> str:
     """The two tables of docs/gamut_bar.md's validation section, from deterministic_numbers."""
     out = [BEGIN,
            "Written by `python benchmarks/gamut_bar_figures.py` (uniform grid, 500 local bonds, "
-           "default loading); `tests/backends/gamut_bar/test_doc_numbers.py` recomputes every "
+           "default loading); `tests/solvers/gamut_bar/test_doc_numbers.py` recomputes every "
            "number here and compares it to the last digit shown.",
            "",
            r"| case | max \|σ/σ_RO − 1\| (ε ≥ 0.002) | ε at failure | σ at failure [MPa] "

@@ -1,6 +1,6 @@
 """Figures and numbers of the MPM verification problems (docs/mpm_verification.md).
 
-Runs the problems of tests/backends/mpm/test_verification.py through that module's own scene
+Runs the problems of tests/solvers/mpm/test_verification.py through that module's own scene
 loaders and measurements (the scenes are studies/scenes/verify_*.toml), prints every number the
 doc quotes and writes docs/figures/mpm_verify_{bar,disks,plate_impact,tnt,detonation,free_end}.png.
 About a minute once numba's cache is warm:
@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from solvers.mpm import MPMSolver  # noqa: E402
-from tests.backends.mpm import test_verification as V  # noqa: E402
+from tests.solvers.mpm import test_verification as V  # noqa: E402
 
 FIGURES = ROOT / "docs" / "figures"
 DPI = 100
@@ -204,7 +204,7 @@ def _wall_rate(profile):
 def detonation(refine=False, perturbations=False):
     """The checks the physics decides (CJ state, Taylor wave, γ = 3 wall impulse), the
     refinement numbers their tolerances come from, and the figure."""
-    from tests.backends.mpm.detonation_exact import (gamma3_wall_momentum, polytropic_gamma,
+    from tests.solvers.mpm.detonation_exact import (gamma3_wall_momentum, polytropic_gamma,
                                                      polytropic_taylor_pressure)
     r = V.tnt_checks()
     wave = r["fine"]["wave"]
@@ -293,7 +293,7 @@ def free_end(refine=False, perturbations=False):
     refinement pairs (10/20 µs, and 20/40 µs with --refine), R2 ± 10 % in the exact fan, the
     perturbation column of the doc's table, and the figure."""
     from solvers.mpm.materials import library
-    from tests.backends.mpm.detonation_exact import JWL, free_end_fan
+    from tests.solvers.mpm.detonation_exact import JWL, free_end_fan
     from uqflow.errors import SolverError
     fan = V.TNT_FREE_END
     shifted = {}

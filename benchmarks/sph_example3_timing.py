@@ -5,7 +5,7 @@ The seed's claim: MS2 costs about what PF costs, plain MS far more. Median of ``
 runs; ratios to PF within the same repeat.
 
     python benchmarks/sph_example3_timing.py
-    python benchmarks/sph_example3_timing.py --quick   (tests/backends/sph/test_benchmarks_smoke.py)
+    python benchmarks/sph_example3_timing.py --quick   (tests/solvers/sph/test_benchmarks_smoke.py)
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ edge particle is a slave, the worst case for plain master-slave. Median of ``--r
 per cell; plain MS is not run beyond the size where one run took more than ``--cap`` seconds.
 
     python benchmarks/sph_scaling.py            # writes BENCHMARKS.md section "sph-scaling"
-    python benchmarks/sph_scaling.py --quick    # a tiny run (tests/backends/sph/test_benchmarks_smoke.py)
+    python benchmarks/sph_scaling.py --quick    # a tiny run (tests/solvers/sph/test_benchmarks_smoke.py)
 """
 
 from __future__ import annotations

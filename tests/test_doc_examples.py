@@ -537,7 +537,7 @@ RESULTS_PAGE = ROOT / "docs" / "results.md"
 
 
 def test_every_figure_the_report_draws_is_on_the_results_page():
-    from uqflow.report import _FIGURES
+    from uqflow.report.summary import _FIGURES
     text = RESULTS_PAGE.read_text(encoding="utf-8")
     table = text[text.index("## The figures"):]
     for kind, _ in _FIGURES:

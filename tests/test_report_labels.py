@@ -158,7 +158,7 @@ def test_every_statistic_column_says_its_unit():
                       "95 % CI of the mean [u]"]
     assert row(table, "y")[1] == "mm"
     mean = stats["y"].sel(statistic="mean")
-    assert f"the mean ranges over {report._num(mean.min())} .. {report._num(mean.max())} mm" \
+    assert f"the mean ranges over {report.number(mean.min())} .. {report.number(mean.max())} mm" \
         in table
 
 
@@ -310,7 +310,7 @@ def test_levels_figure_title_fits_and_each_axis_has_one_unit(multilevel_tree, tm
 
     runs = multilevel_tree["runs"].to_dataset()
     stats = multilevel_tree["statistics"].to_dataset()
-    ctx = report._Context(multilevel_tree.attrs["study_name"], "multilevel", runs, stats)
+    ctx = report.summary._Context(multilevel_tree.attrs["study_name"], "multilevel", runs, stats)
     fig = levels_figure(ctx, "y")
     fig.canvas.draw()
     renderer = fig.canvas.get_renderer()

@@ -27,28 +27,10 @@ import xarray as xr
 
 from uqflow.errors import SolverError
 from uqflow.fields import FieldSample, field_value_variable, germ_variable
-from uqflow.solver import is_diagnostic
-
-STATUS_OK, STATUS_FAILED, STATUS_PENDING = "ok", "failed", "pending"
-
-SENSITIVITY_FLAG = "with_sensitivities"
-SENSITIVITY_DIM, SENSITIVITY_COORD = "sensitivity_run", "sensitivity_realization"
-GRADIENT_SUFFIX, HESSIAN_SUFFIX = "__gradient", "__hessian"
-
-
-def gradient_variable(output: str) -> str:
-    """Name of the local gradient of ``output`` (in a solver's dataset and in the runs)."""
-    return output + GRADIENT_SUFFIX
-
-
-def hessian_variable(output: str) -> str:
-    """Name of the local Hessian of ``output`` (in a solver's dataset and in the runs)."""
-    return output + HESSIAN_SUFFIX
-
-
-def is_sensitivity_variable(name) -> bool:
-    return str(name).endswith((GRADIENT_SUFFIX, HESSIAN_SUFFIX))
-
+from uqflow.layout import (GRADIENT_SUFFIX, HESSIAN_SUFFIX, SENSITIVITY_COORD,  # noqa: F401
+                           SENSITIVITY_DIM, STATUS_FAILED, STATUS_OK, STATUS_PENDING,
+                           WITH_SENSITIVITIES as SENSITIVITY_FLAG, gradient_variable,
+                           hessian_variable, is_diagnostic, is_sensitivity_variable)
 
 def sensitivity_flags(design: xr.Dataset) -> np.ndarray:
     """Which realizations of ``design`` run with sensitivities (all False without the flag)."""

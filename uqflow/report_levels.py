@@ -93,7 +93,7 @@ def level_lines(stats: xr.Dataset, method: str, outs: list[str], focus_of,
 
 
 def _table(head, rows) -> list[str]:
-    from uqflow.report import _grid      # report imports this module: import at call time
+    from uqflow.report.tables import grid as _grid
 
     return _grid(head, rows, right=set(range(len(head))))
 
@@ -109,7 +109,7 @@ def levels_figure(ctx, out: str):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from uqflow.report import _focus, _where
+    from uqflow.report.tables import focus_point as _focus, where as _where
 
     stats = ctx.stats
     focus = _focus(stats, out)
@@ -157,7 +157,7 @@ def cost_comparison(trees: list, folder, figures: bool = True) -> tuple[str, lis
     first multilevel result's own estimate of Var[P_L] and c_L). Empty otherwise."""
     from pathlib import Path
 
-    from uqflow.report import _focus, _outputs
+    from uqflow.report.summary import _focus, _outputs
 
     parts = [(t.attrs, t["statistics"].to_dataset()) for t in trees if "statistics" in t.children]
     if len(parts) < 2 or not any(s.attrs.get("method") in LEVEL_METHODS for _, s in parts):

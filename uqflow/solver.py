@@ -25,20 +25,11 @@ import numpy as np
 import xarray as xr
 
 from uqflow.errors import SceneError, SolverError
+from uqflow.layout import DIAGNOSTIC_KIND, is_diagnostic
 from uqflow.registry import Registry
 
 __all__ = ["Solver", "SolverError", "SceneError", "register_solver", "get_solver",
            "solver_registry", "DIAGNOSTIC_KIND", "is_diagnostic"]
-
-#: the attribute ``output_kind`` of an output template variable that marks a diagnostic of the
-#: run (a timing, a counter) rather than an uncertain quantity (see ``Solver``)
-DIAGNOSTIC_KIND = "diagnostic"
-
-
-def is_diagnostic(variable: xr.DataArray) -> bool:
-    """Whether an output is a diagnostic of the run (a timing, a counter), not an uncertain
-    quantity: its attribute ``output_kind`` is ``DIAGNOSTIC_KIND``."""
-    return str(variable.attrs.get("output_kind", "")) == DIAGNOSTIC_KIND
 
 solver_registry = Registry("uqflow.solvers", "solver", builtins=("solvers.analytic", "solvers.gamut_bar",
                                                                "solvers.mpm", "solvers.sph"))
@@ -112,6 +103,20 @@ class Solver(abc.ABC):
         give the names)."""
         raise NotImplementedError(f"solver '{self.name}' has no local sensitivities "
                                   f"(local_sensitivities() is empty)")
+
+    @classmethod
+    def report(cls, trees: list, folder, figures: bool = True, **options) -> tuple[str, list]:
+        """What results of this solver add to ``uqflow report`` and ``uqflow run``: text
+        printed after the framework's summary, and the paths of figures written into
+        ``folder`` (through ``uqflow.report.figure_path``; none when ``figures`` is False).
+
+        ``trees`` are one or more results (``xr.DataTree``) of this solver. A solver draws here
+        what only it knows: a map of its scene with the probes, a comparison with a reference
+        solution, a seed table beside ours. Keyword ``options`` come from the command line
+        (``uqflow report --time 1e-5``); an override must name each it takes in its signature:
+        one it does not take is refused naming it. The default adds nothing.
+        """
+        return "", []
 
     def describe(self) -> str:
         return f"{self.name} solver"

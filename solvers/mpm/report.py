@@ -38,7 +38,7 @@ import xarray as xr
 from solvers.mpm.scene import PROBE_QUANTITIES
 from uqflow.errors import StudyError
 from uqflow.solver import is_diagnostic
-from uqflow.report import _grid, _seconds, figure_path
+from uqflow.report import figure_path, grid as _grid, seconds as _seconds
 
 __all__ = ["report", "load_results", "seed_tables", "seed_moments", "seed_costs",
            "choose_reference", "table_time", "variance_error", "moments_tables", "cost_table",

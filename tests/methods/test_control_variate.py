@@ -16,7 +16,7 @@ from uqflow.inputs import InputSpace, RandomInput
 from uqflow.methods.monte_carlo import MonteCarlo
 from uqflow.methods.taylor import NOISE
 from uqflow.realization import evaluate_design
-from uqflow.report import _Context, summary_table
+from uqflow.report.summary import _Context, summary_table
 from uqflow.store import open_result
 from uqflow.study import load_study
 

@@ -299,8 +299,8 @@ def test_report_states_the_error_estimate(quickstart):
 def test_convergence_figure_draws_the_rqmc_band(quickstart):
     _, tree = quickstart
     stats = tree["statistics"].to_dataset()
-    ctx = report._Context("quickstart", "monte-carlo", tree["runs"].to_dataset(), stats)
-    fig = report._convergence(ctx, "y")
+    ctx = report.summary._Context("quickstart", "monte-carlo", tree["runs"].to_dataset(), stats)
+    fig = report.summary._convergence(ctx, "y")
     ax = fig.axes[0]
     labels = [t.get_text() for t in ax.get_legend().get_texts()]
     assert "95 % interval, randomized QMC (8 replicates, t with 7 dof)" in labels

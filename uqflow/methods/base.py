@@ -42,7 +42,8 @@ from pydantic import BaseModel, ConfigDict, field_validator
 from uqflow.errors import StudyError
 from uqflow.inputs import InputSpace
 from uqflow.registry import Registry
-from uqflow.solver import DIAGNOSTIC_KIND, is_diagnostic  # noqa: F401 (re-exported)
+from uqflow.layout import (DIAGNOSTIC_KIND, FIDELITY_DESIGN_VARIABLES,  # noqa: F401 (re-exported)
+                           is_diagnostic, ok_mask, output_names, sample_mask)
 
 method_registry = Registry("uqflow.methods", "method")
 
@@ -201,6 +202,17 @@ class PropagationMethod(abc.ABC):
         """
         return False
 
+    @classmethod
+    def report(cls, view):
+        """What this method adds to the report of its results: a ``uqflow.report.MethodReport``
+        (columns of the summary table, notes, cost details, sensitivities, figures, and whether
+        its runs are draws from the inputs' distribution), built from ``view``
+        (``uqflow.report.ResultView``: the result's statistics, runs and attributes; the
+        method's options are in the statistics' attributes). None (the default): the report
+        shows what every result has, and nothing of the method's own.
+        """
+        return None
+
     def __repr__(self) -> str:
         opts = ", ".join(f"{k}={v!r}" for k, v in self.options.model_dump().items())
         return f"{type(self).__name__}({opts})"
@@ -223,32 +235,6 @@ def make_design(space: InputSpace, values: np.ndarray, **variables) -> xr.Datase
                 "parameter_j": space.names,
                 "parameter_units": ("parameter", units)},
     )
-
-
-#: design variables of the methods that sample fidelity levels (uqflow.methods.fidelity_sampling)
-FIDELITY_DESIGN_VARIABLES = ("level", "group", "sample", "seed_key", "round")
-
-
-def output_names(runs: xr.Dataset) -> list[str]:
-    """The uncertain solver outputs stored in ``runs``: everything with a ``realization`` dim
-    but ours and the solver's diagnostics."""
-    skip = {"inputs", "status", "message", "wall_time", "compile_time", "realization_seed",
-            "clipped_points", "with_sensitivities", *FIDELITY_DESIGN_VARIABLES}
-    return [v for v in runs.data_vars if v not in skip and "realization" in runs[v].dims
-            and not v.startswith(("germ_", "field_")) and not is_diagnostic(runs[v])]
-
-
-def ok_mask(runs: xr.Dataset) -> np.ndarray:
-    return np.asarray(runs["status"].values == "ok")
-
-
-def sample_mask(runs: xr.Dataset) -> np.ndarray:
-    """The runs that are draws from the inputs' distribution: ok, and not a control variate's
-    control runs (``role = "control"``: stencil points at and around the input means)."""
-    samples = ok_mask(runs)
-    if "role" in runs.variables:
-        samples &= np.asarray(runs["role"].values) != "control"
-    return samples
 
 
 def cost_attrs(runs: xr.Dataset) -> dict:

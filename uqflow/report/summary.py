@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import json
 import math
-import re
 import warnings
 from pathlib import Path
 
@@ -27,45 +26,29 @@ from scipy import stats as sps
 
 from uqflow.errors import StudyError
 from uqflow.methods.base import sample_mask
+from uqflow.report.figures import FigureWarning, figure_folder, figure_path, safe_file_name
+from uqflow.report.figures import axis_label as _label
+from uqflow.report.figures import colors as _colors
+from uqflow.report.figures import coordinate as _coordinate
+from uqflow.report.figures import input_label as _input_label
+from uqflow.report.figures import new_figure as _figure
+from uqflow.report.figures import save_figure as _save
+from uqflow.report.figures import scientific_ticks as _sci
+from uqflow.report.tables import focus_point as _focus
+from uqflow.report.tables import grid as _grid
+from uqflow.report.tables import number as _num
+from uqflow.report.tables import seconds as _seconds
+from uqflow.report.tables import statistic as _stat
+from uqflow.report.tables import units_of
+from uqflow.report.tables import where as _where
 from uqflow.report_levels import LEVEL_METHODS, level_lines, levels_figure, method_cell
 from uqflow.store import open_result
-
-__all__ = ["open_result", "summary_table", "write_figures", "figure_folder", "figure_path",
-           "safe_file_name", "FigureWarning"]
 
 #: Individual Monte Carlo runs drawn faintly behind the mean ± 2 std band of a field output.
 FAINT_RUNS = 12
 
-
-class FigureWarning(UserWarning):
-    """A figure could not be drawn; the others are still written."""
-
-
-def safe_file_name(text: str) -> str:
-    """``text`` as one file name: characters other than [A-Za-z0-9._-] become '_' (no path
-    separator, no drive, nothing a shell or another OS reads specially), and no leading '.'
-    (no hidden file, no '..')."""
-    name = re.sub(r"[^A-Za-z0-9._-]", "_", str(text))
-    return "_" + name[1:] if not name or name.startswith(".") else name
-
-
-def figure_path(folder: Path, *parts: str, suffix: str = ".png") -> Path:
-    """The path of a figure named from ``parts`` (output names, kinds) inside ``folder``.
-
-    Names come from solvers and study files (an output or a probe called '../x' or 'G/K'):
-    every figure a result writes goes through here, so it stays inside its folder."""
-    folder = Path(folder)
-    path = folder / (safe_file_name("_".join(map(str, parts))) + suffix)
-    if path.resolve().parent != folder.resolve():
-        raise StudyError(f"figure name {path.name!r} leaves the figures folder {folder}")
-    return path
-
-
-def figure_folder(result_path: Path) -> Path:
-    """The folder for a result's figures: ``<stem>_figures`` beside the result file."""
-    result_path = Path(result_path)
-    return result_path.with_name(result_path.stem + "_figures")
-
+__all__ = ["open_result", "summary_table", "write_figures", "figure_folder", "figure_path",
+           "safe_file_name", "FigureWarning"]
 
 # --------------------------------------------------------------------------- reading a tree
 
@@ -84,78 +67,13 @@ def _outputs(stats: xr.Dataset) -> list[str]:
     return [str(v) for v in stats.data_vars if "statistic" in stats[v].dims]
 
 
-def _stat(stats: xr.Dataset, out: str, label: str) -> xr.DataArray | None:
-    if label not in stats["statistic"].values:
-        return None
-    return stats[out].sel(statistic=label)
-
-
 def _units(stats: xr.Dataset | None, runs: xr.Dataset | None, out: str) -> str:
-    for ds in (stats, runs):
-        if ds is not None and out in ds and ds[out].attrs.get("units"):
-            return str(ds[out].attrs["units"])
-    return ""
-
-
-def _label(name: str, units: str) -> str:
-    """An axis label: the name, with the units in brackets when the result gives any."""
-    return f"{name} [{units}]" if units else name
-
-
-def _focus(stats: xr.Dataset, out: str) -> dict[str, int]:
-    """Index of a field output's point of largest std ({} for a scalar output)."""
-    std = _stat(stats, out, "std")
-    if std is None or std.ndim == 0:
-        return {}
-    values = np.asarray(std.values, dtype=float)
-    flat = np.where(np.isfinite(values), values, -np.inf).ravel()
-    at = np.unravel_index(int(np.argmax(flat)), values.shape)
-    return {d: int(i) for d, i in zip(std.dims, at)}
-
-
-def _where(ds: xr.Dataset, focus: dict[str, int]) -> str:
-    """'t = 0 s' for a focus point, by coordinate value when there is one."""
-    parts = []
-    for dim, i in focus.items():
-        if dim in ds.coords:
-            coord = ds[dim]
-            units = coord.attrs.get("units", "")
-            value = coord.values[i]
-            text = f"{value:.4g}" if isinstance(value, (float, np.floating)) else str(value)
-            parts.append(f"{dim} = {text}{' ' + units if units else ''}")
-        else:
-            parts.append(f"{dim}[{i}]")
-    return ", ".join(parts)
-
-
-def _num(x) -> str:
-    """A number for the table: 6 significant digits, 'nan' for missing."""
-    try:
-        x = float(x)
-    except (TypeError, ValueError):
-        return str(x)
-    if math.isnan(x):
-        return "nan"
-    return f"{x:.6g}"
+    return units_of(out, stats, runs)
 
 
 def _cell(stats: xr.Dataset, out: str, label: str, focus: dict[str, int]) -> str:
     value = _stat(stats, out, label)
     return "-" if value is None else _num(value.isel(focus))
-
-
-def _seconds(t) -> str:
-    try:
-        t = float(t)
-    except (TypeError, ValueError):
-        return "?"
-    if not math.isfinite(t):
-        return "?"
-    if t < 120:
-        return f"{t:.3g} s"
-    if t < 7200:
-        return f"{t / 60:.3g} min"
-    return f"{t / 3600:.3g} h"
 
 
 def _control_lines(stats: xr.Dataset, outs: list[str]) -> list[str]:
@@ -181,17 +99,6 @@ def _control_lines(stats: xr.Dataset, outs: list[str]) -> list[str]:
                 lines.append(f"  {out}{where}: rho 1, the surrogate reproduces it to rounding "
                              f"(no error left to reduce)")
     return lines
-
-
-def _grid(header: list[str], rows: list[list[str]], right: set[int]) -> list[str]:
-    """A fixed-width table; columns in ``right`` are right-aligned."""
-    widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
-
-    def line(cells):
-        return "  ".join(c.rjust(w) if i in right else c.ljust(w)
-                         for i, (c, w) in enumerate(zip(cells, widths))).rstrip()
-
-    return [line(header), "  ".join("-" * w for w in widths), *map(line, rows)]
 
 
 # --------------------------------------------------------------------------- the table
@@ -533,21 +440,6 @@ class _Context:
         return f"{self.study}: {out}{where}\n{what}"
 
 
-def _figure(width=6.4, height=4.2, rows=1):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(width, height), layout="constrained")
-    FigureCanvasAgg(fig)
-    axes = fig.subplots(rows, 1, sharex=True) if rows > 1 else fig.subplots()
-    return fig, axes
-
-
-def _save(fig, path: Path) -> None:
-    fig.savefig(path, dpi=110, format="png")
-    fig.clear()  # not registered with pyplot: dropping the last reference frees it
-
-
 def _histogram(ctx: _Context, out: str):
     if ctx.method != "monte-carlo" or ctx.stats[out].ndim != 1:
         return None
@@ -771,34 +663,6 @@ def _contribution_note(stats: xr.Dataset) -> str:
     if stats.attrs.get("variance") == "second-order":
         return "\n(second-order variance: the curvature terms apart)"
     return ""
-
-
-def _sci(ax, axis: str) -> None:
-    """Powers of ten outside 1e-3 .. 1e4 go into the axis' offset text, not every tick."""
-    try:
-        ax.ticklabel_format(axis=axis, style="sci", scilimits=(-3, 4))
-    except AttributeError:  # not a ScalarFormatter (log axis)
-        pass
-
-
-def _coordinate(ds: xr.Dataset, dim: str) -> tuple[np.ndarray, str]:
-    if dim in ds.coords and np.issubdtype(ds[dim].dtype, np.number):
-        return np.asarray(ds[dim].values), _label(dim, ds[dim].attrs.get("units", ""))
-    return np.arange(ds.sizes[dim]), f"{dim} (index)"
-
-
-def _input_label(stats: xr.Dataset, k: int) -> str:
-    p = str(stats["parameter"].values[k])
-    if "parameter_units" in stats.coords and str(stats["parameter_units"].values[k]):
-        return f"{p}\n[{stats['parameter_units'].values[k]}]"
-    return p
-
-
-def _colors(n: int) -> list:
-    from matplotlib import colormaps
-
-    cmap = colormaps["tab10" if n <= 10 else "tab20"]
-    return [cmap(i % cmap.N) for i in range(n)]
 
 
 def _method_name(method: str) -> str:

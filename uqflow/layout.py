@@ -1,0 +1,129 @@
+"""The names of a result's layout, in one place: the design, the runs, the statistics, the
+attributes every result carries, and what counts as an output (docs/results.md).
+
+Every module that writes or reads a result imports its names from here; none spells them.
+A result written by uqflow is an ``xr.DataTree`` with the groups ``design``, ``runs`` and
+``statistics`` (``uqflow.store``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import xarray as xr
+
+# ----------------------------------------------------------------------------- dims
+REALIZATION = "realization"
+PARAMETER, PARAMETER_J = "parameter", "parameter_j"
+#: non-dim coordinate of ``parameter``: each input's units
+PARAMETER_UNITS = "parameter_units"
+#: leading dim of every output's statistics; its labels are the STATISTIC_* names below
+STATISTIC = "statistic"
+
+# ----------------------------------------------------------------------------- design
+#: (realization, parameter): the parameter values of each realization
+INPUTS = "inputs"
+INPUT_MEAN, INPUT_STD, INPUT_CV = "input_mean", "input_std", "input_cv"
+INPUT_SKEWNESS, INPUT_KURTOSIS = "input_skewness", "input_kurtosis"
+#: (parameter, parameter_j): the Gaussian-copula correlation of the inputs
+INPUT_CORRELATION = "input_correlation"
+INPUT_SUMMARY = (INPUT_MEAN, INPUT_STD, INPUT_CV, INPUT_SKEWNESS, INPUT_KURTOSIS,
+                 INPUT_CORRELATION)
+#: the seed of a realization's random fields (a design with [[fields]])
+REALIZATION_SEED = "realization_seed"
+#: field germs and evaluated field values are named with these prefixes (``uqflow.fields``)
+GERM_PREFIX, FIELD_PREFIX = "germ_", "field_"
+#: boolean (realization): run with the solver's local derivatives (``uqflow.realization``)
+WITH_SENSITIVITIES = "with_sensitivities"
+#: what a row of a control-variate design is: ROLE_CONTROL rows build the surrogate and are
+#: not draws from the inputs' distribution
+ROLE, ROLE_CONTROL, ROLE_SAMPLE = "role", "control", "sample"
+#: design variables of the methods that sample fidelity levels (``fidelity_sampling``)
+LEVEL, GROUP, SAMPLE, SEED_KEY, ROUND = "level", "group", "sample", "seed_key", "round"
+FIDELITY_DESIGN_VARIABLES = (LEVEL, GROUP, SAMPLE, SEED_KEY, ROUND)
+
+# ----------------------------------------------------------------------------- runs
+STATUS, MESSAGE = "status", "message"
+STATUS_OK, STATUS_FAILED, STATUS_PENDING = "ok", "failed", "pending"
+#: seconds of a realization, and the part of it numba spent compiling
+WALL_TIME, COMPILE_TIME = "wall_time", "compile_time"
+#: field points whose Weibull-perturbed value was clipped to the parameter's range
+CLIPPED_POINTS = "clipped_points"
+#: what the executor writes for every realization besides the solver's outputs
+RUN_COLUMNS = (STATUS, MESSAGE, WALL_TIME, COMPILE_TIME, CLIPPED_POINTS)
+#: local derivatives of sensitivity runs live on their own dim (``uqflow.realization``)
+SENSITIVITY_DIM, SENSITIVITY_COORD = "sensitivity_run", "sensitivity_realization"
+GRADIENT_SUFFIX, HESSIAN_SUFFIX = "__gradient", "__hessian"
+
+# ----------------------------------------------------------------------------- statistics
+STATISTIC_MEAN, STATISTIC_STD, STATISTIC_VARIANCE = "mean", "std", "variance"
+#: the standard error of the mean, and the interval of the mean at the result's confidence
+STATISTIC_STDERR, STATISTIC_CI_LOW, STATISTIC_CI_HIGH = "stderr", "ci_low", "ci_high"
+#: attributes of the statistics group (``uqflow.methods.base.finish_statistics``)
+METHOD = "method"
+SOLVER_RUNS, FAILED_RUNS = "solver_runs", "failed_runs"
+SOLVER_WALL_TIME, SOLVER_COMPILE_TIME = "solver_wall_time", "solver_compile_time"
+#: one warning per line
+WARNINGS = "warnings"
+CONFIDENCE = "confidence"
+
+# ----------------------------------------------------------------------------- root attributes
+STUDY_NAME, SOLVER = "study_name", "solver"
+COMPLETE, STOPPED_EARLY, ELAPSED_TIME = "complete", "stopped_early", "elapsed_time"
+STUDY_TEXT, STUDY_HASH, STUDY_TEXT_OMITTED = "study_text", "study_hash", "study_text_omitted"
+#: command-line overrides of study keys (``uqflow run --set``), as TOML lines
+STUDY_OVERRIDES = "study_overrides"
+
+# ----------------------------------------------------------------------------- output attributes
+#: attributes of an output variable (CF conventions): its units and a label a reader
+#: understands ("deviatoric stress s_xx"); the report draws and tabulates with them
+UNITS, LONG_NAME = "units", "long_name"
+#: ``output_kind = DIAGNOSTIC_KIND`` marks a timing or counter of the run, not an uncertain
+#: quantity: stored with the runs, given no statistics, figure or allocation
+OUTPUT_KIND, DIAGNOSTIC_KIND, QUANTITY_KIND = "output_kind", "diagnostic", "quantity"
+
+
+def gradient_variable(output: str) -> str:
+    """Name of the local gradient of ``output`` (in a solver's dataset and in the runs)."""
+    return output + GRADIENT_SUFFIX
+
+
+def hessian_variable(output: str) -> str:
+    """Name of the local Hessian of ``output`` (in a solver's dataset and in the runs)."""
+    return output + HESSIAN_SUFFIX
+
+
+def is_sensitivity_variable(name) -> bool:
+    return str(name).endswith((GRADIENT_SUFFIX, HESSIAN_SUFFIX))
+
+
+def is_diagnostic(variable: xr.DataArray) -> bool:
+    """Whether an output is a diagnostic of the run (a timing, a counter), not an uncertain
+    quantity: its attribute ``output_kind`` is ``DIAGNOSTIC_KIND``."""
+    return str(variable.attrs.get(OUTPUT_KIND, "")) == DIAGNOSTIC_KIND
+
+
+#: variables with a realization dim that are the framework's, never a solver's output
+_NOT_OUTPUTS = frozenset({INPUTS, *RUN_COLUMNS, REALIZATION_SEED, WITH_SENSITIVITIES, ROLE,
+                          *FIDELITY_DESIGN_VARIABLES})
+
+
+def output_names(runs: xr.Dataset) -> list[str]:
+    """The uncertain solver outputs stored in ``runs``: every variable with a ``realization``
+    dim but the framework's own, the field germs and values, and the solver's diagnostics."""
+    return [str(v) for v in runs.data_vars if v not in _NOT_OUTPUTS
+            and REALIZATION in runs[v].dims
+            and not str(v).startswith((GERM_PREFIX, FIELD_PREFIX)) and not is_diagnostic(runs[v])]
+
+
+def ok_mask(runs: xr.Dataset) -> np.ndarray:
+    """The realizations that ran ok."""
+    return np.asarray(runs[STATUS].values == STATUS_OK)
+
+
+def sample_mask(runs: xr.Dataset) -> np.ndarray:
+    """The runs that are draws from the inputs' distribution: ok, and not a control variate's
+    control runs (``role = "control"``: stencil points at and around the input means)."""
+    samples = ok_mask(runs)
+    if ROLE in runs.variables:
+        samples &= np.asarray(runs[ROLE].values) != ROLE_CONTROL
+    return samples

@@ -1,0 +1,91 @@
+"""Text tables and the numbers in them, for the framework's summary and for every solver's and
+method's report: fixed-width grids, numbers to six significant digits, durations, and the
+point of a field output a table row is taken at."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import xarray as xr
+
+from uqflow.layout import STATISTIC, UNITS
+
+
+def grid(header: list[str], rows: list[list[str]], right: set[int] = frozenset()) -> list[str]:
+    """A fixed-width table as lines; columns whose index is in ``right`` are right-aligned."""
+    widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
+
+    def line(cells):
+        return "  ".join(c.rjust(w) if i in right else c.ljust(w)
+                         for i, (c, w) in enumerate(zip(cells, widths))).rstrip()
+
+    return [line(header), "  ".join("-" * w for w in widths), *map(line, rows)]
+
+
+def number(x) -> str:
+    """A number for a table: 6 significant digits, 'nan' for missing."""
+    try:
+        x = float(x)
+    except (TypeError, ValueError):
+        return str(x)
+    if math.isnan(x):
+        return "nan"
+    return f"{x:.6g}"
+
+
+def seconds(t) -> str:
+    """A duration in s, min or h; '?' when unknown."""
+    try:
+        t = float(t)
+    except (TypeError, ValueError):
+        return "?"
+    if not math.isfinite(t):
+        return "?"
+    if t < 120:
+        return f"{t:.3g} s"
+    if t < 7200:
+        return f"{t / 60:.3g} min"
+    return f"{t / 3600:.3g} h"
+
+
+def statistic(stats: xr.Dataset, output: str, label: str) -> xr.DataArray | None:
+    """Statistic ``label`` ("mean", "std", …) of ``output``, None where the method gives none."""
+    if STATISTIC not in stats.coords or label not in stats[STATISTIC].values:
+        return None
+    return stats[output].sel({STATISTIC: label})
+
+
+def units_of(output: str, *datasets: xr.Dataset | None) -> str:
+    """The ``units`` attribute of ``output`` in the first dataset that gives one ('' if none)."""
+    for ds in datasets:
+        if ds is not None and output in ds and ds[output].attrs.get(UNITS):
+            return str(ds[output].attrs[UNITS])
+    return ""
+
+
+def focus_point(stats: xr.Dataset, output: str) -> dict[str, int]:
+    """Index of a field output's point of largest std ({} for a scalar output): where a table
+    row of a field is taken."""
+    std = statistic(stats, output, "std")
+    if std is None or std.ndim == 0:
+        return {}
+    values = np.asarray(std.values, dtype=float)
+    flat = np.where(np.isfinite(values), values, -np.inf).ravel()
+    at = np.unravel_index(int(np.argmax(flat)), values.shape)
+    return {d: int(i) for d, i in zip(std.dims, at)}
+
+
+def where(ds: xr.Dataset, focus: dict[str, int]) -> str:
+    """'t = 0.001 s, probe = H' for a focus point, by coordinate value where there is one."""
+    parts = []
+    for dim, i in focus.items():
+        if dim in ds.coords:
+            coord = ds[dim]
+            units = coord.attrs.get(UNITS, "")
+            value = coord.values[i]
+            text = f"{value:.4g}" if isinstance(value, (float, np.floating)) else str(value)
+            parts.append(f"{dim} = {text}{' ' + units if units else ''}")
+        else:
+            parts.append(f"{dim}[{i}]")
+    return ", ".join(parts)
