@@ -69,7 +69,21 @@ CONFIDENCE = "confidence"
 # ----------------------------------------------------------------------------- root attributes
 STUDY_NAME, SOLVER = "study_name", "solver"
 COMPLETE, STOPPED_EARLY, ELAPSED_TIME = "complete", "stopped_early", "elapsed_time"
-STUDY_TEXT, STUDY_HASH, STUDY_TEXT_OMITTED = "study_text", "study_hash", "study_text_omitted"
+#: the study file's path and text (or, for a text too large to store, why it is not there)
+STUDY_FILE, STUDY_TEXT, STUDY_TEXT_OMITTED = "study_file", "study", "study_text_omitted"
+#: provenance hashes: the study as run (text, files it reads, overrides) and its text alone
+STUDY_HASH, STUDY_TEXT_HASH = "study_sha256", "study_text_sha256"
+#: JSON {key: [path, sha256]} of the other files the study reads (a scene file)
+STUDY_READ_FILES = "study_read_files"
+SOLVER_DESCRIPTION, METHOD_OPTIONS, SEED = "solver_description", "method_options", "seed"
+PLANNED_REALIZATIONS, WORKERS = "planned_realizations", "workers"
+CREATED, FINISHED, RESUMED = "created", "finished", "resumed"
+#: SHA-256 of the stored runs, verified before a resume trusts them (``uqflow.store``)
+RUNS_HASH = "runs_sha256"
+#: CF attributes of the file: a title, and the conventions it follows
+TITLE, CONVENTIONS = "title", "Conventions"
+#: ``version_<package>``: the versions of uqflow and of the libraries a result was made with
+VERSION_PREFIX = "version_"
 #: command-line overrides of study keys (``uqflow run --set``), as TOML lines
 STUDY_OVERRIDES = "study_overrides"
 
