@@ -30,7 +30,11 @@ from solvers.mpm.materials.sensitivities import (JC_PARAMETERS, MG_PARAMETERS,
                                                  johnson_cook_sensitivities,
                                                  mie_gruneisen_sensitivities)
 
-LOCAL_PARAMETERS = MG_PARAMETERS + JC_PARAMETERS          # a steel particle's 10 derivatives
+LOCAL_PARAMETERS = MG_PARAMETERS + JC_PARAMETERS          # a steel particle's derivatives
+EOS_SLOTS = slice(0, len(MG_PARAMETERS))                   # where each model's land in them
+FLOW_SLOTS = slice(len(MG_PARAMETERS), len(LOCAL_PARAMETERS))
+# the flow-stress parameters' places in the steel's packed vector, in JC_PARAMETERS order
+FLOW_INDEX = [list(JC.PARAMETERS).index(name) for name in JC_PARAMETERS]
 DEVIATOR_COLUMN = {"S11": 0, "S22": 1, "S12": 2, "S33": 3}   # of state.deviatoric
 OUTPUTS = ("pressure", "flow_stress", "flow_stress_total_rate", *DEVIATOR_COLUMN)
 
@@ -46,10 +50,11 @@ def sensitivity_parameters(solver):
 
 
 def return_tangent(rows, prm):
-    """(∂σ̄/∂θ (N, 5), ∂²σ̄/∂θ² (N, 5, 5)) of the flow stress each row's last return reached,
-    from its fixed trial (0 for elastic steps): what every deviator component scales."""
+    """(∂σ̄/∂θ (N, 5), ∂²σ̄/∂θ² (N, 5, 5)), θ = JC_PARAMETERS, of the flow stress each row's
+    last return reached, from its fixed trial (0 for elastic steps): what every deviator
+    component scales."""
     return johnson_cook_return_sensitivities(
-        *prm[[JC.I_JA, JC.I_JB, JC.I_JC, JC.I_JN, JC.I_JM]], prm[JC.I_G], rows[:, ST.EPS_P],
+        *prm[FLOW_INDEX], prm[JC.I_G], rows[:, ST.EPS_P],
         rows[:, ST.EPS_P_RATE] * rows[:, ST.DT], rows[:, ST.RATE_STAR], return_T_star(rows, prm),
         rate_fixed=prm[JC.I_SEED] != 0.0)
 
@@ -60,32 +65,32 @@ def return_T_star(rows, prm):
 
 
 def particle_derivatives(output, rows, prm, tangent=None):
-    """(gradient (N, 10), Hessian (N, 10, 10)) of ``output`` for state rows of one steel
+    """(gradient (N, L), Hessian (N, L, L)) of ``output`` for state rows of one steel
     material with packed parameters ``prm``, in LOCAL_PARAMETERS order. ``tangent``: the
     rows' ``return_tangent``, when already computed (the four deviator components share it)."""
     n_rows = rows.shape[0]
-    grad = np.zeros((n_rows, 10))
-    hess = np.zeros((n_rows, 10, 10))
-    A, B, C, n, m = prm[[JC.I_JA, JC.I_JB, JC.I_JC, JC.I_JN, JC.I_JM]]
+    grad = np.zeros((n_rows, len(LOCAL_PARAMETERS)))
+    hess = np.zeros((n_rows, len(LOCAL_PARAMETERS), len(LOCAL_PARAMETERS)))
     seed = prm[JC.I_SEED] != 0.0
     if output == "pressure":
         rho0 = prm[JC.I_RHO0]
         _, g, h = mie_gruneisen_sensitivities(rows[:, ST.RHO] / rho0 - 1.0, rows[:, ST.E], rho0,
                                               *prm[[JC.I_C, JC.I_S1, JC.I_S2, JC.I_S3,
                                                     JC.I_G0, JC.I_A]])
-        grad[:, :5], hess[:, :5, :5] = g, h
+        grad[:, EOS_SLOTS], hess[:, EOS_SLOTS, EOS_SLOTS] = g, h
     elif output in ("flow_stress", "flow_stress_total_rate"):
         rate = (rows[:, ST.RATE_STAR] if output == "flow_stress"
                 else rows[:, ST.EQ_STRAIN_RATE] / prm[JC.I_EPS0])
-        _, g, h = johnson_cook_sensitivities(A, B, C, n, m, rows[:, ST.EPS_P], rate,
+        _, g, h = johnson_cook_sensitivities(*prm[FLOW_INDEX], rows[:, ST.EPS_P], rate,
                                              return_T_star(rows, prm), rate_clamped=not seed)
-        grad[:, 5:], hess[:, 5:, 5:] = g, h
+        grad[:, FLOW_SLOTS], hess[:, FLOW_SLOTS, FLOW_SLOTS] = g, h
     else:
         g, h = return_tangent(rows, prm) if tangent is None else tangent
         s = ST.deviatoric(rows)[:, DEVIATOR_COLUMN[output]]
         sy = rows[:, ST.SY]
         ratio = np.divide(s, sy, out=np.zeros_like(s), where=sy != 0.0)   # s*_ij/σeq*
-        grad[:, 5:], hess[:, 5:, 5:] = ratio[:, None] * g, ratio[:, None, None] * h
+        grad[:, FLOW_SLOTS] = ratio[:, None] * g
+        hess[:, FLOW_SLOTS, FLOW_SLOTS] = ratio[:, None, None] * h
     return grad, hess
 
 
@@ -98,7 +103,7 @@ class ProbeSensitivities:
         self.prms = prms
         position = {name: k for k, name in enumerate(wrt)}
         n_probes, n_wrt = len(members), len(wrt)
-        # per steel material: its members' (probe, particle, weight) and where its 10 local
+        # per steel material: its members' (probe, particle, weight) and where its local
         # parameters land in ``wrt`` (−1: not asked for)
         self.groups = []
         material = solver.parts.material

@@ -14,6 +14,7 @@ import xarray as xr
 from solvers.mpm import step as K
 from solvers.mpm.materials import state as ST
 from solvers.mpm.materials.johnson_cook import CONVENTIONS_PARAMETER
+from solvers.mpm.materials.parameters import units as parameter_units
 from solvers.mpm.probe_sensitivities import OUTPUTS as SENSITIVITY_OUTPUTS, \
     ProbeSensitivities, sensitivity_parameters
 from solvers.mpm.probes import ProbeRecorder
@@ -31,11 +32,6 @@ DT_FLOOR_FRACTION = 1e-3                       # default dt floor: this × the f
 DIAGNOSTIC_OUTPUTS = {"time_steps": ("1", "time steps the run took (CFL-limited: its cost)"),
                       "dt_min": ("s", "smallest time step the run took"),
                       "dt_max": ("s", "largest time step the run took")}
-UNITS_BY_NAME = {"rho0": "kg m-3", "shear_modulus": "Pa", "E": "Pa", "D": "m s-1",
-                 "eos.C": "m s-1", "eos.A": "Pa", "eos.B": "Pa", "eos.E0": "J m-3",
-                 "jc.A": "Pa", "jc.B": "Pa", "jc.eps0_dot": "s-1", "jc.T_room": "K",
-                 "jc.T_melt": "K", "cp": "J kg-1 K-1", "cavitation_pressure": "Pa",
-                 "burn_width": "m", "det_x": "m", "det_y": "m"}
 
 
 @register_solver("mpm")
@@ -133,7 +129,11 @@ class MPMSolver(Solver):
         return out
 
     def parameter_units(self) -> dict[str, str]:
-        return {k: UNITS_BY_NAME.get(k.split(".", 1)[1], "") for k in self.nominal()}
+        """SI units of every nominal parameter, from its material's spec table."""
+        units = {lab: parameter_units(m.module.PARAMETER_SPECS)
+                 for lab, m in self.cfg.materials.items()}
+        return {k: units[lab][name]
+                for k in self.nominal() for lab, name in [k.split(".", 1)]}
 
     def outputs(self) -> xr.Dataset:
         return self._template.copy(deep=True)

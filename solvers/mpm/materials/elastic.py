@@ -18,6 +18,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .parameters import ParameterSpec, defaults
 # The cached kernels below inline state.py's guards, which loop over its N_STATE = 20 columns;
 # numba keys a cache on this file's text alone, so a layout change must edit this line.
 from .state import (C as COL_C, E as COL_E, ERR_DENSITY, ERR_NONFINITE, OK, P, Q, RHO, SXX, SXY,
@@ -27,11 +28,12 @@ from .state import (C as COL_C, E as COL_E, ERR_DENSITY, ERR_NONFINITE, OK, P, Q
 NAME = "hypoelastic"
 HAS_STRENGTH = True          # it carries a deviator (but never yields)
 
-PARAMETERS = {
-    "rho0": 7830.0,     # kg/m³
-    "E": 210e9,         # Pa, Young's modulus
-    "nu": 0.286,        # Poisson's ratio
-}
+PARAMETER_SPECS = (
+    ParameterSpec("rho0", 7830.0, "kg m-3", "reference density"),
+    ParameterSpec("E", 210e9, "Pa", "Young's modulus"),
+    ParameterSpec("nu", 0.286, "", "Poisson's ratio"),
+)
+PARAMETERS = defaults(PARAMETER_SPECS)
 NPRM = len(PARAMETERS)
 I_RHO0, I_E, I_NU = range(NPRM)
 

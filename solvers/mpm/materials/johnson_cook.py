@@ -35,7 +35,8 @@ import math
 import numpy as np
 from numba import njit
 
-from .mie_gruneisen import mg_bulk_sound_speed_sq, mg_coefficients
+from .mie_gruneisen import eos_parameters, mg_bulk_sound_speed_sq, mg_coefficients
+from .parameters import ParameterSpec, defaults
 from .state import (BURN, C as COL_C, DT, E, EPS_P, EPS_P_RATE, EQ_STRAIN_RATE, ERR_DENSITY,
                     ERR_NONFINITE, ERR_OTHER, OK, P, PLASTIC_WORK, Q, RATE_STAR, RHO, SXX, SXY,
                     SY, SY_TOTAL_RATE, SYY, SZZ, T, T_RETURN, check_update, density_update,
@@ -45,27 +46,26 @@ from .state import (BURN, C as COL_C, DT, E, EPS_P, EPS_P_RATE, EQ_STRAIN_RATE, 
 NAME = "mie_gruneisen_johnson_cook"
 HAS_STRENGTH = True
 
-PARAMETERS = {
-    "eos.C": 4569.0,            # m/s, bulk sound speed (U_s = C + S1 u_p)
-    "eos.S1": 1.49,
-    "eos.S2": 0.0,
-    "eos.S3": 0.0,
-    "eos.gamma0": 2.17,
-    "eos.a": 0.46,
-    "rho0": 7830.0,             # kg/m³
-    "shear_modulus": 81.8e9,    # Pa
-    "jc.A": 792e6,              # Pa
-    "jc.B": 510e6,              # Pa
-    "jc.n": 0.26,
-    "jc.C": 0.014,
-    "jc.m": 1.03,
-    "jc.eps0_dot": 1.0,         # 1/s
-    "jc.T_room": 294.0,         # K
-    "jc.T_melt": 1793.0,        # K
-    "cp": 477.0,                # J/(kg K)
-    "taylor_quinney": 0.9,
-    "seed_conventions": 0.0,    # 1: seed 000's rate measure and no heating (set by the solver)
-}
+PARAMETER_SPECS = (
+    *eos_parameters(C=4569.0, S1=1.49, S2=0.0, S3=0.0, gamma0=2.17, a=0.46),
+    ParameterSpec("rho0", 7830.0, "kg m-3", "reference density"),
+    ParameterSpec("shear_modulus", 81.8e9, "Pa", "shear modulus G"),
+    ParameterSpec("jc.A", 792e6, "Pa", "Johnson–Cook initial yield stress A"),
+    ParameterSpec("jc.B", 510e6, "Pa", "Johnson–Cook hardening modulus B"),
+    ParameterSpec("jc.n", 0.26, "", "Johnson–Cook hardening exponent n"),
+    ParameterSpec("jc.C", 0.014, "", "Johnson–Cook strain-rate coefficient C"),
+    ParameterSpec("jc.m", 1.03, "", "Johnson–Cook thermal-softening exponent m"),
+    ParameterSpec("jc.eps0_dot", 1.0, "s-1", "reference strain rate ε̇0"),
+    ParameterSpec("jc.T_room", 294.0, "K", "room temperature"),
+    ParameterSpec("jc.T_melt", 1793.0, "K", "melting temperature"),
+    ParameterSpec("cp", 477.0, "J kg-1 K-1", "specific heat capacity"),
+    ParameterSpec("taylor_quinney", 0.9, "", "fraction of plastic work turned into heat"),
+    ParameterSpec("seed_conventions", 0.0, "",
+                  "1: seed 000's rate measure and no heating (set by the solver)"),
+)
+PARAMETERS = defaults(PARAMETER_SPECS)
+# the flow-stress parameters with analytic derivatives (sensitivities.py), in their order
+DIFFERENTIABLE_PARAMETERS = ("jc.A", "jc.B", "jc.C", "jc.n", "jc.m")
 NPRM = len(PARAMETERS)
 (I_C, I_S1, I_S2, I_S3, I_G0, I_A, I_RHO0, I_G, I_JA, I_JB, I_JN, I_JC, I_JM, I_EPS0, I_TROOM,
  I_TMELT, I_CP, I_TQ, I_SEED) = range(NPRM)

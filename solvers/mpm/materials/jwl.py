@@ -24,6 +24,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .parameters import ParameterSpec, defaults
 # The cached kernels below inline state.py's guards, which loop over its N_STATE = 20 columns;
 # numba keys a cache on this file's text alone, so a layout change must edit this line.
 from .state import (BURN, C as COL_C, E, ERR_DENSITY, ERR_NONFINITE, ERR_OTHER, OK, P, Q, RHO,
@@ -36,19 +37,21 @@ HAS_STRENGTH = False
 # Σ BURN · E0 · V0 as the energy the burn has released (probes.py, "explosive_release")
 CHEMICAL_ENERGY = "eos.E0"
 
-PARAMETERS = {
-    "rho0": 1630.0,        # kg/m³
-    "D": 6930.0,           # m/s, detonation speed
-    "eos.A": 371.2e9,      # Pa
-    "eos.B": 3.231e9,      # Pa
-    "eos.R1": 4.15,
-    "eos.R2": 0.95,
-    "eos.omega": 0.30,
-    "eos.E0": 7.0e9,       # J/m³ (per unit reference volume)
-    "det_x": 0.0,          # m, detonation point (set by the core from the scene)
-    "det_y": 0.0,
-    "burn_width": 0.0075,  # m, ramp width β Δx (β = 1.5, Δx = 5 mm); core sets it
-}
+PARAMETER_SPECS = (
+    ParameterSpec("rho0", 1630.0, "kg m-3", "reference density"),
+    ParameterSpec("D", 6930.0, "m s-1", "detonation speed"),
+    ParameterSpec("eos.A", 371.2e9, "Pa", "JWL coefficient A"),
+    ParameterSpec("eos.B", 3.231e9, "Pa", "JWL coefficient B"),
+    ParameterSpec("eos.R1", 4.15, "", "JWL exponent R1"),
+    ParameterSpec("eos.R2", 0.95, "", "JWL exponent R2"),
+    ParameterSpec("eos.omega", 0.30, "", "JWL Grüneisen coefficient ω"),
+    ParameterSpec("eos.E0", 7.0e9, "J m-3", "chemical energy per unit reference volume"),
+    ParameterSpec("det_x", 0.0, "m", "detonation point x (set by the core from the scene)"),
+    ParameterSpec("det_y", 0.0, "m", "detonation point y (set by the core from the scene)"),
+    ParameterSpec("burn_width", 0.0075, "m",
+                  "programmed-burn ramp width β Δx (β = 1.5, Δx = 5 mm; the core sets it)"),
+)
+PARAMETERS = defaults(PARAMETER_SPECS)
 NPRM = len(PARAMETERS)
 I_RHO0, I_D, I_A, I_B, I_R1, I_R2, I_OM, I_E0, I_DETX, I_DETY, I_W = range(NPRM)
 

@@ -15,7 +15,22 @@ from __future__ import annotations
 
 from numba import njit
 
+from .parameters import ParameterSpec
 from .state import ERR_MG_DENOMINATOR, MG_DEN_MIN, OK
+
+# the EOS parameters with a one-run Taylor derivative (sensitivities.py), in its order
+DIFFERENTIABLE_PARAMETERS = ("eos.S1", "eos.S2", "eos.S3", "eos.gamma0", "eos.a")
+
+
+def eos_parameters(C, S1, S2, S3, gamma0, a):
+    """The EOS's parameter specs, first in the packed vector of every material that uses it,
+    with that material's defaults."""
+    return (ParameterSpec("eos.C", C, "m s-1", "bulk sound speed (U_s = C + S1 u_p)"),
+            ParameterSpec("eos.S1", S1, "", "linear Hugoniot slope S1"),
+            ParameterSpec("eos.S2", S2, "", "quadratic Hugoniot coefficient S2"),
+            ParameterSpec("eos.S3", S3, "", "cubic Hugoniot coefficient S3"),
+            ParameterSpec("eos.gamma0", gamma0, "", "Grüneisen coefficient γ0"),
+            ParameterSpec("eos.a", a, "", "first-order volume correction a of γ"))
 
 
 @njit(cache=True, fastmath=False)

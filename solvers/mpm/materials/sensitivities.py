@@ -18,11 +18,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import johnson_cook, mie_gruneisen
 from .johnson_cook import SEED_RATE_STAR_FLOOR
 from .state import MG_DEN_MIN
 
-MG_PARAMETERS = ("eos.S1", "eos.S2", "eos.S3", "eos.gamma0", "eos.a")
-JC_PARAMETERS = ("jc.A", "jc.B", "jc.C", "jc.n", "jc.m")
+# the parameter order of the gradients and Hessians below: declared by the models
+MG_PARAMETERS = mie_gruneisen.DIFFERENTIABLE_PARAMETERS
+JC_PARAMETERS = johnson_cook.DIFFERENTIABLE_PARAMETERS
 
 
 def _mg_denominator_terms(mu, S1, S2, S3):
@@ -80,8 +82,8 @@ def mie_gruneisen_sensitivities(mu, E, rho0, C, S1, S2, S3, gamma0, a):
     p = f + (gamma0 + a * mu) * E
 
     shape = mu.shape
-    grad = np.zeros(shape + (5,))
-    hess = np.zeros(shape + (5, 5))
+    grad = np.zeros(shape + (len(MG_PARAMETERS),))
+    hess = np.zeros(shape + (len(MG_PARAMETERS),) * 2)
     d = [np.broadcast_to(np.asarray(di, dtype=float), shape) for di in dS]   # 0 in tension
     for i in range(3):
         grad[..., i] = -2.0 * k * mu_c * num * d[i] / den3
@@ -153,14 +155,14 @@ def johnson_cook_sensitivities(A, B, C, n, m, eps_p, eps_rate_star, T_star, rate
 
     sigma = h * r * t
     shape = sigma.shape
-    grad = np.zeros(shape + (5,))
+    grad = np.zeros(shape + (len(JC_PARAMETERS),))
     grad[..., 0] = r * t
     grad[..., 1] = P * r * t
     grad[..., 2] = h * Lam * t
     grad[..., 3] = B * PL * r * t
     grad[..., 4] = -h * r * QL
 
-    hess = np.zeros(shape + (5, 5))
+    hess = np.zeros(shape + (len(JC_PARAMETERS),) * 2)
     entries = {
         (0, 2): Lam * t,
         (0, 4): -r * QL,
@@ -206,8 +208,8 @@ def johnson_cook_return_sensitivities(A, B, C, n, m, G, eps_p, delta_eps_p, eps_
     eps_p, dep, rate, T_star = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (
         eps_p, delta_eps_p, eps_rate_star, T_star)))
     shape = eps_p.shape
-    grad = np.zeros(shape + (5,))
-    hess = np.zeros(shape + (5, 5))
+    grad = np.zeros(shape + (len(JC_PARAMETERS),))
+    hess = np.zeros(shape + (len(JC_PARAMETERS),) * 2)
     plastic = dep > 0.0
     if not np.any(plastic):
         return grad, hess

@@ -13,7 +13,8 @@ import math
 import numpy as np
 from numba import njit
 
-from .mie_gruneisen import mg_bulk_sound_speed_sq, mg_coefficients
+from .mie_gruneisen import eos_parameters, mg_bulk_sound_speed_sq, mg_coefficients
+from .parameters import ParameterSpec, defaults
 # The cached kernels below inline state.py's guards, which loop over its N_STATE = 20 columns;
 # numba keys a cache on this file's text alone, so a layout change must edit this line.
 from .state import (C as COL_C, E, ERR_DENSITY, ERR_NONFINITE, ERR_OTHER, OK, P, Q, RHO, SXX, SXY,
@@ -23,16 +24,12 @@ from .state import (C as COL_C, E, ERR_DENSITY, ERR_NONFINITE, ERR_OTHER, OK, P,
 NAME = "mie_gruneisen_fluid"
 HAS_STRENGTH = False
 
-PARAMETERS = {
-    "eos.C": 1480.0,
-    "eos.S1": 2.56,
-    "eos.S2": -1.986,
-    "eos.S3": 0.2268,
-    "eos.gamma0": 0.4934,
-    "eos.a": 1.3937,
-    "rho0": 1000.0,
-    "cavitation_pressure": -0.1e6,   # Pa
-}
+PARAMETER_SPECS = (
+    *eos_parameters(C=1480.0, S1=2.56, S2=-1.986, S3=0.2268, gamma0=0.4934, a=1.3937),
+    ParameterSpec("rho0", 1000.0, "kg m-3", "reference density"),
+    ParameterSpec("cavitation_pressure", -0.1e6, "Pa", "pressure cut-off (cavitation)"),
+)
+PARAMETERS = defaults(PARAMETER_SPECS)
 NPRM = len(PARAMETERS)
 I_C, I_S1, I_S2, I_S3, I_G0, I_A, I_RHO0, I_PCAV = range(NPRM)
 
