@@ -12,17 +12,21 @@ shipped cannot drift from what the code accepts and does.
 
 from __future__ import annotations
 
+import json
 import math
 import re
+import sys
 import tomllib
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from uqflow.cli import main
 from uqflow.study import load_study
 
-STUDIES = Path(__file__).resolve().parent.parent / "studies"
+ROOT = Path(__file__).resolve().parent.parent
+STUDIES = ROOT / "studies"
 FILES = sorted(p for p in STUDIES.rglob("*.toml") if "scenes" not in p.parts)
 IDS = [str(p.relative_to(STUDIES)) for p in FILES]
 EXPECT = re.compile(r"#\s*expect:\s*exit\s+(\d+)\s+—\s+\S")
@@ -180,11 +184,74 @@ def test_expect_lines_are_read():
     assert all(expected_exit(p) in (0, 1, 2) for p in FILES)
 
 
+# ----------------------------------------------------------------------------- bit for bit
+# Digests of every statistics variable of each shipped study run as ``shrunk`` makes it, recorded
+# at the revision before the issue-17 redesign (tools/shipped_statistics.py; the file says the
+# revision, the command and the machine). A refactoring that moves code keeps every bit; a
+# change that means to change numbers re-records the file and says why in its commit.
+REFERENCE = Path(__file__).resolve().parent / "data" / "shipped_statistics.json"
+# The costs of a level study without stated costs are its measured wall times, and what
+# derives from them (the allocation's cost ratio): they differ from run to run by design.
+MEASURED_COST_UNITS = "s"
+
+
+def _digest_tool():
+    sys.path.insert(0, str(ROOT / "tools"))
+    try:
+        import shipped_statistics
+    finally:
+        sys.path.pop(0)
+    return shipped_statistics
+
+
+def _measured(name: str, stats_path: Path) -> bool:
+    import xarray as xr
+
+    with xr.open_datatree(stats_path) as tree:
+        stats = tree["statistics"].to_dataset()
+        measured = [v for v in ("level_run_cost", "model_run_cost")
+                    if v in stats and stats[v].attrs.get("units") == MEASURED_COST_UNITS]
+    return bool(measured) and "cost" in name
+
+
+def assert_statistics_as_recorded(name: str, result: Path) -> None:
+    """Every statistics variable recorded for study ``name`` has the same bits in ``result``
+    (variables added since are allowed; one missing or changed is named)."""
+    reference = json.loads(REFERENCE.read_text(encoding="utf-8"))
+    tool = _digest_tool()
+    if reference["machine"] != tool.machine():
+        pytest.skip(f"statistics digests were recorded on {reference['machine']}, this is "
+                    f"{tool.machine()}: re-record them with: {reference['command']}")
+    recorded = reference["studies"].get(name)
+    assert recorded is not None, f"{name}: no recorded digests (re-record: " \
+                                 f"{reference['command']})"
+    now = tool.statistics_digests(result)
+    missing = sorted(set(recorded) - set(now))
+    changed = sorted(v for v in recorded if v in now and now[v] != recorded[v]
+                     and not _measured(v, result))
+    assert not missing and not changed, (
+        f"{name}: statistics differ from revision {reference['revision']}: missing "
+        f"{missing}, changed {changed}")
+
+
+def test_digests_tell_a_one_ulp_change():
+    tool = _digest_tool()
+    x = np.linspace(0.0, 1.0, 7)
+    assert tool.variable_digest(x, ("t",)) != tool.variable_digest(
+        np.nextafter(x, 2.0), ("t",))
+    assert tool.variable_digest(x, ("t",)) != tool.variable_digest(x, ("s",))
+    assert tool.variable_digest(x, ("t",)) == tool.variable_digest(x.copy(), ("t",))
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("path", FILES, ids=IDS)
 def test_shipped_study_runs_to_its_exit_code(path, tmp_path, capsys):
+    """... and, where it finishes, gives the statistics recorded before the redesign, bit
+    for bit."""
     code = main(["run", str(shrunk(path, tmp_path)), "--quiet", "--no-figures"])
     err = capsys.readouterr().err
     assert code == expected_exit(path), err
     if code == 0:
-        assert (tmp_path / f"{path.stem}.nc").is_file()
+        result = tmp_path / f"{path.stem}.nc"
+        assert result.is_file()
+        assert_statistics_as_recorded(str(path.relative_to(STUDIES)), result)

@@ -55,7 +55,10 @@ def machine() -> dict[str, str]:
         pass
     versions = {p: md.version(p) for p in ("numpy", "scipy", "numba", "chaospy", "SALib",
                                             "xarray")}
-    return {"cpu": cpu, "python": platform.python_version(), **versions}
+    # the SIMD loops numpy dispatches to here: another set rounds some results differently
+    from numpy._core._multiarray_umath import __cpu_features__ as features
+    simd = " ".join(sorted(k for k, on in features.items() if on))
+    return {"cpu": cpu, "python": platform.python_version(), "numpy_simd": simd, **versions}
 
 
 def main(argv=None) -> int:
