@@ -58,6 +58,42 @@ def modulus_of_softness(E, sigma_f, eps_f, sigma_y, n_ro, K_ro):
     return u_s / brittle
 
 
+def material_problem(p):
+    """First inconsistency of a property set as (key, reason), or None; and R of eq. 17."""
+    for key in ("E", "sigma_y", "sigma_f", "eps_f", "K_ro", "rho", "area", "length"):
+        if not p[key] > 0:
+            return (key, f"must be > 0, got {p[key]!r}"), None
+    if not p["n_ro"] > 1:
+        return ("n_ro", f"must be > 1, got {p['n_ro']!r}"), None
+    if p["sigma_f"] < p["sigma_y"]:
+        return ("sigma_f", f"failure stress {p['sigma_f']:g} Pa is below the yield stress "
+                           f"{p['sigma_y']:g} Pa"), None
+    eps_y = p["sigma_y"] / p["E"] + p["K_ro"]
+    if p["eps_f"] < eps_y:
+        return ("eps_f", f"failure strain {p['eps_f']:g} is below the yield strain "
+                         f"sigma_y/E + K_ro = {eps_y:g}"), None
+    try:
+        R = modulus_of_softness(p["E"], p["sigma_f"], p["eps_f"], p["sigma_y"], p["n_ro"],
+                                p["K_ro"])
+    except OverflowError:
+        return overflow_problem(p), None
+    if not 0.0 < R < 1.0:
+        return ("eps_f", f"modulus of softness R (eq. 17) = {R:.4g} is not in (0, 1): the "
+                         f"properties do not describe a hardening, ductile material"), None
+    return None, R
+
+
+def overflow_problem(p):
+    """(key, reason) for properties whose energies overflow float64 (a Python float power
+    raises): the Ramberg–Osgood term (sigma_f/sigma_y)^(n_ro + 1) if that is what overflows,
+    else the largest property."""
+    if (p["n_ro"] + 1.0) * math.log(p["sigma_f"] / p["sigma_y"]) > 700.0:
+        return ("n_ro", f"(sigma_f/sigma_y)^(n_ro + 1) overflows a float64 with n_ro = "
+                        f"{p['n_ro']:g}")
+    key = max(("E", "sigma_y", "sigma_f", "eps_f", "K_ro"), key=lambda k: abs(p[k]))
+    return (key, f"the material's strain energies overflow a float64 with {key} = {p[key]:g}")
+
+
 def family_weights(sigma_stdev, cutoff):
     """Nominal one-sided weights w̄_m of the families m = 2..M on the uniform interior
     (Gaussian eq. 22 in m spacings, normalised to 1 — eq. 13 one-sided)."""
