@@ -17,8 +17,9 @@ Per step, in this order (``solver._Run.step``):
                          strength kernel also records what its return used: state.py);
                          energies at output times (``energies``).
 
-Numba keys a cached kernel on its own file's text only: a change to a material module (or to
-``state.N_STATE``) needs a change here, or the cached loops below keep the old code inlined.
+The cached kernels below inline the material modules' code; their cache is stamped with the
+source of every module of the package they import (``kernel_cache.py``), so a change to a
+material or to ``state.py`` recompiles them.
 
 Doing q, the state check and the CFL reduction in the material loop, where the particle's
 state row is in cache anyway, saves three passes over the state array per step (docs/mpm.md,

@@ -19,8 +19,6 @@ import numpy as np
 from numba import njit
 
 from .parameters import ParameterSpec, defaults
-# The cached kernels below inline state.py's guards, which loop over its N_STATE = 20 columns;
-# numba keys a cache on this file's text alone, so a layout change must edit this line.
 from .state import (C as COL_C, E as COL_E, ERR_DENSITY, ERR_NONFINITE, OK, P, Q, RHO, SXX, SXY,
                     SYY, SZZ, check_update, density_update, deviator_of, jaumann_rotate,
                     pack_parameters, require, reset_row)

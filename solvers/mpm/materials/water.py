@@ -15,8 +15,6 @@ from numba import njit
 
 from .mie_gruneisen import eos_parameters, mg_bulk_sound_speed_sq, mg_coefficients
 from .parameters import ParameterSpec, defaults
-# The cached kernels below inline state.py's guards, which loop over its N_STATE = 20 columns;
-# numba keys a cache on this file's text alone, so a layout change must edit this line.
 from .state import (C as COL_C, E, ERR_DENSITY, ERR_NONFINITE, ERR_OTHER, OK, P, Q, RHO, SXX, SXY,
                     SYY, SZZ, check_update, density_update, energy_update_linear_eos,
                     pack_parameters, require, reset_row)
