@@ -26,6 +26,34 @@ from solvers.mpm import step as K
 from solvers.mpm.materials import state as ST
 from solvers.mpm.scene import ENERGY_OUTPUTS
 
+# the label of each output a figure or a table shows (CF ``long_name``), in plain words; the
+# longer definition of a probe quantity is scene.PROBE_QUANTITIES' (the ``description``)
+LABELS = {
+    "pressure": "pressure",
+    "flow_stress": "flow stress",
+    "flow_stress_total_rate": "flow stress at the total strain rate",
+    "equivalent_stress": "von Mises equivalent stress",
+    "S11": "deviatoric stress s_xx",
+    "S22": "deviatoric stress s_yy",
+    "S12": "shear stress s_xy",
+    "S33": "deviatoric stress s_zz",
+    "plastic_strain": "equivalent plastic strain",
+    "velocity_x": "velocity x",
+    "velocity_y": "velocity y",
+    "density": "density",
+    "temperature": "temperature",
+    "burn_fraction": "burn fraction",
+    "position_x": "position x",
+    "position_y": "position y",
+    "kinetic_energy": "kinetic energy",
+    "internal_energy": "internal energy",
+    "plastic_work": "plastic work",
+    "explosive_release": "chemical energy released by the burn",
+    "total_energy": "total energy",
+    "momentum_x": "momentum x",
+    "momentum_y": "momentum y",
+}
+
 
 def probe_values(name, S, vx, vy, x, y, conventions="uqflow"):
     """Quantity ``name`` of the state rows ``S`` (and the matching velocities, positions).

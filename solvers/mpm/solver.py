@@ -17,7 +17,7 @@ from solvers.mpm.materials.johnson_cook import CONVENTIONS_PARAMETER
 from solvers.mpm.materials.parameters import units as parameter_units
 from solvers.mpm.probe_sensitivities import OUTPUTS as SENSITIVITY_OUTPUTS, \
     ProbeSensitivities, sensitivity_parameters
-from solvers.mpm.probes import ProbeRecorder
+from solvers.mpm.probes import LABELS as OUTPUT_LABELS, ProbeRecorder
 from solvers.mpm.snapshots import SnapshotWriter
 from solvers.mpm.scene import ENERGY_OUTPUTS, PROBE_QUANTITIES, apply_conventions, \
     auto_extent, parse, place_probes, probe_members, seed_particles
@@ -29,9 +29,9 @@ CORE_SET = ("det_x", "det_y", "burn_width")   # explosive parameters the core se
 BURN_WIDTH_CELLS = 1.5                         # programmed-burn ramp width, cells (β of jwl.py)
 SERIAL_BELOW = 20_000    # particles: below this, one thread (a parallel launch costs more)
 DT_FLOOR_FRACTION = 1e-3                       # default dt floor: this × the first step's dt
-DIAGNOSTIC_OUTPUTS = {"time_steps": ("1", "time steps the run took (CFL-limited: its cost)"),
-                      "dt_min": ("s", "smallest time step the run took"),
-                      "dt_max": ("s", "largest time step the run took")}
+DIAGNOSTIC_OUTPUTS = {"time_steps": ("1", "time steps taken (the run's cost)"),
+                      "dt_min": ("s", "smallest time step"),
+                      "dt_max": ("s", "largest time step")}
 
 
 @register_solver("mpm")
@@ -142,16 +142,24 @@ class MPMSolver(Solver):
         nt, npr = self.times.size, len(self.cfg.probes)
         data = {}
         for name in self.cfg.outputs:
-            units, long = PROBE_QUANTITIES[name]
+            units, description = PROBE_QUANTITIES[name]
             data[name] = xr.Variable(("time", "probe"), np.full((nt, npr), np.nan),
-                                     {"units": units, "long_name": long})
+                                     {"units": units, "long_name": OUTPUT_LABELS[name],
+                                      "description": description})
         for name, units in ENERGY_OUTPUTS.items():
-            data[name] = xr.Variable(("time",), np.full(nt, np.nan), {"units": units})
+            data[name] = xr.Variable(("time",), np.full(nt, np.nan),
+                                     {"units": units, "long_name": OUTPUT_LABELS[name]})
         for name, (units, long) in DIAGNOSTIC_OUTPUTS.items():
             data[name] = xr.Variable((), np.nan, {"units": units, "long_name": long,
                                                   "output_kind": DIAGNOSTIC_KIND})
-        coords = {"time": xr.Variable(("time",), self.times, {"units": "s"}),
-                  "probe": [p.name for p in self.cfg.probes]}
+        points = np.array([p.point for p in self.cfg.probes], dtype=float).reshape(npr, 2)
+        coords = {"time": xr.Variable(("time",), self.times, {"units": "s",
+                                                             "long_name": "time"}),
+                  "probe": [p.name for p in self.cfg.probes],
+                  "probe_x": xr.Variable(("probe",), points[:, 0], {"units": "m",
+                                                                    "long_name": "x"}),
+                  "probe_y": xr.Variable(("probe",), points[:, 1], {"units": "m",
+                                                                    "long_name": "y"})}
         return xr.Dataset(data, coords=coords)
 
     # -- one realization -------------------------------------------------------------------
