@@ -1,12 +1,7 @@
-"""Scene schema of the MPM solver: validation (``SceneError`` naming ``scene.<key>``), particle
-seeding and probe placement. Numerics live in ``step.py``; the run in ``solver.py``.
-
-Scene keys (docs/mpm.md, "Scene"): ``domain``, ``cell_size``, ``resolution``,
-``particles_per_cell``, ``shape``, ``flip``, ``cfl``, ``bulk_viscosity``, ``gravity``,
-``end_time``, ``output_interval``, ``outputs``, ``dt_min``, ``padding``, ``extent``,
-``materials``, ``bodies``, ``detonation``, ``boundaries``, ``clamps``, ``probes``,
-``snapshots`` (particle VTK files, ``snapshots.py``; docs/mpm_scenes.md), ``conventions``
-(``"uqflow"`` or ``"seed"``: docs/mpm.md, "Conventions").
+"""The MPM scene: its declaration (pydantic models, ``SceneSpec`` and one model per table;
+errors are one-line ``SceneError`` naming ``scene.<key>``), the run's ``Config`` built from
+it (``parse``), particle seeding and probe placement. Numerics live in ``step.py``; the run
+in ``solver.py``. Every key, its type and default: docs/mpm_scenes.md.
 """
 
 from __future__ import annotations
@@ -16,23 +11,22 @@ import os
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from functools import partial
+from typing import Annotated
 
 import numpy as np
+from pydantic import (BaseModel, BeforeValidator, ConfigDict, ValidationError, field_validator,
+                      model_validator)
 
-from solvers.mpm.grid import SIDE_KINDS, SIDES, Grid
+from solvers.mpm.grid import SIDE_KINDS, Grid
 from solvers.mpm.shapes import KINDS
 from uqflow.errors import SceneError
-from uqflow.scene_checks import (check_keys, integer, is_number, number, number_pair,
-                                 scene_error, table)
+from uqflow.scene_checks import is_number
+from uqflow.study import validation_error
 
-TOP_KEYS = ("domain", "cell_size", "resolution", "particles_per_cell", "shape", "flip", "cfl",
-            "bulk_viscosity", "gravity", "end_time", "output_interval", "outputs", "dt_min",
-            "padding", "extent", "materials", "bodies", "detonation", "boundaries", "clamps",
-            "probes", "max_steps", "threads", "extent_margin", "snapshots", "conventions")
 # "seed": the conventions under which seed 000's tables are reproduced (docs/mpm.md,
 # "Conventions"); the kernels read the rate and heating ones, the probes the von Mises one
 CONVENTIONS = ("uqflow", "seed")
-REQUIRED = ("domain", "cell_size", "bodies", "end_time")
 BODY_KEYS = {"rectangle": ("min", "max"), "polygon": ("vertices",),
              "circle": ("center", "radius")}
 PROBE_QUANTITIES = {
@@ -65,7 +59,6 @@ ENERGY_OUTPUTS = {"kinetic_energy": "J m-1", "internal_energy": "J m-1",
                   "plastic_work": "J m-1", "explosive_release": "J m-1",
                   "total_energy": "J m-1",
                   "momentum_x": "kg s-1", "momentum_y": "kg s-1"}   # per metre of thickness
-SNAPSHOT_KEYS = ("interval", "directory", "fields")
 # particle fields a snapshot can hold: the probe quantities (positions are the points
 # themselves), the velocity as a 3-vector, and the material / body index of each particle
 SNAPSHOT_FIELDS = tuple(n for n in PROBE_QUANTITIES
@@ -84,10 +77,6 @@ MAX_STEPS = 10**9            # a cap on the step count; more than any run could 
 MAX_THREADS = 1024           # numba threads of one run
 MAX_PADDING = 64             # ghost cells per side (3 are needed by the widest stencil)
 MAX_EXTENT_MARGIN = 10**6    # cells added around the domain of dependence
-DEFAULTS = {"resolution": 1.0, "particles_per_cell": 2, "shape": "quadratic", "flip": 1.0,
-            "cfl": 0.3, "gravity": [0.0, 0.0], "padding": 3, "extent": "full",
-            "max_steps": 5_000_000, "threads": 1, "conventions": "uqflow"}
-PROBE_KEYS = ("name", "point", "body", "radius")
 # A probe name becomes part of file names (the report's figures): no folder separators, no
 # hidden or parent-folder names, nothing a file system or shell treats specially.
 PROBE_NAME = re.compile(r"[A-Za-z0-9_.-]+")
@@ -95,34 +84,6 @@ PROBE_NAME = re.compile(r"[A-Za-z0-9_.-]+")
 # below it the kernel-weighted centroid of the lattice points in the disk wanders with the
 # layout by more than 0.05 spacing (0.28 at one spacing; docs/mpm.md, "Probes").
 MIN_RADIUS_SPACINGS = 1.5
-
-
-_is_number, _err, _num, _int = is_number, scene_error, number, integer
-_pair, _table, _keys = number_pair, table, check_keys
-
-
-def _names(v, key, known, what):
-    """A non-empty list of distinct names, each one of ``known``."""
-    if not isinstance(v, (list, tuple)) or not v or not all(isinstance(o, str) for o in v):
-        raise _err(key, f"must be a non-empty list of names, got {v!r}")
-    for k, o in enumerate(v):
-        if o not in known:
-            raise _err(f"{key}[{k}]", f"unknown {what} {o!r} (known: {', '.join(known)})")
-    if len(set(v)) != len(v):
-        raise _err(key, "lists a name twice")
-    return list(v)
-
-
-def _flatten(tbl, prefix=""):
-    """Nested tables to dotted names: {"jc": {"A": 1}} → {"jc.A": 1}."""
-    out = {}
-    for k, v in tbl.items():
-        name = f"{prefix}{k}"
-        if isinstance(v, Mapping):
-            out.update(_flatten(v, name + "."))
-        else:
-            out[name] = v
-    return out
 
 
 # ------------------------------------------------------------------------------------------
@@ -193,289 +154,543 @@ class Config:
         return self.output_interval * np.arange(n)
 
 
+# ------------------------------------------------------------------------------------------
+# The scene as declarations: one pydantic model per table (docs/mpm_scenes.md). A field's
+# type says what it takes; its validator gives the reason of the one-line error; the
+# models' own checks compare keys with each other. ``parse`` turns a validation error into
+# the SceneError ``scene.<key>: <reason>`` with ``uqflow.study.validation_error``, the
+# study file's machinery.
+# ------------------------------------------------------------------------------------------
+
+class SceneProblem(ValueError):
+    """What a model's check finds wrong below the table it checks: ``key`` is relative to
+    that table (``"max"``, ``"[2]"``, ``"probes[1].body"``), so the error names it."""
+
+    def __init__(self, key: str, reason: str):
+        super().__init__(reason)
+        self.key = key
+
+
+def _number(v, *, positive=False, nonnegative=False, lo=None, hi=None) -> float:
+    if not is_number(v) or not math.isfinite(v):
+        raise ValueError(f"must be a finite number, got {v!r}")
+    v = float(v)
+    if positive and v <= 0:
+        raise ValueError(f"must be > 0, got {v!r}")
+    if nonnegative and v < 0:
+        raise ValueError(f"must be >= 0, got {v!r}")
+    if lo is not None and v < lo:
+        raise ValueError(f"must be >= {lo:g}, got {v!r}")
+    if hi is not None and v > hi:
+        raise ValueError(f"must be <= {hi:g}, got {v!r}")
+    return v
+
+
+def _integer(v, *, lo, hi) -> int:
+    if not isinstance(v, (int, np.integer)) or isinstance(v, bool):
+        raise ValueError(f"must be an integer, got {v!r}")
+    if v < lo:
+        raise ValueError(f"must be >= {lo}, got {v!r}")
+    if v > hi:
+        raise ValueError(f"must be <= {hi:,}, got {v!r}")
+    return int(v)
+
+
+def _particles_per_cell(v) -> int:
+    if isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v > 8:
+        raise ValueError(f"is per direction; at most 8, got {v}")
+    return _integer(v, lo=1, hi=8)
+
+
+def _pair(v) -> tuple[float, float]:
+    if (not isinstance(v, (list, tuple)) or len(v) != 2
+            or not all(is_number(a) and math.isfinite(a) for a in v)):
+        raise ValueError(f"must be a pair of finite numbers [a, b], got {v!r}")
+    return float(v[0]), float(v[1])
+
+
+def _vertices(v) -> tuple:
+    if not isinstance(v, (list, tuple)) or len(v) < 3:
+        raise ValueError("must list at least 3 points [x, y]")
+    points = []
+    for i, point in enumerate(v):
+        try:
+            points.append(_pair(point))
+        except ValueError as exc:
+            raise SceneProblem(f"[{i}]", str(exc)) from None
+    return tuple(points)
+
+
+def _choice(v, *, choices, quoted=False) -> str:
+    if not isinstance(v, str) or v not in choices:
+        shown = " or ".join(f'"{c}"' for c in choices) if quoted else ", ".join(choices)
+        raise ValueError(f"must be {'' if quoted else 'one of '}{shown}, got {v!r}")
+    return v
+
+
+def _names(v, *, known, what) -> tuple[str, ...]:
+    """A non-empty list of distinct names, each one of ``known``."""
+    if not isinstance(v, (list, tuple)) or not v or not all(isinstance(o, str) for o in v):
+        raise ValueError(f"must be a non-empty list of names, got {v!r}")
+    for k, o in enumerate(v):
+        if o not in known:
+            raise SceneProblem(f"[{k}]", f"unknown {what} {o!r} (known: {', '.join(known)})")
+    if len(set(v)) != len(v):
+        raise ValueError("lists a name twice")
+    return tuple(v)
+
+
+def _text(v, *, what="a non-empty string") -> str:
+    if not isinstance(v, str) or not v:
+        raise ValueError(f"must be {what}, got {v!r}")
+    return v
+
+
+def _probe_name(v) -> str:
+    if not isinstance(v, str) or not v:
+        raise ValueError("is required (a non-empty string)")
+    if not PROBE_NAME.fullmatch(v) or v.startswith("."):
+        raise ValueError(f"{v!r} cannot name files: a probe name names its figures, so it is "
+                         f"letters, digits, '_', '.' and '-' only, not starting with '.'")
+    return v
+
+
+def _directory(v) -> str:
+    if not isinstance(v, str) or not v.strip():
+        raise ValueError(f"must be a non-empty path, got {v!r}")
+    return v
+
+
+def _non_empty_list(v, *, what):
+    if not isinstance(v, (list, tuple)) or not v:
+        raise ValueError(f"must be a non-empty list of {what}")
+    return tuple(v)
+
+
+def _list(v, *, what):
+    if not isinstance(v, (list, tuple)):
+        raise ValueError(f"must be a list of {what}")
+    return tuple(v)
+
+
+def Number(**bounds):
+    """A finite number (a TOML integer or float, not a boolean) within ``bounds``."""
+    return Annotated[float, BeforeValidator(partial(_number, **bounds))]
+
+
+def Integer(lo, hi):
+    return Annotated[int, BeforeValidator(partial(_integer, lo=lo, hi=hi))]
+
+
+def OneOf(choices, quoted=False):
+    return Annotated[str, BeforeValidator(partial(_choice, choices=tuple(choices),
+                                                  quoted=quoted))]
+
+
+def Names(known, what):
+    return Annotated[tuple[str, ...], BeforeValidator(partial(_names, known=tuple(known),
+                                                              what=what))]
+
+
+Pair = Annotated[tuple[float, float], BeforeValidator(_pair)]
+Vertices = Annotated[tuple[tuple[float, float], ...], BeforeValidator(_vertices)]
+Name = Annotated[str, BeforeValidator(_text)]
+ProbeName = Annotated[str, BeforeValidator(_probe_name)]
+
+
+class _Table(BaseModel):
+    # Every value passes through its validator above (strict: no "2" for 2, no true for 1);
+    # an unknown key is an error, not ignored.
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+
+
+class DomainSpec(_Table):
+    """``domain = { x = [low, high], y = [low, high] }`` (m)."""
+    x: Pair
+    y: Pair
+
+    @model_validator(mode="after")
+    def _ordered(self):
+        for k in ("x", "y"):
+            low, high = getattr(self, k)
+            if high <= low:
+                raise SceneProblem(k, "high must be above low")
+        return self
+
+
+class BulkViscositySpec(_Table):
+    """Artificial bulk viscosity q = ρ (Q1 ℓ² (tr D)² + Q2 ℓ c |tr D|) in compression."""
+    Q1: Number(nonnegative=True) = 1.5
+    Q2: Number(nonnegative=True) = 0.06
+
+
+class BoundariesSpec(_Table):
+    """The kind of each side of the domain (grid.py)."""
+    left: OneOf(SIDE_KINDS) = "free"
+    right: OneOf(SIDE_KINDS) = "free"
+    bottom: OneOf(SIDE_KINDS) = "free"
+    top: OneOf(SIDE_KINDS) = "free"
+
+
+class ClampSpec(_Table):
+    """A rectangle of grid nodes held at rest."""
+    min: Pair
+    max: Pair
+
+    @model_validator(mode="after")
+    def _ordered(self):
+        if self.max[0] < self.min[0] or self.max[1] < self.min[1]:
+            raise SceneProblem("max", "must not be below min")
+        return self
+
+
+def _flatten(tbl, prefix=""):
+    """Nested tables to dotted names: {"jc": {"A": 1}} → {"jc.A": 1}."""
+    out = {}
+    for k, v in tbl.items():
+        name = f"{prefix}{k}"
+        if isinstance(v, Mapping):
+            out.update(_flatten(v, name + "."))
+        else:
+            out[name] = v
+    return out
+
+
+class MaterialSpec(_Table):
+    """``materials.<label> = { model = "<library name>", <parameter> = value, ... }``: a
+    library material with some parameters set (nested tables are dotted names:
+    ``jc = { A = 7.9e8 }`` is ``jc.A``)."""
+    model_config = ConfigDict(extra="allow", strict=True, frozen=True)
+    model: str
+
+    @field_validator("model", mode="before")
+    @classmethod
+    def _known(cls, v):
+        lib = _library()
+        if not isinstance(v, str) or v not in lib:
+            raise ValueError(f"unknown material {v!r} (known: {', '.join(sorted(lib))})")
+        return v
+
+    @model_validator(mode="after")
+    def _parameters(self):
+        params = library_parameters(self.model)
+        for name, v in self.overrides().items():
+            if name not in params:
+                raise SceneProblem(name, f"material {self.model!r} has no parameter {name!r} "
+                                         f"(takes {', '.join(params)})")
+            try:
+                _number(v)
+            except ValueError as exc:
+                raise SceneProblem(name, str(exc)) from None
+        return self
+
+    def overrides(self) -> dict:
+        """The parameters the scene sets, by dotted name, as written."""
+        return _flatten(self.model_extra or {})
+
+
+class BodySpec(_Table):
+    """One body: a rectangle (``min``, ``max``), a polygon (``vertices``) or a circle
+    (``center``, ``radius``) of one material, with an initial velocity. A lattice point
+    belongs to the first body that holds it."""
+    name: Name = None                  # None: "body<k>", k its place in the list
+    material: Annotated[str, BeforeValidator(partial(_text, what="a name"))]
+    shape: str
+    velocity: Pair = (0.0, 0.0)
+    min: Pair = None
+    max: Pair = None
+    vertices: Vertices = None
+    center: Pair = None
+    radius: Number(positive=True) = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _keys_of_its_shape(cls, v):
+        if not isinstance(v, Mapping):
+            return v
+        shape = v.get("shape")
+        if not isinstance(shape, str) or shape not in BODY_KEYS:
+            raise SceneProblem("shape", f"must be one of {', '.join(BODY_KEYS)}, got {shape!r}")
+        takes = ("name", "material", "shape", "velocity") + BODY_KEYS[shape]
+        for k in v:
+            if k not in takes:
+                raise SceneProblem(str(k), f"unknown key (a {shape} takes "
+                                           f"{', '.join(sorted(takes))})")
+        for k in ("material",) + BODY_KEYS[shape]:
+            if k not in v:
+                raise SceneProblem(k, "is required")
+        return v
+
+    @model_validator(mode="after")
+    def _rectangle_ordered(self):
+        if self.shape == "rectangle" and (self.max[0] <= self.min[0]
+                                          or self.max[1] <= self.min[1]):
+            raise SceneProblem("max", "must be above min in x and y")
+        return self
+
+    def geometry(self) -> dict:
+        if self.shape == "rectangle":
+            return {"min": self.min, "max": self.max}
+        if self.shape == "circle":
+            return {"center": self.center, "radius": self.radius}
+        return {"vertices": np.array(self.vertices)}
+
+    def box(self) -> tuple[float, float, float, float]:
+        """(x low, y low, x high, y high) of the body."""
+        if self.shape == "rectangle":
+            return (*self.min, *self.max)
+        if self.shape == "circle":
+            (cx, cy), r = self.center, self.radius
+            return cx - r, cy - r, cx + r, cy + r
+        v = np.array(self.vertices)
+        return (*v.min(axis=0), *v.max(axis=0))
+
+
+class DetonationSpec(_Table):
+    """Where the explosive is lit (m)."""
+    point: Pair
+
+
+class ProbeSpec(_Table):
+    """A gauge: the particle of ``body`` (any body) nearest ``point`` at t = 0, or with
+    ``radius`` the weighted average of that body's particles within it (docs/mpm.md)."""
+    name: ProbeName
+    point: Pair
+    body: Annotated[str, BeforeValidator(partial(_text, what="a body name"))] = None
+    radius: Number(positive=True) = None
+
+
+class SnapshotsSpec(_Table):
+    """Particle VTK files every ``interval`` (a multiple of output_interval) into
+    ``directory``, holding ``fields`` (snapshots.py)."""
+    interval: Number(positive=True)
+    directory: Annotated[str, BeforeValidator(_directory)]
+    fields: Names(SNAPSHOT_FIELDS, "field") = DEFAULT_SNAPSHOT_FIELDS
+
+
+class SceneSpec(_Table):
+    """An MPM scene (docs/mpm_scenes.md has every key)."""
+    domain: DomainSpec
+    cell_size: Number(positive=True)
+    resolution: Number(positive=True) = 1.0
+    particles_per_cell: Annotated[int, BeforeValidator(_particles_per_cell)] = 2
+    shape: OneOf(KINDS) = "quadratic"
+    flip: Number(lo=0.0, hi=1.0) = 1.0
+    cfl: Number(positive=True, hi=1.0) = 0.3
+    bulk_viscosity: BulkViscositySpec = BulkViscositySpec()
+    gravity: Pair = (0.0, 0.0)
+    end_time: Number(positive=True)
+    output_interval: Number(positive=True) = None      # None: end_time / 100
+    dt_min: Number(positive=True) = None
+    max_steps: Integer(1, MAX_STEPS) = 5_000_000
+    threads: Integer(0, MAX_THREADS) = 1
+    padding: Integer(2, MAX_PADDING) = 3
+    extent: OneOf(("full", "auto"), quoted=True) = "full"
+    extent_margin: Integer(0, MAX_EXTENT_MARGIN) = EXTENT_MARGIN_CELLS
+    outputs: Names(PROBE_QUANTITIES, "output") = DEFAULT_OUTPUTS
+    conventions: str = "uqflow"
+    boundaries: BoundariesSpec = BoundariesSpec()
+    clamps: Annotated[tuple[ClampSpec, ...], BeforeValidator(partial(
+        _list, what="tables {min = [x, y], max = [x, y]}"))] = ()
+    materials: dict[str, MaterialSpec] = {}
+    bodies: Annotated[tuple[BodySpec, ...], BeforeValidator(partial(
+        _non_empty_list, what="tables"))]
+    detonation: DetonationSpec = None
+    probes: Annotated[tuple[ProbeSpec, ...], BeforeValidator(partial(
+        _list, what="tables {name, point, body, radius}"))] = ()
+    snapshots: SnapshotsSpec = None
+
+    @field_validator("conventions", mode="before")
+    @classmethod
+    def _conventions(cls, v):
+        if not isinstance(v, str) or v not in CONVENTIONS:
+            raise ValueError(f"must be one of {', '.join(map(repr, CONVENTIONS))}, got {v!r}")
+        return v
+
+    @field_validator("materials", mode="before")
+    @classmethod
+    def _labels(cls, v):
+        if isinstance(v, Mapping):
+            for label in v:
+                if not isinstance(label, str) or not label.isidentifier():
+                    raise SceneProblem(f".{label}", "a material label must be a name "
+                                                    "(letters, digits, _)")
+        return v
+
+    @property
+    def sample_interval(self) -> float:
+        return self.end_time / 100.0 if self.output_interval is None else self.output_interval
+
+    @property
+    def cell(self) -> float:
+        """The grid's cell size: cell_size / resolution."""
+        return self.cell_size / self.resolution
+
+    @model_validator(mode="after")
+    def _consistent(self):
+        """What one key says about another: times, the lattice's size, names that refer to
+        materials and bodies, probe radii, the snapshot interval."""
+        end, dt_out = self.end_time, self.sample_interval
+        if dt_out > end:
+            raise SceneProblem("output_interval", f"{dt_out:g} s is longer than end_time "
+                                                  f"{end:g} s")
+        if end / dt_out > 1e6:
+            raise SceneProblem("output_interval", "more than 10^6 samples")
+        (x0, x1), (y0, y1) = self.domain.x, self.domain.y
+        dx, ppc = self.cell, self.particles_per_cell
+        # Seeding lays a lattice of ppc × ppc points over every cell before keeping those in
+        # a body: bound it before anything is allocated (floats: no integer overflow first).
+        lattice = ((x1 - x0) / dx + 1) * ((y1 - y0) / dx + 1) * float(ppc) ** 2
+        if lattice > MAX_LATTICE_POINTS:
+            raise SceneProblem("resolution" if "resolution" in self.model_fields_set
+                               else "cell_size",
+                               f"the domain holds {lattice:.3g} lattice points (cells × "
+                               f"particles_per_cell²) at cell size {dx:g} m; at most "
+                               f"{MAX_LATTICE_POINTS:.0e} fit in memory (about 300 bytes each)")
+        lib = _library()
+        names = []
+        for k, body in enumerate(self.bodies):
+            name = body_name(body, k)
+            if name in names:
+                raise SceneProblem(f"bodies[{k}].name", f"duplicate body name {name!r}")
+            names.append(name)
+            if body.material not in self.materials and body.material not in lib:
+                raise SceneProblem(f"bodies[{k}].material",
+                                   f"unknown material {body.material!r} (scene materials: "
+                                   f"{', '.join(self.materials) or 'none'}; library: "
+                                   f"{', '.join(sorted(lib))})")
+        seen = set()
+        for k, probe in enumerate(self.probes):
+            if probe.name in seen:
+                raise SceneProblem(f"probes[{k}].name", f"duplicate probe name {probe.name!r}")
+            seen.add(probe.name)
+            if probe.body is not None and probe.body not in names:
+                raise SceneProblem(f"probes[{k}].body", f"no body named {probe.body!r} "
+                                                        f"(bodies: {', '.join(names)})")
+            spacing = dx / ppc
+            if probe.radius is not None and probe.radius < MIN_RADIUS_SPACINGS * spacing:
+                raise SceneProblem(
+                    f"probes[{k}].radius",
+                    f"{probe.radius:g} m is less than {MIN_RADIUS_SPACINGS:g} particle "
+                    f"spacings ({MIN_RADIUS_SPACINGS * spacing:g} m at cell {dx:g} m, {ppc} "
+                    f"particles per cell): the average would move with the particle layout; "
+                    f"drop radius for the nearest particle")
+        if self.snapshots is not None:
+            ratio = self.snapshots.interval / dt_out
+            every = round(ratio)
+            if every < 1 or abs(ratio - every) > SNAPSHOT_MULTIPLE_RTOL * every:
+                raise SceneProblem("snapshots.interval",
+                                   f"must be a multiple of output_interval = {dt_out:g} s (the "
+                                   f"state is sampled at output times only), got "
+                                   f"{self.snapshots.interval:g} s = {ratio:.6g} x "
+                                   f"output_interval")
+        return self
+
+
+def _err(key: str, reason: str) -> SceneError:
+    """The one-line error of a scene value found wrong after validation (``scene.<key>``)."""
+    return SceneError(reason, key=f"scene.{key}")
+
+
+def body_name(body: BodySpec, k: int) -> str:
+    """A body's name: its own, else ``body<k>`` after its place in the scene's list."""
+    return f"body{k}" if body.name is None else body.name
+
+
 def _library():
     from solvers.mpm.materials.library import MATERIALS
     return MATERIALS
 
 
-def parse(scene) -> Config:
-    """Validate a scene table; returns the ``Config`` (raises ``SceneError``)."""
+def library_parameters(model: str) -> dict:
+    """A library material's parameters with their values: the model's defaults, then the
+    library entry's."""
+    module, defaults = _library()[model]
+    params = dict(module.PARAMETERS)
+    params.update(defaults or {})
+    return params
+
+
+def scene_error(exc: ValidationError, data) -> SceneError:
+    """The first problem of a scene's validation as the one-line SceneError naming
+    ``scene.<key>`` (the key as the user wrote it; a SceneProblem's own key appended)."""
+    error = validation_error(exc, "", prefix="scene", data=data, model=SceneSpec)
+    key, reason = error.key or "scene", error.reason
+    problem = exc.errors()[0].get("ctx", {}).get("error")
+    if isinstance(problem, SceneProblem):
+        key += problem.key if problem.key.startswith(("[", ".")) else f".{problem.key}"
+        reason = str(problem)
+    return SceneError(reason, key=key)
+
+
+def validate(scene) -> SceneSpec:
+    """The scene table as a ``SceneSpec`` (raises the one-line ``SceneError``)."""
     if not isinstance(scene, Mapping):
         raise SceneError("must be a table", key="scene")
-    _keys(scene, TOP_KEYS, "")
-    for k in REQUIRED:
-        if k not in scene:
-            raise _err(k, "is required")
-    s = dict(DEFAULTS)
-    s.update(scene)
+    try:
+        return SceneSpec.model_validate(dict(scene))
+    except ValidationError as exc:
+        raise scene_error(exc, dict(scene)) from None
 
-    dom = _table(s["domain"], "domain")
-    _keys(dom, ("x", "y"), "domain")
-    for k in ("x", "y"):
-        if k not in dom:
-            raise _err(f"domain.{k}", "is required ([low, high], m)")
-    x0, x1 = _pair(dom["x"], "domain.x")
-    y0, y1 = _pair(dom["y"], "domain.y")
-    if x1 <= x0:
-        raise _err("domain.x", "high must be above low")
-    if y1 <= y0:
-        raise _err("domain.y", "high must be above low")
-    cell = _num(s["cell_size"], "cell_size", positive=True)
-    res = _num(s["resolution"], "resolution", positive=True)
-    dx = cell / res
-    ppc = s["particles_per_cell"]
-    if isinstance(ppc, (int, np.integer)) and not isinstance(ppc, bool) and ppc > 8:
-        raise _err("particles_per_cell", f"is per direction; at most 8, got {ppc}")
-    ppc = _int(ppc, "particles_per_cell", 1, 8)
-    shape = s["shape"]
-    if not isinstance(shape, str) or shape not in KINDS:
-        raise _err("shape", f"must be one of {', '.join(KINDS)}, got {shape!r}")
-    flip = _num(s["flip"], "flip", lo=0.0, hi=1.0)
-    cfl = _num(s["cfl"], "cfl", positive=True, hi=1.0)
-    q1, q2 = 1.5, 0.06
-    if "bulk_viscosity" in s:
-        bv = _table(s["bulk_viscosity"], "bulk_viscosity")
-        _keys(bv, ("Q1", "Q2"), "bulk_viscosity")
-        q1 = _num(bv.get("Q1", q1), "bulk_viscosity.Q1", nonnegative=True)
-        q2 = _num(bv.get("Q2", q2), "bulk_viscosity.Q2", nonnegative=True)
-    gravity = _pair(s["gravity"], "gravity")
-    end = _num(s["end_time"], "end_time", positive=True)
-    dt_out = _num(s.get("output_interval", end / 100.0), "output_interval", positive=True)
-    if dt_out > end:
-        raise _err("output_interval", f"{dt_out:g} s is longer than end_time {end:g} s")
-    if end / dt_out > 1e6:
-        raise _err("output_interval", "more than 10^6 samples")
-    dt_min = None
-    if "dt_min" in s:
-        dt_min = _num(s["dt_min"], "dt_min", positive=True)
-    max_steps = _int(s["max_steps"], "max_steps", 1, MAX_STEPS)
-    threads = _int(s["threads"], "threads", 0, MAX_THREADS)
-    pad = _int(s["padding"], "padding", 2, MAX_PADDING)
-    extent = s["extent"]
-    if not isinstance(extent, str) or extent not in ("full", "auto"):
-        raise _err("extent", f"must be \"full\" or \"auto\", got {extent!r}")
-    margin = 0
-    if "extent_margin" in s:
-        margin = _int(s["extent_margin"], "extent_margin", 0, MAX_EXTENT_MARGIN)
-    else:
-        margin = EXTENT_MARGIN_CELLS
 
-    outs = _names(s.get("outputs", list(DEFAULT_OUTPUTS)), "outputs", PROBE_QUANTITIES,
-                  "output")
-    conventions = s["conventions"]
-    if not isinstance(conventions, str) or conventions not in CONVENTIONS:
-        raise _err("conventions", f"must be one of {', '.join(map(repr, CONVENTIONS))}, "
-                                  f"got {conventions!r}")
-
-    # boundaries ---------------------------------------------------------------------------
-    sides = dict.fromkeys(SIDES, "free")
-    if "boundaries" in s:
-        b = _table(s["boundaries"], "boundaries")
-        _keys(b, SIDES, "boundaries")
-        for k, v in b.items():
-            if not isinstance(v, str) or v not in SIDE_KINDS:
-                raise _err(f"boundaries.{k}", f"must be one of {', '.join(SIDE_KINDS)}, "
-                                              f"got {v!r}")
-            sides[k] = v
-    clamps = []
-    if "clamps" in s:
-        cl = s["clamps"]
-        if not isinstance(cl, (list, tuple)):
-            raise _err("clamps", "must be a list of tables {min = [x, y], max = [x, y]}")
-        for k, c in enumerate(cl):
-            key = f"clamps[{k}]"
-            c = _table(c, key)
-            _keys(c, ("min", "max"), key)
-            for kk in ("min", "max"):
-                if kk not in c:
-                    raise _err(f"{key}.{kk}", "is required")
-            lo = _pair(c["min"], f"{key}.min")
-            hi = _pair(c["max"], f"{key}.max")
-            if hi[0] < lo[0] or hi[1] < lo[1]:
-                raise _err(f"{key}.max", "must not be below min")
-            clamps.append((lo[0], lo[1], hi[0], hi[1]))
-    # Seeding lays a lattice of ppc × ppc points over every cell before keeping those in a
-    # body: bound it before anything is allocated (floats, so no integer overflows first).
-    lattice = ((x1 - x0) / dx + 1) * ((y1 - y0) / dx + 1) * float(ppc) ** 2
-    if lattice > MAX_LATTICE_POINTS:
-        raise _err("cell_size" if "resolution" not in scene else "resolution",
-                   f"the domain holds {lattice:.3g} lattice points (cells × "
-                   f"particles_per_cell²) at cell size {dx:g} m; at most "
-                   f"{MAX_LATTICE_POINTS:.0e} fit in memory (about 300 bytes each)")
+def parse(scene) -> Config:
+    """Validate a scene table (``validate``) and build the run's ``Config``: the grid, the
+    materials the bodies use (scene materials in the scene's order, then library names used
+    directly, in body order), the bodies, probes and snapshots. Raises ``SceneError``."""
+    spec = validate(scene)
+    (x0, x1), (y0, y1) = spec.domain.x, spec.domain.y
+    dx, pad = spec.cell, spec.padding
+    sides = spec.boundaries.model_dump()
+    clamps = [(*c.min, *c.max) for c in spec.clamps]
     grid = Grid.cover(x0, x1, y0, y1, dx, pad, sides, clamps)
     if (any(v not in ("free", "absorbing") for v in sides.values())
             and min(grid.ncx, grid.ncy) < 2 * pad):
         raise _err("boundaries", f"a fixed, roller or symmetry side needs a domain of at least "
                                  f"2 x padding = {2 * pad} cells across")
 
-    # materials ----------------------------------------------------------------------------
-    lib = _library()
-    materials = {}
-    mats = s.get("materials", {})
-    mats = _table(mats, "materials")
-    for label, spec in mats.items():
-        key = f"materials.{label}"
-        if not isinstance(label, str) or not label.isidentifier():
-            raise _err(key, "a material label must be a name (letters, digits, _)")
-        spec = _table(spec, key)
-        if "model" not in spec:
-            raise _err(f"{key}.model", f"is required (one of {', '.join(sorted(lib))})")
-        model = spec["model"]
-        if not isinstance(model, str) or model not in lib:
-            raise _err(f"{key}.model", f"unknown material {model!r} (known: "
-                                       f"{', '.join(sorted(lib))})")
-        over = _flatten({k: v for k, v in spec.items() if k != "model"})
-        materials[label] = _material(label, model, lib, over, key)
-
-    # bodies -------------------------------------------------------------------------------
-    bl = s["bodies"]
-    if not isinstance(bl, (list, tuple)) or not bl:
-        raise _err("bodies", "must be a non-empty list of tables")
-    bodies, names = [], set()
-    used = {}
-    for k, b in enumerate(bl):
-        key = f"bodies[{k}]"
-        b = _table(b, key)
-        shape_b = b.get("shape")
-        if not isinstance(shape_b, str) or shape_b not in BODY_KEYS:
-            raise _err(f"{key}.shape", f"must be one of {', '.join(BODY_KEYS)}, got {shape_b!r}")
-        _keys(b, ("name", "material", "shape", "velocity") + BODY_KEYS[shape_b], key)
-        name = b.get("name", f"body{k}")
-        if not isinstance(name, str) or not name:
-            raise _err(f"{key}.name", f"must be a non-empty string, got {name!r}")
-        if name in names:
-            raise _err(f"{key}.name", f"duplicate body name {name!r}")
-        names.add(name)
-        if "material" not in b:
-            raise _err(f"{key}.material", "is required")
-        mat = b["material"]
-        if not isinstance(mat, str):
-            raise _err(f"{key}.material", f"must be a name, got {mat!r}")
-        if mat not in materials:
-            if mat in lib:                       # a library name used directly as a label
-                materials[mat] = _material(mat, mat, lib, {}, f"{key}.material")
-            else:
-                raise _err(f"{key}.material", f"unknown material {mat!r} (scene materials: "
-                           f"{', '.join(materials) or 'none'}; library: "
-                           f"{', '.join(sorted(lib))})")
-        used[mat] = True
-        geom = {}
-        if shape_b == "rectangle":
-            for kk in ("min", "max"):
-                if kk not in b:
-                    raise _err(f"{key}.{kk}", "is required")
-            geom["min"] = _pair(b["min"], f"{key}.min")
-            geom["max"] = _pair(b["max"], f"{key}.max")
-            if geom["max"][0] <= geom["min"][0] or geom["max"][1] <= geom["min"][1]:
-                raise _err(f"{key}.max", "must be above min in x and y")
-            box = (*geom["min"], *geom["max"])
-        elif shape_b == "circle":
-            for kk in ("center", "radius"):
-                if kk not in b:
-                    raise _err(f"{key}.{kk}", "is required")
-            geom["center"] = _pair(b["center"], f"{key}.center")
-            geom["radius"] = _num(b["radius"], f"{key}.radius", positive=True)
-            cx, cy = geom["center"]
-            r = geom["radius"]
-            box = (cx - r, cy - r, cx + r, cy + r)
-        else:
-            if "vertices" not in b:
-                raise _err(f"{key}.vertices", "is required")
-            vs = b["vertices"]
-            if not isinstance(vs, (list, tuple)) or len(vs) < 3:
-                raise _err(f"{key}.vertices", "must list at least 3 points [x, y]")
-            pts = [_pair(v, f"{key}.vertices[{i}]") for i, v in enumerate(vs)]
-            geom["vertices"] = np.array(pts)
-            box = (*geom["vertices"].min(axis=0), *geom["vertices"].max(axis=0))
-        tol = 1e-9 * max(x1 - x0, y1 - y0)
+    materials = {label: _material(label, m.model, m.overrides())
+                 for label, m in spec.materials.items()}
+    bodies = []
+    tol = 1e-9 * max(x1 - x0, y1 - y0)
+    for k, b in enumerate(spec.bodies):
+        if b.material not in materials:         # a library name used directly as a label
+            materials[b.material] = _material(b.material, b.material, {})
+        box = b.box()
         if box[0] < x0 - tol or box[1] < y0 - tol or box[2] > grid.x1 + tol or \
                 box[3] > grid.y1 + tol:
-            raise _err(key, f"extends outside the domain [{x0:g}, {grid.x1:g}] x "
-                            f"[{y0:g}, {grid.y1:g}]")
-        vel = _pair(b.get("velocity", [0.0, 0.0]), f"{key}.velocity")
-        bodies.append(Body(name, mat, shape_b, geom, vel))
-    for label in list(materials):
-        if label not in used:
-            del materials[label]      # listed but unused: not compiled, no parameters
-
-    det = None
-    if "detonation" in s:
-        d = _table(s["detonation"], "detonation")
-        _keys(d, ("point",), "detonation")
-        if "point" not in d:
-            raise _err("detonation.point", "is required")
-        det = _pair(d["point"], "detonation.point")
-
-    # probes -------------------------------------------------------------------------------
-    probes = []
-    pl = s.get("probes", [])
-    if not isinstance(pl, (list, tuple)):
-        raise _err("probes", "must be a list of tables {name, point, body, radius}")
-    pnames = set()
-    for k, p in enumerate(pl):
-        key = f"probes[{k}]"
-        p = _table(p, key)
-        _keys(p, PROBE_KEYS, key)
-        if "name" not in p or not isinstance(p["name"], str) or not p["name"]:
-            raise _err(f"{key}.name", "is required (a non-empty string)")
-        if not PROBE_NAME.fullmatch(p["name"]) or p["name"].startswith("."):
-            raise _err(f"{key}.name", f"{p['name']!r} cannot name files: a probe name names "
-                                      f"its figures, so it is letters, digits, '_', '.' and "
-                                      f"'-' only, not starting with '.'")
-        if p["name"] in pnames:
-            raise _err(f"{key}.name", f"duplicate probe name {p['name']!r}")
-        pnames.add(p["name"])
-        if "point" not in p:
-            raise _err(f"{key}.point", "is required")
-        pt = _pair(p["point"], f"{key}.point")
-        body = p.get("body")
-        if body is not None and (not isinstance(body, str) or body not in names):
-            raise _err(f"{key}.body", f"no body named {body!r} (bodies: {', '.join(names)})")
-        radius = None
-        if "radius" in p:
-            radius = _num(p["radius"], f"{key}.radius", positive=True)
-            spacing = dx / ppc
-            if radius < MIN_RADIUS_SPACINGS * spacing:
-                raise _err(f"{key}.radius", f"{radius:g} m is less than {MIN_RADIUS_SPACINGS:g} "
-                           f"particle spacings ({MIN_RADIUS_SPACINGS * spacing:g} m at cell "
-                           f"{dx:g} m, {ppc} particles per cell): the average would move with "
-                           f"the particle layout; drop radius for the nearest particle")
-        probes.append(Probe(p["name"], pt, body, radius))
-
-    snaps = _snapshots(s["snapshots"], dt_out) if "snapshots" in s else None
-    materials = apply_conventions(materials, conventions)
+            raise _err(f"bodies[{k}]", f"extends outside the domain [{x0:g}, {grid.x1:g}] x "
+                                       f"[{y0:g}, {grid.y1:g}]")
+        bodies.append(Body(body_name(b, k), b.material, b.shape, b.geometry(), b.velocity))
+    used = {b.material for b in bodies}
+    materials = {label: m for label, m in materials.items() if label in used}
+    probes = [Probe(p.name, p.point, p.body, p.radius) for p in spec.probes]
+    dt_out = spec.sample_interval
+    snaps = None
+    if spec.snapshots is not None:
+        every = round(spec.snapshots.interval / dt_out)
+        snaps = Snapshots(interval=every * dt_out, every=int(every),
+                          directory=os.path.abspath(os.path.expanduser(
+                              spec.snapshots.directory)),
+                          fields=tuple(spec.snapshots.fields))
+    materials = apply_conventions(materials, spec.conventions)
     _check_material_constants(materials)
+    return Config(grid=grid, ppc=spec.particles_per_cell, shape=spec.shape, flip=spec.flip,
+                  cfl=spec.cfl, q1=spec.bulk_viscosity.Q1, q2=spec.bulk_viscosity.Q2,
+                  gravity=spec.gravity, end_time=spec.end_time, output_interval=dt_out,
+                  outputs=tuple(spec.outputs), dt_min=spec.dt_min, max_steps=spec.max_steps,
+                  threads=spec.threads, materials=materials, bodies=bodies, probes=probes,
+                  detonation=None if spec.detonation is None else spec.detonation.point,
+                  cell_size=spec.cell_size, resolution=spec.resolution, extent=spec.extent,
+                  extent_margin=spec.extent_margin, snapshots=snaps,
+                  conventions=spec.conventions)
 
-    return Config(grid=grid, ppc=ppc, shape=shape, flip=flip, cfl=cfl, q1=q1, q2=q2,
-                  gravity=gravity, end_time=end, output_interval=dt_out, outputs=tuple(outs),
-                  dt_min=dt_min, max_steps=max_steps, threads=threads, materials=materials, bodies=bodies,
-                  probes=probes, detonation=det, cell_size=cell, resolution=res,
-                  extent=extent, extent_margin=margin, snapshots=snaps,
-                  conventions=conventions)
 
-
-def _snapshots(v, dt_out) -> Snapshots:
-    """``snapshots = { interval, directory, fields }``: particle VTK files (snapshots.py)."""
-    sn = _table(v, "snapshots")
-    _keys(sn, SNAPSHOT_KEYS, "snapshots")
-    for k in ("interval", "directory"):
-        if k not in sn:
-            raise _err(f"snapshots.{k}", "is required")
-    interval = _num(sn["interval"], "snapshots.interval", positive=True)
-    ratio = interval / dt_out
-    every = round(ratio)
-    if every < 1 or abs(ratio - every) > SNAPSHOT_MULTIPLE_RTOL * every:
-        raise _err("snapshots.interval", f"must be a multiple of output_interval = {dt_out:g} s "
-                                         f"(the state is sampled at output times only), got "
-                                         f"{interval:g} s = {ratio:.6g} x output_interval")
-    d = sn["directory"]
-    if not isinstance(d, str) or not d.strip():
-        raise _err("snapshots.directory", f"must be a non-empty path, got {d!r}")
-    directory = os.path.abspath(os.path.expanduser(d))
-    fields = _names(sn.get("fields", list(DEFAULT_SNAPSHOT_FIELDS)), "snapshots.fields",
-                    SNAPSHOT_FIELDS, "field")
-    return Snapshots(interval=every * dt_out, every=int(every), directory=directory,
-                     fields=tuple(fields))
+def _material(label, model, overrides) -> Material:
+    """A library material with the scene's ``overrides`` (validated by ``MaterialSpec``)."""
+    module, _ = _library()[model]
+    values = library_parameters(model)
+    values.update({name: float(v) for name, v in overrides.items()})
+    return Material(label, model, module, values, dict(overrides))
 
 
 def apply_conventions(materials: dict, conventions: str) -> dict:
@@ -514,18 +729,6 @@ def _check_material_constants(materials: dict) -> None:
             m.module.pack(m.values)
         except ParameterError as exc:
             raise _err(f"materials.{label}.{exc.parameter}", exc.reason) from None
-
-
-def _material(label, model, lib, overrides, key):
-    module, defaults = lib[model]
-    params = dict(module.PARAMETERS)
-    params.update(defaults or {})
-    for name, v in overrides.items():
-        if name not in params:
-            raise _err(f"{key}.{name}", f"material {model!r} has no parameter {name!r} "
-                                        f"(takes {', '.join(params)})")
-        params[name] = _num(v, f"{key}.{name}")
-    return Material(label, model, module, params, dict(overrides))
 
 
 # ------------------------------------------------------------------------------------------
@@ -595,8 +798,8 @@ def seed_particles(cfg: Config) -> Particles:
 def place_probes(cfg: Config, parts: Particles) -> np.ndarray:
     """Particle index of each probe: the particle of the probe's body (any body when none is
     named) nearest to the probe point in the initial configuration (a Lagrangian gauge that
-    then moves with the material; ties to the lowest index). A probe farther than one cell from every candidate is a
-    SceneError (the point is not in that body)."""
+    then moves with the material; ties to the lowest index). A probe farther than one cell
+    from every candidate is a SceneError (the point is not in that body)."""
     idx = np.zeros(len(cfg.probes), dtype=np.int64)
     names = [b.name for b in cfg.bodies]
     for k, p in enumerate(cfg.probes):
