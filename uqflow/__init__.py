@@ -21,7 +21,8 @@ _LAZY = {"InputSpace": "uqflow.inputs", "RandomInput": "uqflow.inputs",
          "PropagationMethod": "uqflow.methods", "get_method": "uqflow.methods",
          "register_method": "uqflow.methods", "Solver": "uqflow.solver",
          "get_solver": "uqflow.solver", "register_solver": "uqflow.solver",
-         "open_result": "uqflow.store", "sample_mask": "uqflow.methods"}
+         "open_result": "uqflow.store", "sample_mask": "uqflow.methods",
+         "solver_from_function": "uqflow.function_solver"}
 
 
 def __getattr__(name):
@@ -52,4 +53,5 @@ def run_study(study, **kwargs):
 __all__ = ["AccuracyWarning", "InputSpace", "PropagationMethod", "RandomInput", "SceneError",
            "Solver", "SolverError", "StudyError", "get_method", "get_solver", "load_study",
            "open_result", "register_method", "register_solver", "run_study", "sample_mask",
+           "solver_from_function",
            "__version__"]

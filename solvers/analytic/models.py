@@ -82,6 +82,7 @@ class Ishigami:
     """Y = sin X1 + a sin² X2 + b X3⁴ sin X1 (X_i ~ U(−π, π) in the reference problem)."""
 
     options = ("a", "b")
+    long_names = {"y": "Ishigami function"}
 
     def __init__(self, scene):
         self.a = _number(scene, "a", 7.0)
@@ -108,6 +109,7 @@ class SobolG:
     """Y = Π (|4 X_i − 2| + a_i) / (1 + a_i) (X_i ~ U(0, 1))."""
 
     options = ("a",)
+    long_names = {"y": "Sobol' G-function"}
 
     def __init__(self, scene):
         self.a = _numbers(scene, "a", [0.0, 1.0, 4.5, 9.0, 99.0, 99.0, 99.0, 99.0])
@@ -125,6 +127,7 @@ class Polynomial:
     """Y = c0 + Σ c_i X_i + Σ_ij Q_ij X_i X_j: linear (no ``quadratic``) or quadratic."""
 
     options = ("coefficients", "offset", "quadratic")
+    long_names = {"y": "polynomial response"}
 
     def __init__(self, scene):
         self.c = _numbers(scene, "coefficients", [1.0])
@@ -155,6 +158,7 @@ class PowerLaw:
     """Y = X^p; with X lognormal every moment is exact: E[X^r] = μ^r (1 + v²)^(r(r−1)/2)."""
 
     options = ("p",)
+    long_names = {"y": "power x^p"}
 
     def __init__(self, scene):
         self.p = _number(scene, "p", 2.0)
@@ -191,6 +195,7 @@ class ExponentialDecay:
     """y(t) = α e^(−β t), a field-valued output over the scene's times ``t``."""
 
     options = ("t",)
+    long_names = {"y": "decaying response"}
 
     def __init__(self, scene):
         t = scene.get("t", {"start": 0.0, "stop": 10.0, "num": 21})
@@ -235,6 +240,7 @@ class EulerDecay:
     cost O(steps) — the setting of multilevel Monte Carlo with E[e^(-kT)] known."""
 
     options = ("steps", "time")
+    long_names = {"y": "Euler solution at the end time", "path": "Euler solution"}
 
     def __init__(self, scene):
         steps = scene.get("steps", 16)
@@ -273,6 +279,7 @@ class RandomEBar:
     """End displacement u(L) = (F/A) ∫ 1/E(x) dx of a bar pulled by F, E constant or a field."""
 
     options = ("force", "area", "length", "points")
+    long_names = {"end_displacement": "end displacement"}
 
     def __init__(self, scene):
         self.force = _number(scene, "force", 1.0e4)
@@ -314,6 +321,7 @@ class Faulty:
     """
 
     options = ("raise_above", "nan_below")
+    long_names = {"y": "response of the failing model"}
 
     def __init__(self, scene):
         self.raise_above = _number(scene, "raise_above", math.inf) if "raise_above" in scene \
@@ -424,7 +432,8 @@ class AnalyticSolver(Solver):
         data = {}
         for out, (dims, units) in self.model.outputs.items():
             shape = tuple(len(coords[d][1]) for d in dims)
-            data[out] = xr.Variable(dims, np.full(shape, np.nan), {"units": units})
+            data[out] = xr.Variable(dims, np.full(shape, np.nan), {
+                "units": units, "long_name": self.model.long_names[out]})
         return xr.Dataset(data, coords={k: xr.Variable(*v) for k, v in coords.items()})
 
     def outputs(self) -> xr.Dataset:

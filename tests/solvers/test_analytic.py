@@ -350,3 +350,11 @@ def test_failures_through_the_realization_runner():
     assert "SolverError" in runs["message"].values[3] and "exceeds" in runs["message"].values[3]
     np.testing.assert_array_equal(runs["y"].values[1:3], [0.0, 0.5])
     assert np.isnan(runs["y"].values[0]) and np.isnan(runs["y"].values[3])
+
+
+@pytest.mark.parametrize("model", sorted(MODELS))
+def test_every_output_has_a_label_a_reader_understands(model):
+    # the report titles figures and tables with long_name (uqflow.layout.LONG_NAME)
+    template = AnalyticSolver.from_scene({"model": model}).outputs()
+    for name, var in template.data_vars.items():
+        assert var.attrs["long_name"] and var.attrs["long_name"] != name, name

@@ -1,0 +1,257 @@
+"""Every built-in solver and method passes uqflow.testing; broken ones fail it, saying why."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+import xarray as xr
+
+import uqflow
+from solvers.analytic import AnalyticSolver
+from solvers.gamut_bar import GamutBarSolver
+from solvers.mpm import MPMSolver
+from solvers.sph import SPHSolver
+from uqflow.methods.base import (MethodOptions, PropagationMethod, finish_statistics,
+                                 make_design, ok_mask, output_names)
+from uqflow.methods.monte_carlo import MonteCarlo
+from uqflow.testing import (ConformanceError, ConformanceWarning, NotApplicable, TinyModel,
+                            check_method, check_solver, checks)
+
+# The smallest scenes of the solvers' own tests (tests/solvers/*): each run takes milliseconds
+# once numba's cache is warm.
+MPM_TINY = dict(domain=dict(x=[0.0, 0.1], y=[0.0, 0.1]), cell_size=0.01, particles_per_cell=2,
+                materials=dict(m=dict(model="elastic", rho0=1000.0, E=1e6, nu=0.3)),
+                bodies=[dict(name="block", material="m", shape="rectangle", min=[0.02, 0.02],
+                             max=[0.08, 0.08], velocity=[1.0, 0.0])],
+                end_time=0.002, output_interval=0.0005,
+                probes=[dict(name="c", point=[0.05, 0.05], body="block")])
+# A random layout of 3 inclusions, 3 load steps: runs take a seed (the layout's), and a
+# finite interface strength (the seed's Example 1 has an infinite one, refused by "nominal").
+SPH_TINY = dict(layout="random", width=100e-6, height=100e-6, spacing=5e-6,
+                random=dict(count=3, semi_axes_min=[8e-6, 6e-6], semi_axes_max=[12e-6, 8e-6],
+                            layout_seed=1),
+                matrix=dict(E=1e6, nu=0.4), inclusion=dict(E=150e6, nu=0.3),
+                interface_strength=0.04e6, loading="tension", step=0.05e-6, steps=3)
+GAMUT_BAR_TINY = {"local_bonds": 10}
+
+SOLVERS = {
+    "analytic-linear": (AnalyticSolver, dict(model="linear", coefficients=[2.0, -1.0])),
+    "analytic-exponential-decay": (AnalyticSolver, dict(model="exponential_decay")),
+    "analytic-euler-decay": (AnalyticSolver, dict(model="euler_decay")),
+    "analytic-random-E-bar": (AnalyticSolver, dict(model="random_E_bar", points=8)),
+    "tiny": (TinyModel, {}),
+    "mpm": (MPMSolver, MPM_TINY),
+    "sph": (SPHSolver, SPH_TINY),
+    "gamut_bar": (GamutBarSolver, GAMUT_BAR_TINY),
+}
+
+
+@pytest.mark.parametrize("label", list(SOLVERS))
+def test_built_in_solver_passes_check_solver(label):
+    cls, scene = SOLVERS[label]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConformanceWarning)  # labels: the solvers' owners
+        outcome = check_solver(cls, scene)
+    assert set(outcome) >= {"contract", "deterministic", "failure_capture", "pickle",
+                            "bad_scene", "run_matches_template"}
+    assert all(v == "ok" or v.startswith("not applicable") for v in outcome.values())
+
+
+#: kind -> (options, keyword arguments of check_method); a few realizations each
+METHODS = {
+    "monte-carlo": ({"samples": 8}, {"random_plan": True}),
+    "taylor": ({}, {}),
+    "taylor-local": ({}, {}),
+    "sobol": ({"samples": 8}, {"random_plan": True}),
+    "nominal": ({}, {}),
+    "pce": ({}, {}),
+    "kl-weibull": ({"realizations": 6}, {"fields": True, "random_plan": True}),
+    # levels: the tiny model's resolution; a pilot of 4 and one allocation round
+    "multilevel": ({"target_rel_rmse": 0.05, "pilot": 4, "max_rounds": 1,
+                    "costs": [1.0, 4.0]}, {"levels": [4, 16], "random_plan": True}),
+    "multifidelity": ({"target_rel_rmse": 0.05, "pilot": 4, "max_rounds": 1,
+                       "costs": [1.0, 4.0]}, {"levels": [4, 16], "random_plan": True}),
+}
+
+
+def test_every_registered_method_is_checked():
+    assert set(METHODS) == set(uqflow.methods.method_registry.names()) - {
+        name for name in uqflow.methods.method_registry.names()
+        if uqflow.get_method(name).__module__.split(".")[0] != "uqflow"}
+
+
+@pytest.mark.parametrize("kind", list(METHODS))
+def test_built_in_method_passes_check_method(kind, tmp_path):
+    options, kwargs = METHODS[kind]
+    outcome = check_method(uqflow.get_method(kind), options, folder=tmp_path, **kwargs)
+    assert outcome == dict.fromkeys(outcome, "ok")
+
+
+@pytest.mark.parametrize("name, check", list(checks(TinyModel, {})))
+def test_checks_one_by_one_for_pytest(name, check):
+    check()
+
+
+# ---------------------------------------------------------------- a broken third-party solver
+
+class DriftingSolver(uqflow.Solver):
+    """Broken twice: it draws its noise from global state, not from its ``seed`` (two runs
+    with one seed differ), and its profile grows a point at every run."""
+
+    def __init__(self):
+        self.calls = 0
+
+    @classmethod
+    def from_scene(cls, scene):
+        return cls()
+
+    def nominal(self):
+        return {"load": 1.0}
+
+    def outputs(self):
+        return xr.Dataset({"y": xr.Variable((), np.nan, {"units": "m", "long_name": "y"}),
+                           "profile": xr.Variable("x", np.full(3, np.nan),
+                                                  {"units": "Pa", "long_name": "profile"})})
+
+    def run(self, params, fields=None, seed=None):
+        self.calls += 1
+        load = float(params.get("load", 1.0))
+        noise = np.random.default_rng().normal()  # not from seed: the bug
+        n = 3 + self.calls % 2  # the other bug: the dims change between runs
+        return xr.Dataset({"y": xr.Variable((), load + noise, {"units": "m"}),
+                           "profile": xr.Variable("x", np.full(n, load), {"units": "Pa"})})
+
+
+def test_a_non_deterministic_solver_fails_saying_so():
+    with pytest.raises(ConformanceError) as err:
+        check_solver(DriftingSolver, {})
+    failures = err.value.failures
+    assert failures["deterministic"].startswith(
+        "deterministic: two runs with the same parameters and seed=12345 differ: output 'y' "
+        "differs at index ()")
+    assert "np.random.default_rng(seed)" in failures["deterministic"]
+
+
+def test_an_output_whose_dims_change_between_runs_fails_naming_output_and_dims():
+    with pytest.raises(ConformanceError) as err:
+        check_solver(DriftingSolver, {})
+    message = err.value.failures["run_matches_template"]
+    assert "output 'profile' of run(" in message
+    assert "has dims {'x': 4}, the outputs() template has {'x': 3}" in message
+
+
+def test_a_solver_that_accepts_any_scene_fails_bad_scene():
+    with pytest.raises(ConformanceError) as err:
+        check_solver(DriftingSolver, {})
+    assert err.value.failures["bad_scene"] == (
+        "bad_scene: from_scene accepted the scene with a bad scene.no_such_key_for_conformance "
+        "(validate every scene key and refuse unknown ones with SceneError)")
+
+
+def test_a_missing_unit_fails_the_template_check():
+    class Unitless(TinyModel):
+        def outputs(self):
+            template = super().outputs()
+            del template["y"].attrs["units"]
+            return template
+
+    with pytest.raises(ConformanceError) as err:
+        check_solver(Unitless, {})
+    assert err.value.failures["outputs_template"] == (
+        "outputs_template: output 'y' has no 'units' attribute (set attrs['units'] (SI, '1' "
+        "when dimensionless) on 'y')")
+
+
+class Unlabelled(TinyModel):
+    def outputs(self):
+        template = super().outputs()
+        del template["profile"].attrs["long_name"]
+        return template
+
+
+def test_a_missing_long_name_is_a_warning_naming_the_outputs():
+    with pytest.warns(ConformanceWarning, match="no 'long_name' on profile: "):
+        check_solver(Unlabelled, {})
+
+
+def test_a_solver_whose_failure_escapes_as_base_exception_fails():
+    class Exits(TinyModel):
+        def run(self, params, fields=None):
+            if any(np.isnan(v) for v in params.values()):
+                raise SystemExit("gave up")
+            return super().run(params, fields)
+
+    with pytest.raises(ConformanceError) as err:
+        check_solver(Exits, {})
+    assert err.value.failures["failure_capture"].startswith(
+        "failure_capture: SystemExit escaped uqflow's runner")
+
+
+# ---------------------------------------------------------------- a broken third-party method
+
+class ClockSeeded(MonteCarlo):
+    """Broken: its design ignores the seed (drawn from fresh OS entropy at every plan)."""
+
+    def plan(self, space, fields, seed):
+        return super().plan(space, fields, np.random.SeedSequence())
+
+
+class FlatOptions(MethodOptions):
+    samples: int = 8
+
+
+class DimDropping(PropagationMethod):
+    """Broken: analyze averages every output over all its dims (the profile loses 's')."""
+
+    Options = FlatOptions
+
+    def plan(self, space, fields, seed):
+        u = np.random.default_rng(seed).random((self.options.samples, len(space)))
+        return make_design(space, space.from_unit_hypercube(u))
+
+    def analyze(self, design, runs):
+        ok = ok_mask(runs)
+        data = {o: (("statistic",), [float(np.mean(runs[o].values[ok]))])
+                for o in output_names(runs)}
+        return finish_statistics(xr.Dataset(data, coords={"statistic": ["mean"]}), design,
+                                 runs, self.name, [])
+
+
+def test_a_plan_that_ignores_its_seed_fails_saying_so(tmp_path):
+    with pytest.raises(ConformanceError) as err:
+        check_method(ClockSeeded, {"samples": 4}, folder=tmp_path)
+    assert err.value.failures["plan_deterministic"] == (
+        "plan_deterministic: two plans with the same SeedSequence differ in inputs (draw every "
+        "random number from the seed argument (np.random.default_rng(seed)), never from global "
+        "state or the clock)")
+
+
+def test_an_analyze_that_drops_a_dim_fails_naming_output_and_dim(tmp_path):
+    with pytest.raises(ConformanceError) as err:
+        check_method(DimDropping, {"samples": 4}, folder=tmp_path)
+    assert set(err.value.failures) == {"analyze"}
+    assert err.value.failures["analyze"] == (
+        "analyze: analyze dropped the dim(s) 's' of output 'profile' (its statistics have "
+        "dims ('statistic',)) (keep every dim of an output in its statistics, e.g. reduce "
+        "over 'realization' only)")
+
+
+def test_a_method_with_a_lax_option_fails_strict_options(tmp_path):
+    class Lax(DimDropping):
+        def __init__(self, **options):
+            options.pop("no_such_option", None)  # swallows what it does not know
+            super().__init__(**options)
+
+    with pytest.raises(ConformanceError) as err:
+        check_method(Lax, {"samples": 4}, folder=tmp_path)
+    assert err.value.failures["strict_options"] == (
+        "strict_options: the method accepted the bad option {'no_such_option': 1} (declare "
+        "every option in Options (extra keys are refused))")
+
+
+def test_a_check_that_does_not_apply_is_a_skip():
+    found = dict(checks(GamutBarSolver, GAMUT_BAR_TINY))
+    with pytest.raises(NotApplicable, match="declares none"):
+        found["local_sensitivities"]()
