@@ -12,7 +12,7 @@ names the key to change. The reference for users is docs/gamut_bar.md, "Scene".
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, ValidationError,
@@ -89,7 +89,6 @@ class BarScene(BaseModel):
     R: Annotated[float, BeforeValidator(_number), Field(gt=0, lt=1)] | None = None
     area: Positive | None = None
     length: Positive | None = None
-    eps_y: Any = Field(None, description="refused: derived from E, sigma_y and K_ro")
     # the bar and its nonlocal bonds
     local_bonds: Integer = Field(500, ge=2, le=MAX_LOCAL_BONDS)
     grid_factor: Number = Field(0.65, ge=0)
@@ -106,11 +105,6 @@ class BarScene(BaseModel):
     force_growth: Annotated[float, BeforeValidator(_number), Field(gt=1)] = 1.01
     cyclic_increment: Number = Field(0.01, ge=MIN_CYCLIC_INCREMENT, le=0.5)
     bisections: Integer = Field(30, ge=1, le=MAX_BISECTIONS)
-
-    @field_validator("eps_y", mode="before")
-    @classmethod
-    def _derived(cls, value):
-        raise ValueError("is derived (sigma_y/E + K_ro); set E, sigma_y or K_ro")
 
     @field_validator("cyclic_increment")
     @classmethod
@@ -130,13 +124,16 @@ class BarScene(BaseModel):
 #: the scene's keys and their defaults (what an empty scene means)
 DEFAULTS = {**{k: v for k, v in BarScene().model_dump().items() if v is not None},
             "area": AREA, "length": LENGTH}
-SCENE_KEYS = frozenset(BarScene.model_fields) - {"eps_y"}
+SCENE_KEYS = frozenset(BarScene.model_fields)
 
 
 def _declared(scene) -> BarScene:
     if not isinstance(scene, Mapping):
         raise SceneError("must be a table", key="scene")
     raw = dict(scene)
+    if "eps_y" in raw:    # the seed lists it among the properties; here it follows from others
+        raise SceneError("is derived (sigma_y/E + K_ro); set E, sigma_y or K_ro",
+                         key="scene.eps_y")
     try:
         return BarScene.model_validate(raw)
     except ValidationError as exc:

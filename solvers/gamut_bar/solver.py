@@ -11,97 +11,27 @@ import xarray as xr
 from solvers.gamut_bar import kernels as K
 from solvers.gamut_bar.loading import (CyclicPlan, fit_cyclic, loop_amplitudes,
                                        monotonic_forces, resample_path)
-from solvers.gamut_bar.materials import (MATERIALS, calibrate, family_weights,
-                                         material_problem as _material_problem,
-                                         overflow_problem as _overflow, ro_stress)
-from solvers.gamut_bar.report import report as _report
-from solvers.gamut_bar.scene import parse_scene
+from solvers.gamut_bar.materials import calibrate, family_weights, material_problem
 from solvers.gamut_bar.network import (bond_weights, build_network, effective_sigma,
                                        grid_correction, nonlocal_bonds, stochastic_grid,
                                        uniform_grid)
-from uqflow.errors import SceneError, SolverError
+from solvers.gamut_bar.report import report as _report
+from solvers.gamut_bar.scene import parse_scene
+from uqflow.errors import SolverError
 from uqflow.solver import DIAGNOSTIC_KIND, Solver, register_solver
 
-PROPERTIES = ("E", "sigma_y", "sigma_f", "eps_f", "n_ro", "K_ro", "rho", "nu", "R", "area",
-              "length")
-DEFAULTS = {
-    "material": "M1", "area": 1.0e-4, "length": 0.1, "local_bonds": 500, "grid": "uniform",
-    "grid_factor": 0.65, "min_spacing_fraction": 0.05, "grid_seed": 0, "sigma_stdev": 8.0,
-    "cutoff": 3.0, "loading": "monotonic", "curve_points": 400, "cycles": 10,
-    "cycle_repeats": 2, "amplitude_range": [1.0, 1.1], "initial_force": 0.01,
-    "force_growth": 1.01, "cyclic_increment": 0.01, "bisections": 30,
-}
-SCENE_KEYS = frozenset(DEFAULTS) | frozenset(PROPERTIES)
-GRIDS = ("uniform", "stochastic")
-LOADINGS = ("monotonic", "cyclic")
 PARAMETERS = ("bar.E", "bar.R", "bar.w", "bar.rho", "bar.sigma_y", "bar.sigma_f", "bar.eps_f",
               "bar.n_ro", "bar.K_ro", "bar.area", "bar.length")
 UNITS = {"bar.E": "Pa", "bar.R": "", "bar.w": "", "bar.rho": "kg m-3", "bar.sigma_y": "Pa",
          "bar.sigma_f": "Pa", "bar.eps_f": "", "bar.n_ro": "", "bar.K_ro": "",
          "bar.area": "m2", "bar.length": "m"}      # "" where dimensionless (Solver contract)
 FIELDS = ("bar.E", "bar.R", "bar.w", "bar.rho")   # bar.w at nonlocal-bond midpoints
-# Upper bounds of the counts, so that what validates can run (docs/study-files.md, "Limits").
-# Every load step solves the whole network (local + nonlocal bonds) by Newton: the seed's bar
-# has 500 local bonds and 23 families (12,000 bonds); a bond keeps a few tens of float64, so
-# 10^7 bonds are of the order of a GiB of state.
-MAX_LOCAL_BONDS = 10**6
-MAX_FAMILIES = 10**3         # nonlocal degrees 2..cutoff × sigma_stdev
-MAX_BONDS = 10**7            # local bonds × (1 + families)
 DIAGNOSTIC_OUTPUTS = {"load_steps": "load steps the run followed (not counting the bisection "
                                     "of the failure load)",
                       "newton_iterations": "Newton iterations of those load steps",
                       "factorisations": "stiffness matrix factorisations of those load steps"}
-MAX_LOAD_STEPS = 10**6       # recorded load steps of one curve (monotonic or cyclic)
-MAX_CYCLES = 10**3           # amplitudes of a cyclic test
-MAX_CYCLE_REPEATS = 10**3
-MIN_CYCLIC_INCREMENT = 1e-4  # 10^4 load steps per quarter cycle at most
-MAX_BISECTIONS = 100         # halvings of the failure-load bracket (float64 resolves ~53)
-MAX_GRID_SEED = 2**64 - 1    # numpy's generators take any; keep it a 64-bit number
 RTOL = 1e-9           # Newton: |residual| ≤ RTOL · max(|F|, previous |F|, floor)
 MAXIT = 100
-
-
-# ------------------------------------------------------------------------------------------
-# Scene validation
-# ------------------------------------------------------------------------------------------
-
-def _is_number(v):
-    # TOML integers are unbounded in Python; one beyond float64 (|v| >= 2^1024) is no number
-    # a solver can use.
-    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) \
-        and not (isinstance(v, int) and abs(v) >= 2**1024)
-
-
-def _num(scene, key, *, positive=False, lo=None, hi=None):
-    v = scene[key]
-    if not _is_number(v) or not math.isfinite(v):
-        raise SceneError(f"must be a finite number, got {v!r}", key=f"scene.{key}")
-    v = float(v)
-    if positive and v <= 0:
-        raise SceneError(f"must be > 0, got {v!r}", key=f"scene.{key}")
-    if lo is not None and v < lo:
-        raise SceneError(f"must be >= {lo:g}, got {v!r}", key=f"scene.{key}")
-    if hi is not None and v > hi:
-        raise SceneError(f"must be <= {hi:g}, got {v!r}", key=f"scene.{key}")
-    return v
-
-
-def _int(scene, key, lo, hi):
-    v = scene[key]
-    if not isinstance(v, (int, np.integer)) or isinstance(v, bool):
-        raise SceneError(f"must be an integer, got {v!r}", key=f"scene.{key}")
-    if v < lo:
-        raise SceneError(f"must be >= {lo}, got {v!r}", key=f"scene.{key}")
-    if v > hi:
-        raise SceneError(f"must be <= {hi:,}, got {v!r}", key=f"scene.{key}")
-    return int(v)
-
-
-def _choice(scene, key, options):
-    v = scene[key]
-    if not isinstance(v, str) or v not in options:
-        raise SceneError(f"must be one of {', '.join(options)}, got {v!r}", key=f"scene.{key}")
-    return v
 
 
 # ------------------------------------------------------------------------------------------
@@ -133,100 +63,6 @@ class GamutBarSolver(Solver):
     @classmethod
     def from_scene(cls, scene: Mapping) -> "GamutBarSolver":
         cfg, props = parse_scene(scene)
-        return cls(cfg, props)
-
-    @classmethod
-    def _from_scene_by_hand(cls, scene: Mapping) -> "GamutBarSolver":
-        # the parser before the typed scene, kept until tests/solvers/gamut_bar/test_scene.py
-        # has shown that both read every shipped scene alike
-        if not isinstance(scene, Mapping):
-            raise SceneError("must be a table", key="scene")
-        for key in scene:
-            if key == "eps_y":
-                raise SceneError("is derived (sigma_y/E + K_ro); set E, sigma_y or K_ro",
-                                 key="scene.eps_y")
-            if key not in SCENE_KEYS:
-                raise SceneError(f"unknown key (takes {', '.join(sorted(SCENE_KEYS))})",
-                                 key=f"scene.{key}")
-        s = dict(DEFAULTS)
-        s.update(scene)
-        cfg = {"material": _choice(s, "material", tuple(MATERIALS)),
-               "grid": _choice(s, "grid", GRIDS), "loading": _choice(s, "loading", LOADINGS)}
-        props = dict(MATERIALS[cfg["material"]])
-        props["area"], props["length"] = DEFAULTS["area"], DEFAULTS["length"]
-        for key in PROPERTIES:
-            if key in scene:
-                props[key] = _num(scene, key)
-        problem, R_eq18 = _material_problem(props)
-        if problem:
-            raise SceneError(problem[1], key=f"scene.{problem[0]}")
-        if "R" in scene:
-            if not 0.0 < props["R"] < 1.0:
-                raise SceneError(f"must be in (0, 1), got {props['R']!r}", key="scene.R")
-        else:
-            props["R"] = R_eq18
-        cfg["R_given"] = "R" in scene
-        cfg["local_bonds"] = _int(s, "local_bonds", 2, MAX_LOCAL_BONDS)
-        cfg["grid_factor"] = _num(s, "grid_factor", lo=0.0)
-        cfg["min_spacing_fraction"] = _num(s, "min_spacing_fraction", positive=True, hi=0.99)
-        if 1.0 + cfg["grid_factor"] <= cfg["min_spacing_fraction"]:
-            raise SceneError("no spacing can be drawn above it (1 + grid_factor)",
-                             key="scene.min_spacing_fraction")
-        cfg["grid_seed"] = _int(s, "grid_seed", 0, MAX_GRID_SEED)
-        cfg["sigma_stdev"] = _num(s, "sigma_stdev", positive=True)
-        cfg["cutoff"] = _num(s, "cutoff", positive=True)
-        if cfg["cutoff"] * cfg["sigma_stdev"] < 2.0:
-            raise SceneError(f"cutoff × sigma_stdev = {cfg['cutoff'] * cfg['sigma_stdev']:g} "
-                             f"spacings: no nonlocal bond (degree ≥ 2) within it",
-                             key="scene.cutoff")
-        families = cfg["cutoff"] * cfg["sigma_stdev"] - 1
-        if families > MAX_FAMILIES:
-            raise SceneError(f"cutoff × sigma_stdev = {families + 1:g} spacings make "
-                             f"{families:g} bond families; at most {MAX_FAMILIES:,}",
-                             key="scene.cutoff")
-        if cfg["local_bonds"] * (1 + families) > MAX_BONDS:
-            raise SceneError(f"{cfg['local_bonds']:,} local bonds × {1 + families:g} "
-                             f"(1 + families) = {cfg['local_bonds'] * (1 + families):.3g} "
-                             f"bonds; at most {MAX_BONDS:.0e}", key="scene.local_bonds")
-        cfg["curve_points"] = _int(s, "curve_points", 2, MAX_LOAD_STEPS)
-        cfg["cycles"] = _int(s, "cycles", 2, MAX_CYCLES)
-        cfg["cycle_repeats"] = _int(s, "cycle_repeats", 1, MAX_CYCLE_REPEATS)
-        rng = s["amplitude_range"]
-        if (not isinstance(rng, (list, tuple)) or len(rng) != 2
-                or not all(_is_number(v) and math.isfinite(v) and v > 0 for v in rng)):
-            raise SceneError(f"must be [low, high], positive multiples of sigma_y, "
-                             f"got {rng!r}", key="scene.amplitude_range")
-        cfg["amplitude_range"] = (float(rng[0]), float(rng[1]))
-        if rng[0] >= rng[1]:
-            raise SceneError("low must be below high", key="scene.amplitude_range")
-        try:
-            top = ro_stress(props["eps_f"], props["E"], props["sigma_y"], props["n_ro"],
-                            props["K_ro"])
-        except OverflowError:
-            key, reason = _overflow(props)
-            raise SceneError(reason, key=f"scene.{key}") from None
-        if rng[1] * props["sigma_y"] >= top:
-            raise SceneError(f"the highest amplitude {rng[1] * props['sigma_y']:.4g} Pa is not "
-                             f"below the stress at the failure strain ({top:.4g} Pa)",
-                             key="scene.amplitude_range")
-        cfg["initial_force"] = _num(s, "initial_force", positive=True)
-        cfg["force_growth"] = _num(s, "force_growth", positive=True)
-        if cfg["force_growth"] <= 1.0:
-            raise SceneError(f"must be > 1, got {cfg['force_growth']!r}",
-                             key="scene.force_growth")
-        cfg["cyclic_increment"] = _num(s, "cyclic_increment", lo=MIN_CYCLIC_INCREMENT, hi=0.5)
-        if abs(1.0 / cfg["cyclic_increment"] - round(1.0 / cfg["cyclic_increment"])) > 1e-9:
-            raise SceneError("must be 1/integer (e.g. 0.01)", key="scene.cyclic_increment")
-        cfg["bisections"] = _int(s, "bisections", 1, MAX_BISECTIONS)
-        if cfg["loading"] == "cyclic":
-            # Each repeat of each amplitude is a loop of 2 × (2 / increment) steps.
-            loops = cfg["cycles"] * cfg["cycle_repeats"]
-            steps = loops * 4.0 / cfg["cyclic_increment"]
-            if steps > MAX_LOAD_STEPS:
-                raise SceneError(f"{loops:,} loops (cycles × cycle_repeats) of "
-                                 f"{4 / cfg['cyclic_increment']:.0f} steps are {steps:.3g} load "
-                                 f"steps; at most {MAX_LOAD_STEPS:.0e}",
-                                 key="scene.cyclic_increment")
         return cls(cfg, props)
 
     def _amplitudes(self, p):
@@ -319,7 +155,7 @@ class GamutBarSolver(Solver):
             if not math.isfinite(p[name]):
                 raise SolverError(f"parameter '{name}' is not finite: {value!r}")
         q = {k.split(".", 1)[1]: v for k, v in p.items()}
-        problem, R_cal = _material_problem(q)
+        problem, R_cal = material_problem(q)
         if problem:
             raise SolverError(f"bar.{problem[0]}: {problem[1]}")
         if "bar.R" not in params and not self._R_given:

@@ -149,7 +149,7 @@ def _doc_table_rows(first_header: str) -> list[list[str]]:
 
 
 def test_scene_defaults_in_the_doc_are_the_solver_s():
-    from solvers.gamut_bar.solver import DEFAULTS
+    from solvers.gamut_bar.scene import DEFAULTS
     shown = {}
     for key_cell, default, *_ in _doc_table_rows("| key | default | meaning |"):
         keys = re.findall(r"`([a-z_]+)`", key_cell)

@@ -1,5 +1,5 @@
-"""The typed gamut-bar scene (solvers/gamut_bar/scene.py): every shipped scene parses to the
-scene the hand-written parser made, and a bad key is one line naming file and key."""
+"""The typed gamut-bar scene (solvers/gamut_bar/scene.py): every shipped scene parses to what
+its keys mean, and a bad key is one line naming file and key."""
 
 from __future__ import annotations
 
@@ -10,8 +10,10 @@ from pathlib import Path
 import pytest
 
 from solvers.gamut_bar import GamutBarSolver
+from solvers.gamut_bar.materials import MATERIALS, modulus_of_softness
 from solvers.gamut_bar.scene import parse_scene
-from uqflow.errors import SceneError
+from uqflow.errors import SceneError, StudyError
+from uqflow.study import load_study
 
 ROOT = Path(__file__).resolve().parents[3]
 SHIPPED = sorted((ROOT / "studies" / "gamut_bar").glob("*.toml"))
@@ -21,20 +23,26 @@ def _scene(study: Path) -> dict:
     return tomllib.loads(study.read_text())["scene"]
 
 
-def _old(scene):
-    """(cfg, props) as the hand-written ``from_scene`` made them, or the SceneError's key."""
-    try:
-        s = GamutBarSolver._from_scene_by_hand(scene)
-    except SceneError as exc:
-        return exc.key
-    return dict(s.cfg, R_given=s._R_given), s.props
-
-
-def _new(scene):
-    try:
-        return parse_scene(scene)
-    except SceneError as exc:
-        return exc.key
+def _expected(scene) -> tuple[dict, dict]:
+    """(cfg, props) of a valid scene, from the documented defaults and the seed's materials
+    (written out here, independently of scene.py)."""
+    defaults = {"material": "M1", "grid": "uniform", "loading": "monotonic",
+                "local_bonds": 500, "grid_factor": 0.65, "min_spacing_fraction": 0.05,
+                "grid_seed": 0, "sigma_stdev": 8.0, "cutoff": 3.0, "curve_points": 400,
+                "cycles": 10, "cycle_repeats": 2, "amplitude_range": (1.0, 1.1),
+                "initial_force": 0.01, "force_growth": 1.01, "cyclic_increment": 0.01,
+                "bisections": 30}
+    properties = ("E", "sigma_y", "sigma_f", "eps_f", "n_ro", "K_ro", "rho", "nu", "R",
+                  "area", "length")
+    cfg = {k: scene.get(k, v) for k, v in defaults.items()}
+    cfg["amplitude_range"] = tuple(cfg["amplitude_range"])
+    cfg["R_given"] = "R" in scene
+    props = dict(MATERIALS[cfg["material"]], area=1.0e-4, length=0.1)
+    props.update({k: scene[k] for k in properties if k in scene})
+    if "R" not in scene:
+        props["R"] = modulus_of_softness(props["E"], props["sigma_f"], props["eps_f"],
+                                         props["sigma_y"], props["n_ro"], props["K_ro"])
+    return cfg, props
 
 
 def test_twenty_shipped_scenes():
@@ -42,35 +50,74 @@ def test_twenty_shipped_scenes():
 
 
 @pytest.mark.parametrize("study", SHIPPED, ids=[p.stem for p in SHIPPED])
-def test_every_shipped_scene_parses_as_before(study):
-    old, new = _old(_scene(study)), _new(_scene(study))
-    assert not isinstance(old, str)
-    assert new == old           # ==: same values, bit for bit, and same keys
+def test_every_shipped_scene_parses_to_its_documented_meaning(study):
+    """(Until the hand-written parser was deleted, this compared it with the typed scene on
+    every shipped scene and ~2,000 malformed variants: all alike.)"""
+    cfg, props = parse_scene(_scene(study))
+    assert (cfg, props) == _expected(_scene(study))   # ==: bit for bit, same keys
+    solver = GamutBarSolver.from_scene(_scene(study))
+    assert solver.props == props and solver.n == cfg["local_bonds"]
 
 
-def _variants(scene):
-    """Each key of ``scene`` and of the defaults turned, one at a time, into a malformed value."""
-    keys = list(scene) + ["E", "sigma_f", "eps_f", "n_ro", "R", "nu", "grid_factor",
-                          "min_spacing_fraction", "grid_seed", "sigma_stdev", "cutoff",
-                          "curve_points", "cycle_repeats", "initial_force", "force_growth",
-                          "cyclic_increment", "bisections", "eps_y", "E_typo"]
-    bad = [True, "2", math.nan, math.inf, 1e300, -1.0, 0, 1, 2**63 - 1, 10**400, 2.0, 0.5,
-           [1.0], {"v": 1}, [1.0, 1.3], [1.1, 1.0],
-           0.99, 1e-4, 0.5, 100, 101, 1000, 1001, 10**6 + 1, 2**64 - 1, 2**64]  # bounds
-    for key in keys:
-        for value in bad:
-            yield key, dict(scene, **{key: value})
-        if key in scene:
-            yield key, {k: v for k, v in scene.items() if k != key}
+BAD = [  # (scene edit, key the error names, words of its reason)
+    ({"local_bonds": 10.0}, "scene.local_bonds", "write 10, not 10.0"),
+    ({"local_bonds": 10**6 + 1}, "scene.local_bonds", "less than or equal to 1000000"),
+    ({"E": True}, "scene.E", "must be a number, got true"),
+    ({"E": "71.6e9"}, "scene.E", "valid number"),
+    ({"E": math.nan}, "scene.E", "finite number"),
+    ({"sigma_yy": 1.0}, "scene.sigma_yy", "unknown key (did you mean 'sigma_y'?)"),
+    ({"eps_y": 0.01}, "scene.eps_y", "is derived"),
+    ({"material": "M3"}, "scene.material", "'M1' or 'M2', got 'M3'"),
+    ({"amplitude_range": [1.0, -1.0]}, "scene.amplitude_range[1]", "greater than 0"),
+    ({"amplitude_range": [1.1, 1.0]}, "scene.amplitude_range", "low must be below high"),
+    ({"cyclic_increment": 0.03}, "scene.cyclic_increment", "1/integer"),
+    ({"sigma_f": 500e6}, "scene.sigma_f", "below the yield stress"),
+    ({"cutoff": 0.2}, "scene.cutoff", "no nonlocal bond"),
+    ({"n_ro": 1.0}, "scene.n_ro", "greater than 1"),
+]
 
 
-@pytest.mark.parametrize("study", SHIPPED[:4] + SHIPPED[-2:], ids=lambda p: p.stem)
-def test_malformed_scenes_are_refused_or_parsed_as_before(study):
-    """Around shipped scenes: both parsers accept (the same scene) or refuse naming the same
-    key."""
-    compared = 0
-    for key, scene in _variants(_scene(study)):
-        old, new = _old(scene), _new(scene)
-        assert new == old, (key, scene[key] if key in scene else "missing")
-        compared += 1
-    assert compared > 300
+@pytest.mark.parametrize("edit,key,reason", BAD, ids=[b[1] + "-" + str(i)
+                                                      for i, b in enumerate(BAD)])
+def test_errors_name_the_file_and_the_key_in_one_line(edit, key, reason, tmp_path):
+    """Through load_study: an inline scene's error names the study file, a scene file's the
+    scene file; one line ``<file>: scene.<key>: <reason>``."""
+    base = {"material": "M1", "local_bonds": 20, "loading": "cyclic", "cycles": 3}
+    scene = dict(base, **edit)
+    inline = tmp_path / "inline.toml"
+    inline.write_text('name = "t"\nsolver = "gamut_bar"\nscene = '
+                      + _inline(scene) + '\n[method]\nkind = "nominal"\n')
+    scene_file = tmp_path / "bar.toml"
+    scene_file.write_text("\n".join(f"{k} = {_toml(v)}" for k, v in scene.items()) + "\n")
+    by_file = tmp_path / "by_file.toml"
+    by_file.write_text('name = "t"\nsolver = "gamut_bar"\nscene = "bar.toml"\n'
+                       '[method]\nkind = "nominal"\n')
+    for study, named in ((inline, inline), (by_file, scene_file)):
+        with pytest.raises(StudyError) as caught:
+            load_study(study)
+        err = caught.value
+        assert (err.file, err.key) == (str(named), key), str(err)
+        assert reason in err.reason and "\n" not in str(err)
+        assert str(err).startswith(f"{named}: {key}: ")
+
+
+def test_a_scene_that_is_no_table():
+    with pytest.raises(SceneError) as caught:
+        GamutBarSolver.from_scene([1, 2])
+    assert caught.value.key == "scene"
+
+
+def _toml(v) -> str:
+    if isinstance(v, bool):
+        return str(v).lower()
+    if isinstance(v, float) and math.isnan(v):
+        return "nan"
+    if isinstance(v, str):
+        return f'"{v}"'
+    if isinstance(v, list):
+        return "[" + ", ".join(map(_toml, v)) + "]"
+    return repr(v)
+
+
+def _inline(scene) -> str:
+    return "{ " + ", ".join(f"{k} = {_toml(v)}" for k, v in scene.items()) + " }"
