@@ -1,6 +1,9 @@
 """The SPH scene: keys, defaults, limits (docs/sph.md § 7, "Scene keys").
 
-Every failure is a one-line SceneError naming ``scene.<key>``.
+``SceneSpec`` declares what a scene file may say, key by key (pydantic, as uqflow.study declares
+a study file); ``parse`` checks what joins several keys (a layout's required keys, an inclusion
+that must fit the plate, the particle count) and resolves the scene into the ``Config`` the
+solver builds from. Every failure is a one-line SceneError naming ``scene.<key>``.
 """
 
 from __future__ import annotations
@@ -8,14 +11,18 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Annotated, Literal
 
 import numpy as np
+from pydantic import (AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field,
+                      ValidationError, field_validator)
 
 from solvers.sph.kernel import KERNELS
 from solvers.sph.problem import INTEGRATIONS, METHODS
 from solvers.sph.stiffness import STATES
-from uqflow.scene_checks import (check_keys, integer, number, number_pair, scene_error,
-                                 table)
+from uqflow.errors import SceneError
+from uqflow.scene_checks import is_number, scene_error
+from uqflow.study import validation_error
 
 LAYOUTS = ("regular", "polar", "random")
 LOADINGS = ("tension", "eigenstrain")
@@ -37,41 +44,157 @@ MAX_PENALTY = 1e16
 #: below this smoothing ratio a square-lattice support holds fewer than 9 particles and the
 #: linear correction is poorly conditioned at edges and corners (h = 2a holds 21)
 MIN_SMOOTHING_RATIO = 1.0
-
-KEYS = frozenset({
-    "layout", "width", "height", "outer_radius", "spacing", "resolution", "inclusions", "random",
-    "gap", "smoothing_ratio", "kernel", "integration", "stabilisation", "state", "thickness",
-    "matrix", "inclusion", "interface_strength", "constraints", "cutoff_threshold",
-    "cutoff_radius", "penalty", "min_support", "linear_solver", "loading", "eigenstrain",
-    "eigenstrain_mode", "edge", "step", "steps"})
-MATERIAL_KEYS = frozenset({"E", "nu"})
-INCLUSION_KEYS = frozenset({"centre", "semi_axes", "angle_deg"})
-RANDOM_KEYS = frozenset({"count", "semi_axes_min", "semi_axes_max", "layout_seed", "min_gap"})
+#: the largest layout_seed numpy's generators take from a TOML integer
+MAX_LAYOUT_SEED = 2**63 - 1
 
 
-@dataclass(frozen=True)
-class InclusionSpec:
-    centre: tuple[float, float]
-    semi_axes: tuple[float, float]
-    angle_deg: float
+# ------------------------------------------------------------------------------ value types
+def _finite_number(value) -> float:
+    # a TOML boolean is no number, nor an integer beyond float64 (uqflow.scene_checks)
+    if not is_number(value):
+        raise ValueError(f"must be a finite number, got {value!r}")
+    try:
+        value = float(value)
+    except OverflowError:       # an integer between the largest float and 2^1024
+        raise ValueError(f"must be a finite number, got {value!r}") from None
+    if not math.isfinite(value):
+        raise ValueError(f"must be a finite number, got {value!r}")
+    return value
 
 
-@dataclass(frozen=True)
-class RandomSpec:
-    count: int
-    semi_axes_min: tuple[float, float]
-    semi_axes_max: tuple[float, float]
-    layout_seed: int
+def _whole_number(value) -> int:
+    if not isinstance(value, (int, np.integer)) or isinstance(value, bool):
+        raise ValueError(f"must be an integer, got {value!r}")
+    return int(value)
+
+
+def _number_pair(value) -> tuple[float, float]:
+    if not isinstance(value, (list, tuple)) or len(value) != 2:
+        raise ValueError(f"must be a pair of finite numbers [a, b], got {value!r}")
+    try:
+        return _finite_number(value[0]), _finite_number(value[1])
+    except ValueError:
+        raise ValueError(f"must be a pair of finite numbers [a, b], got {value!r}") from None
+
+
+def _positive_pair(pair: tuple[float, float]) -> tuple[float, float]:
+    if not (pair[0] > 0 and pair[1] > 0):
+        raise ValueError(f"must be > 0, got {list(pair)!r}")
+    return pair
+
+
+def _strength(value) -> float:
+    # an interface that never breaks is written inf (TOML's infinity), or left out
+    if isinstance(value, float) and value == math.inf:
+        return value
+    return _finite_number(value)
+
+
+Number = Annotated[float, BeforeValidator(_finite_number)]
+Positive = Annotated[Number, Field(gt=0)]
+NonNegative = Annotated[Number, Field(ge=0)]
+Integer = Annotated[int, BeforeValidator(_whole_number)]
+Pair = Annotated[tuple[float, float], BeforeValidator(_number_pair)]
+PositivePair = Annotated[Pair, AfterValidator(_positive_pair)]
+
+
+class _SceneTable(BaseModel):
+    # every key is checked (an unknown one is refused, naming the keys it could be); values
+    # are never coerced from strings or booleans
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+def stiffness_scale(E: float, nu: float) -> float:
+    """lambda + 2 mu of plane strain, the largest entry of the elastic matrix (inf when it
+    overflows; plane stress's is smaller)."""
+    with np.errstate(over="ignore"):
+        return float(np.float64(E) * (1.0 - nu) / ((1.0 + nu) * (1.0 - 2.0 * nu)))
+
+
+# ------------------------------------------------------------------------------ declarations
+class Material(_SceneTable):
+    """An isotropic elastic phase. ``nu`` is declared first so that ``E``'s check sees it."""
+
+    nu: Annotated[Number, Field(gt=0.0, lt=0.5)]
+    E: Positive
+
+    @field_validator("E")
+    @classmethod
+    def _stiffness_stays_finite(cls, E, info):
+        nu = info.data.get("nu")
+        if nu is not None and not stiffness_scale(E, nu) <= MAX_STIFFNESS:
+            raise ValueError(f"E = {E!r} with nu = {nu!r} gives lambda + 2 mu above "
+                             f"{MAX_STIFFNESS:g} Pa: the stiffness would overflow")
+        return E
+
+
+class InclusionSpec(_SceneTable):
+    """An elliptic inclusion: centre (m, the plate centred at [0, 0]), semi-axes (m), and the
+    angle of its first axis from x (degrees)."""
+
+    centre: Pair
+    semi_axes: PositivePair
+    angle_deg: Number = 0.0
+
+
+class RandomSpec(_SceneTable):
+    """``count`` ellipses drawn by random sequential addition from ``layout_seed``."""
+
+    count: Annotated[Integer, Field(ge=1, le=MAX_INCLUSIONS)]
+    semi_axes_min: PositivePair
+    semi_axes_max: Pair
+    layout_seed: Annotated[Integer, Field(ge=0, le=MAX_LAYOUT_SEED)] = 0
     #: the gap random sequential addition keeps (m); None: one support diameter
-    min_gap: float | None = None
+    min_gap: Positive | None = None
 
 
+class SceneSpec(_SceneTable):
+    """The keys of an SPH scene table, their types, defaults and single-key limits."""
+
+    layout: Literal[LAYOUTS] = "regular"
+    width: Positive | None = None
+    height: Positive | None = None
+    outer_radius: Positive | None = None
+    spacing: Positive
+    resolution: Positive = 1.0
+    inclusions: list[InclusionSpec] = Field(default_factory=list, max_length=MAX_INCLUSIONS)
+    random: RandomSpec | None = None
+    gap: Annotated[Number, Field(ge=0.1, le=0.9)] = 0.5
+    smoothing_ratio: Annotated[Number, Field(ge=MIN_SMOOTHING_RATIO, le=6.0)] = 2.0
+    kernel: Literal[KERNELS] = "cubic_spline"
+    integration: Literal[INTEGRATIONS] = "vci"
+    stabilisation: NonNegative = 0.0
+    state: Literal[STATES] = "plane_strain"
+    thickness: Positive = 1.0
+    matrix: Material
+    inclusion: Material
+    interface_strength: Annotated[float, BeforeValidator(_strength), Field(gt=0)] = math.inf
+    constraints: Literal[METHODS] = "master-slave"
+    cutoff_threshold: Annotated[Number, Field(ge=0.0, le=1.0)] = 1e-12
+    #: in support radii (2h)
+    cutoff_radius: Positive | None = None
+    penalty: Annotated[Number, Field(gt=0, le=MAX_PENALTY)] = 1e4
+    min_support: Annotated[Integer, Field(ge=3, le=100)] = 5
+    linear_solver: Literal[LINEAR_SOLVERS] = "auto"
+    loading: Literal[LOADINGS] = "tension"
+    eigenstrain: Annotated[Number, Field(ge=-0.5, le=0.5)] = 0.01
+    eigenstrain_mode: Literal[EIGENSTRAIN_MODES] = "in_plane"
+    edge: Literal[EDGES] = "exact"
+    #: m per load step
+    step: NonNegative = 0.0
+    steps: Annotated[Integer, Field(ge=1, le=MAX_STEPS)] = 1
+
+
+# ------------------------------------------------------------------------------ the resolved scene
 @dataclass(frozen=True)
 class Config:
+    """The scene as the solver builds from it: the keys of ``SceneSpec`` with its defaults,
+    the spacing after ``resolution``, and NaN for the sizes the layout does not use."""
+
     layout: str
-    width: float
+    width: float                   # NaN for layout = "polar"
     height: float
-    outer_radius: float
+    outer_radius: float            # NaN but for layout = "polar"
     spacing: float                 # after resolution
     inclusions: tuple[InclusionSpec, ...]
     random: RandomSpec | None
@@ -99,73 +222,50 @@ class Config:
     steps: int
 
 
-def _choice(v, key, options):
-    if not isinstance(v, str) or v not in options:
-        raise scene_error(key, f"must be one of {', '.join(options)}, got {v!r}")
-    return v
+def parse(scene: Mapping) -> Config:
+    """Validate ``scene`` and return its Config (geometry checks beyond these — overlap,
+    distance to the boundary, supports — happen when the layout is built)."""
+    s = _validated(scene)
+    if s.layout == "polar":
+        if s.outer_radius is None:
+            raise scene_error("outer_radius", "is required by layout = \"polar\"")
+        width = height = math.nan
+        outer = s.outer_radius
+    else:
+        for key in ("width", "height"):
+            if getattr(s, key) is None:
+                raise scene_error(key, f"is required by layout = {s.layout!r}")
+        width, height, outer = s.width, s.height, math.nan
+    spacing = s.spacing / s.resolution
+    _check_particle_count(s, width, height, outer, spacing)
+    inclusions = tuple(s.inclusions)
+    for k, inc in enumerate(inclusions):
+        _check_fits(inc, k, s.layout, width, height, outer)
+    _check_random(s, width, height)
+    _check_loading(s)
+    return Config(
+        layout=s.layout, width=width, height=height, outer_radius=outer, spacing=spacing,
+        inclusions=inclusions, random=s.random, gap=s.gap, smoothing_ratio=s.smoothing_ratio,
+        kernel=s.kernel, integration=s.integration, stabilisation=s.stabilisation,
+        state=s.state, thickness=s.thickness, matrix=(s.matrix.E, s.matrix.nu),
+        inclusion=(s.inclusion.E, s.inclusion.nu), interface_strength=s.interface_strength,
+        constraints=s.constraints, cutoff_threshold=s.cutoff_threshold,
+        cutoff_radius=s.cutoff_radius, penalty=s.penalty, min_support=s.min_support,
+        linear_solver=s.linear_solver, loading=s.loading, eigenstrain=s.eigenstrain,
+        eigenstrain_mode=s.eigenstrain_mode, edge=s.edge, step=s.step, steps=s.steps)
 
 
-def _material(v, key):
-    tbl = table(v, key)
-    check_keys(tbl, MATERIAL_KEYS, key)
-    for k in ("E", "nu"):
-        if k not in tbl:
-            raise scene_error(f"{key}.{k}", "is required")
-    E = number(tbl["E"], f"{key}.E", positive=True)
-    nu = number(tbl["nu"], f"{key}.nu")
-    if not 0.0 < nu < 0.5:
-        raise scene_error(f"{key}.nu", f"must be in (0, 0.5), got {nu!r}")
-    if not stiffness_scale(E, nu) <= MAX_STIFFNESS:
-        raise scene_error(f"{key}.E", f"E = {E!r} with nu = {nu!r} gives lambda + 2 mu above "
-                                      f"{MAX_STIFFNESS:g} Pa: the stiffness would overflow")
-    return E, nu
-
-
-def stiffness_scale(E: float, nu: float) -> float:
-    """lambda + 2 mu of plane strain, the largest entry of the elastic matrix (inf when it
-    overflows; plane stress's is smaller)."""
-    with np.errstate(over="ignore"):
-        return float(np.float64(E) * (1.0 - nu) / ((1.0 + nu) * (1.0 - 2.0 * nu)))
-
-
-def _inclusions(v):
-    if not isinstance(v, (list, tuple)):
-        raise scene_error("inclusions", f"must be a list of tables, got {v!r}")
-    if len(v) > MAX_INCLUSIONS:
-        raise scene_error("inclusions", f"{len(v)} inclusions; at most {MAX_INCLUSIONS}")
-    out = []
-    for k, item in enumerate(v):
-        key = f"inclusions[{k}]"
-        tbl = table(item, key)
-        check_keys(tbl, INCLUSION_KEYS, key)
-        for req in ("centre", "semi_axes"):
-            if req not in tbl:
-                raise scene_error(f"{key}.{req}", "is required")
-        a, b = number_pair(tbl["semi_axes"], f"{key}.semi_axes")
-        if not (a > 0 and b > 0):
-            raise scene_error(f"{key}.semi_axes", f"must be > 0, got {[a, b]!r}")
-        angle = number(tbl.get("angle_deg", 0.0), f"{key}.angle_deg")
-        out.append(InclusionSpec(number_pair(tbl["centre"], f"{key}.centre"), (a, b), angle))
-    return tuple(out)
-
-
-def _random(v):
-    tbl = table(v, "random")
-    check_keys(tbl, RANDOM_KEYS, "random")
-    for req in ("count", "semi_axes_min", "semi_axes_max"):
-        if req not in tbl:
-            raise scene_error(f"random.{req}", "is required")
-    lo = number_pair(tbl["semi_axes_min"], "random.semi_axes_min")
-    hi = number_pair(tbl["semi_axes_max"], "random.semi_axes_max")
-    if not all(x > 0 for x in lo):
-        raise scene_error("random.semi_axes_min", f"must be > 0, got {list(lo)!r}")
-    if not all(h >= x for h, x in zip(hi, lo)):
-        raise scene_error("random.semi_axes_max", f"must be >= semi_axes_min {list(lo)!r}, "
-                                                  f"got {list(hi)!r}")
-    gap = number(tbl["min_gap"], "random.min_gap", positive=True) if "min_gap" in tbl else None
-    return RandomSpec(integer(tbl["count"], "random.count", 1, MAX_INCLUSIONS), lo, hi,
-                      integer(tbl.get("layout_seed", 0), "random.layout_seed", 0, 2**63 - 1),
-                      gap)
+def _validated(scene) -> SceneSpec:
+    """``scene`` checked key by key; pydantic's first complaint as a one-line SceneError (the
+    study loader's message and key, through uqflow.study.validation_error)."""
+    if not isinstance(scene, Mapping):
+        raise SceneError(f"must be a table, got {scene!r}", key="scene")
+    data = dict(scene)
+    try:
+        return SceneSpec.model_validate(data)
+    except ValidationError as exc:
+        found = validation_error(exc, None, prefix="scene", data=data, model=SceneSpec)
+        raise SceneError(found.reason, key=found.key) from None
 
 
 def _particle_estimate(layout, width, height, outer, spacing) -> float:
@@ -175,6 +275,15 @@ def _particle_estimate(layout, width, height, outer, spacing) -> float:
         if layout == "polar":
             return float(np.pi * np.float64(outer / spacing) ** 2 + 1.0)
         return float((np.float64(width / spacing) + 1.0) * (np.float64(height / spacing) + 1.0))
+
+
+def _check_particle_count(s: SceneSpec, width, height, outer, spacing):
+    count = _particle_estimate(s.layout, width, height, outer, spacing)
+    if not count <= MAX_PARTICLES:
+        raise scene_error("spacing" if s.resolution == 1.0 else "resolution",
+                          f"about {count:,.0f} particles; at most {MAX_PARTICLES:,}"
+                          if count < 1e15 else f"about {count:.3g} particles; at most "
+                                               f"{MAX_PARTICLES:,}")
 
 
 def _check_fits(inc: InclusionSpec, k: int, layout, width, height, outer):
@@ -201,48 +310,20 @@ def _check_fits(inc: InclusionSpec, k: int, layout, width, height, outer):
                                            f"plate (the plate is centred at [0, 0])")
 
 
-def parse(scene: Mapping) -> Config:
-    """Validate ``scene`` and return its Config (geometry checks beyond single keys — overlap,
-    distance to the boundary, supports — happen when the layout is built)."""
-    if not isinstance(scene, Mapping):
-        raise scene_error("", "must be a table")
-    check_keys(scene, KEYS, "")
-    s = scene
-    layout = _choice(s.get("layout", "regular"), "layout", LAYOUTS)
-    if "spacing" not in s:
-        raise scene_error("spacing", "is required (the particle spacing, m)")
-    resolution = number(s.get("resolution", 1.0), "resolution", positive=True)
-    spacing = number(s["spacing"], "spacing", positive=True) / resolution
-    width = height = outer = math.nan
-    if layout == "polar":
-        if "outer_radius" not in s:
-            raise scene_error("outer_radius", "is required by layout = \"polar\"")
-        outer = number(s["outer_radius"], "outer_radius", positive=True)
-        area = math.pi * outer * outer
-    else:
-        for k in ("width", "height"):
-            if k not in s:
-                raise scene_error(k, f"is required by layout = {layout!r}")
-        width = number(s["width"], "width", positive=True)
-        height = number(s["height"], "height", positive=True)
-        area = width * height
-    count = _particle_estimate(layout, width, height, outer, spacing)
-    if not count <= MAX_PARTICLES:
-        raise scene_error("spacing" if resolution == 1.0 else "resolution",
-                          f"about {count:,.0f} particles; at most {MAX_PARTICLES:,}"
-                          if count < 1e15 else f"about {count:.3g} particles; at most "
-                                               f"{MAX_PARTICLES:,}")
-    inclusions = _inclusions(s.get("inclusions", []))
-    for k, inc in enumerate(inclusions):
-        _check_fits(inc, k, layout, width, height, outer)
-    rnd = None
-    if layout == "random":
-        if "random" not in s:
+def _check_random(s: SceneSpec, width, height):
+    """[random] belongs to layout = "random" (and replaces inclusions there); its ellipses and
+    their gap fit the plate; a polar layout holds one centred circle."""
+    if s.layout == "random":
+        if s.random is None:
             raise scene_error("random", "is required by layout = \"random\"")
-        if inclusions:
+        if s.inclusions:
             raise scene_error("inclusions", "is not used by layout = \"random\" (its inclusions "
                                             "come from [random])")
-        rnd = _random(s["random"])
+        rnd = s.random
+        if not all(h >= x for h, x in zip(rnd.semi_axes_max, rnd.semi_axes_min)):
+            raise scene_error("random.semi_axes_max", f"must be >= semi_axes_min "
+                                                      f"{list(rnd.semi_axes_min)!r}, got "
+                                                      f"{list(rnd.semi_axes_max)!r}")
         widest = max(rnd.semi_axes_max)
         if not 2.0 * widest < min(width, height):
             raise scene_error("random.semi_axes_max", f"an ellipse {2 * widest:.4g} m across "
@@ -253,64 +334,34 @@ def parse(scene: Mapping) -> Config:
             raise scene_error("random.min_gap", f"{rnd.min_gap:.4g} m around even the smallest "
                                                 f"ellipse does not fit the {width:.4g} x "
                                                 f"{height:.4g} m plate")
-    elif "random" in s:
-        raise scene_error("random", f"applies only to layout = \"random\", not {layout!r}")
-    if layout == "polar" and (len(inclusions) != 1 or inclusions[0].centre != (0.0, 0.0)
-                              or inclusions[0].semi_axes[0] != inclusions[0].semi_axes[1]):
+    elif s.random is not None:
+        raise scene_error("random", f"applies only to layout = \"random\", not {s.layout!r}")
+    inc = s.inclusions
+    if s.layout == "polar" and (len(inc) != 1 or inc[0].centre != (0.0, 0.0)
+                                or inc[0].semi_axes[0] != inc[0].semi_axes[1]):
         raise scene_error("inclusions", "layout = \"polar\" takes one circular inclusion centred "
                                         "at [0, 0]")
-    loading = _choice(s.get("loading", "tension"), "loading", LOADINGS)
-    state = _choice(s.get("state", "plane_strain"), "state", STATES)
-    mode = _choice(s.get("eigenstrain_mode", "in_plane"), "eigenstrain_mode", EIGENSTRAIN_MODES)
-    if mode == "dilatation_3d" and state == "plane_stress":
+
+
+def _check_loading(s: SceneSpec):
+    """Keys that apply to one loading, edge or constraint method only, and their consistency."""
+    given = s.model_fields_set
+    if s.eigenstrain_mode == "dilatation_3d" and s.state == "plane_stress":
         raise scene_error("eigenstrain_mode", "dilatation_3d needs state = \"plane_strain\" "
                                               "(plane stress leaves eps_zz free)")
-    edge = _choice(s.get("edge", "exact"), "edge", EDGES)
-    if loading == "eigenstrain" and edge == "exact":
-        circle = (len(inclusions) == 1
-                  and inclusions[0].semi_axes[0] == inclusions[0].semi_axes[1])
-        if not circle:
+    if s.loading == "eigenstrain" and s.edge == "exact":
+        inc = s.inclusions
+        if not (len(inc) == 1 and inc[0].semi_axes[0] == inc[0].semi_axes[1]):
             raise scene_error("edge", "\"exact\" needs one circular inclusion (the Eshelby "
                                       "solution); use edge = \"fixed\"")
-    method = _choice(s.get("constraints", "master-slave"), "constraints", METHODS)
-    cutoff_radius = s.get("cutoff_radius")
-    if cutoff_radius is not None:
-        cutoff_radius = number(cutoff_radius, "cutoff_radius", positive=True)
     for key, applies in (("cutoff_threshold", "master-slave-cutoff"),
                          ("cutoff_radius", "master-slave-cutoff"),
                          ("penalty", "penalty")):
-        if key in s and method != applies:
+        if key in given and s.constraints != applies:
             raise scene_error(key, f"applies only to constraints = \"{applies}\"")
-    strength = s.get("interface_strength", math.inf)
-    if not (isinstance(strength, float) and strength == math.inf):
-        strength = number(strength, "interface_strength", positive=True)
-    steps = integer(s.get("steps", 1), "steps", 1, MAX_STEPS)
-    if loading == "tension" and "step" not in s:
+    if s.loading == "tension" and "step" not in given:
         raise scene_error("step", "is required by loading = \"tension\" (m per load step)")
-    step = number(s.get("step", 0.0), "step", nonnegative=True)
-    if loading == "tension" and layout != "polar" and not 2.0 * step * steps <= height:
-        raise scene_error("step", f"{steps} steps of {step:.4g} m stretch the {height:.4g} m "
-                                  f"plate by more than 100 %: outside small strain")
-    return Config(
-        layout=layout, width=width, height=height, outer_radius=outer, spacing=spacing,
-        inclusions=inclusions, random=rnd,
-        gap=number(s.get("gap", 0.5), "gap", lo=0.1, hi=0.9),
-        smoothing_ratio=number(s.get("smoothing_ratio", 2.0), "smoothing_ratio",
-                               lo=MIN_SMOOTHING_RATIO, hi=6.0),
-        kernel=_choice(s.get("kernel", "cubic_spline"), "kernel", KERNELS),
-        integration=_choice(s.get("integration", "vci"), "integration", INTEGRATIONS),
-        stabilisation=number(s.get("stabilisation", 0.0), "stabilisation", nonnegative=True),
-        state=state, thickness=number(s.get("thickness", 1.0), "thickness", positive=True),
-        matrix=_material(s.get("matrix", {}), "matrix"),
-        inclusion=_material(s.get("inclusion", {}), "inclusion"),
-        interface_strength=float(strength), constraints=method,
-        cutoff_threshold=number(s.get("cutoff_threshold", 1e-12), "cutoff_threshold",
-                                nonnegative=True, hi=1.0),
-        cutoff_radius=cutoff_radius,
-        penalty=number(s.get("penalty", 1e4), "penalty", positive=True, hi=MAX_PENALTY),
-        min_support=integer(s.get("min_support", 5), "min_support", 3, 100),
-        linear_solver=_choice(s.get("linear_solver", "auto"), "linear_solver", LINEAR_SOLVERS),
-        loading=loading,
-        eigenstrain=number(s.get("eigenstrain", 0.01), "eigenstrain", lo=-0.5, hi=0.5),
-        eigenstrain_mode=mode, edge=edge,
-        step=step, steps=steps)
+    if s.loading == "tension" and s.layout != "polar" and not 2.0 * s.step * s.steps <= s.height:
+        raise scene_error("step", f"{s.steps} steps of {s.step:.4g} m stretch the "
+                                  f"{s.height:.4g} m plate by more than 100 %: outside small "
+                                  f"strain")
