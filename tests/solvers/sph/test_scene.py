@@ -1,16 +1,13 @@
 """The typed SPH scene (solvers/sph/scene.py): every shipped scene resolves to the Config the
 hand-written parser gave it, and a bad key is a one-line error naming the file and the key."""
 
-import copy
 import json
-import math
 import re
 import tomllib
 from pathlib import Path
 
 import pytest
 
-from solvers.sph import legacy_scene
 from solvers.sph.scene import SceneSpec, parse
 from uqflow.errors import SceneError, StudyError
 from uqflow.study import load_study
@@ -18,7 +15,9 @@ from uqflow.study import load_study
 REPO = Path(__file__).resolve().parents[3]
 #: repr(Config) of every shipped SPH scene as the hand-written parser (solvers/sph/scene.py
 #: before pydantic) resolved it; repr writes each float exactly (shortest round trip), so
-#: equal text is the same value to the bit
+#: equal text is the same value to the bit. Until commit b8d12a2 both parsers were kept and
+#: compared here, also on ~1,900 mutants of these scenes (the same Config, or refused naming
+#: the same key; the old one alone raised OverflowError on integers just below 2^1024)
 RECORDED = Path(__file__).parent / "data" / "shipped_scene_configs.json"
 
 
@@ -43,54 +42,6 @@ def test_every_shipped_scene_resolves_to_the_config_the_old_parser_gave():
     assert sorted(SHIPPED) == sorted(recorded), "a shipped SPH scene is not recorded"
     for name, scene in SHIPPED.items():
         assert repr(parse(scene)) == recorded[name], name
-
-
-def _leaves(data, path=()):
-    if isinstance(data, dict):
-        for k, v in data.items():
-            yield from _leaves(v, path + (k,))
-    elif isinstance(data, list) and data and all(isinstance(v, dict) for v in data):
-        for i, v in enumerate(data):
-            yield from _leaves(v, path + (i,))
-    else:
-        yield path
-        if isinstance(data, list):
-            for i in range(len(data)):
-                yield path + (i,)
-
-
-MISSING = object()
-MUTANTS = (True, "2", math.nan, math.inf, -math.inf, 1e300, -1e300, 0, -1, 2**63 - 1, 10**400,
-           1e-300, [1.0], {"value": 1.0}, MISSING)
-
-
-def _outcome(parser, scene):
-    try:
-        return "ok", repr(parser(scene))
-    except SceneError as exc:
-        assert "\n" not in str(exc)
-        return "refused", exc.key
-
-
-def test_the_typed_scene_accepts_and_refuses_what_the_old_parser_did():
-    """Every leaf of every shipped scene turned into each mutant: both accept it with the same
-    Config, or both refuse it naming the same key."""
-    compared = 0
-    for scene in SHIPPED.values():
-        for path in _leaves(scene):
-            for mutant in MUTANTS:
-                variant = copy.deepcopy(scene)
-                holder = variant
-                for part in path[:-1]:
-                    holder = holder[part]
-                if mutant is MISSING:
-                    holder.pop(path[-1])
-                else:
-                    holder[path[-1]] = mutant
-                assert _outcome(parse, variant) == _outcome(legacy_scene.parse, variant), \
-                    (path, mutant)
-                compared += 1
-    assert compared > 1000
 
 
 def _write_study(tmp_path, scene_lines: str, inline: bool = False) -> Path:
