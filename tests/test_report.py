@@ -146,7 +146,8 @@ def test_monte_carlo_table_shows_the_statistics(studies):
     table = report.summary_table(tree)
     assert "study 'mc' (monte-carlo, complete)" in table
     header = table_row(table, "output")
-    # plain Monte Carlo gives no standard error of the variance: no '±' in its column
+    # plain Monte Carlo gives no standard error of the variance: no '±' in its column;
+    # the interval column is the method's (its report hook), after the framework's columns
     assert header == ["output", "unit u", "mean [u]", "std [u]", "variance [u^2]",
                       "95 % CI of the mean [u]"]
     name, units, mean, std, variance, ci = table_row(table, "y")
@@ -183,20 +184,29 @@ def test_field_output_gets_one_row_at_its_largest_std(studies):
     assert table_row(table, "beta")[4] == f"{float(cv):.3g}"
 
 
-def test_taylor_table_names_the_order(studies):
+def test_taylor_table_shows_the_methods_column_and_contributions(studies):
     tree = report.open_result(studies("taylor", ISHIGAMI, TAYLOR))
     stats = tree["statistics"].to_dataset()
     table = report.summary_table(tree)
+    contribution = report.ResultView(tree).method_report
     cells = table_row(table, "y")
     assert close(cells[2], stats["y"].sel(statistic="mean"))
-    assert cells[-1].startswith(f"Taylor order {stats.attrs['order']}")
+    assert cells[-1] == contribution.columns[-1].cell("y", {})
+    assert f"method: {contribution.description}" in table
     assert "method taylor" in table
+    # the method's sensitivities as a table: one row per input, one column per kind of index
+    sens = contribution.sensitivities("y")
+    for p in ("x1", "x2", "x3"):
+        shown = table_row(table, p)[1:1 + sens.values.sizes["index"]]
+        assert all(close(c, v) for c, v in zip(shown, sens.values.sel(parameter=p).values))
 
 
 def test_sobol_table_lists_indices_by_total_index(studies):
     tree = report.open_result(studies("sobol", ISHIGAMI, SOBOL))
     si = tree["statistics"]["y_sobol"]
-    cells = table_row(report.summary_table(tree), "y")
+    table = report.summary_table(tree)
+    assert "Sobol' indices: y (fraction of the variance; ± 95 % bootstrap half-width)" in table
+    cells = table_row(table, "y")
     entries = cells[-1].split(", ")
     assert len(entries) == 3
     st = [float(e.split()[1].split("/")[1]) for e in entries]
@@ -256,7 +266,8 @@ def test_monte_carlo_scalar_figures(studies, tmp_path):
     tree = report.open_result(studies("mc", ISHIGAMI, MC))
     before = plt.get_fignums()
     paths = report.write_figures(tree, tmp_path / "figs")
-    assert [p.name for p in paths] == ["y_histogram.png", "y_convergence.png"]
+    assert [p.name for p in paths] == ["y_histogram.png", "y_exceedance.png",
+                                       "y_convergence.png"]
     for p in paths:
         assert p.parent == tmp_path / "figs"
         assert_png(p)
@@ -266,15 +277,15 @@ def test_monte_carlo_scalar_figures(studies, tmp_path):
 def test_monte_carlo_time_series_figures(studies, tmp_path):
     tree = report.open_result(studies("mc_decay", DECAY, MC))
     paths = report.write_figures(tree, tmp_path)
-    assert [p.name for p in paths] == ["y_band.png", "y_convergence.png"]
+    assert [p.name for p in paths] == ["y_scatter.png", "y_convergence.png"]
     for p in paths:
         assert_png(p)
 
 
 @pytest.mark.parametrize("name, model, expected", [
-    ("taylor", ISHIGAMI, ["y_contributions.png"]),
-    ("taylor_decay", DECAY, ["y_band.png", "y_contributions.png"]),
-    ("taylor_correlated", LINEAR_CORRELATED, ["y_contributions.png"]),  # with cross terms
+    ("taylor", ISHIGAMI, ["y_sensitivities.png"]),
+    ("taylor_decay", DECAY, ["y_scatter.png", "y_sensitivities.png"]),
+    ("taylor_correlated", LINEAR_CORRELATED, ["y_sensitivities.png"]),  # with cross terms
 ])
 def test_taylor_figures(studies, tmp_path, name, model, expected):
     tree = report.open_result(studies(name, model, TAYLOR))
@@ -285,8 +296,8 @@ def test_taylor_figures(studies, tmp_path, name, model, expected):
 
 
 @pytest.mark.parametrize("name, model, expected", [
-    ("sobol", ISHIGAMI, ["y_sobol.png"]),
-    ("sobol_decay", DECAY, ["y_band.png", "y_sobol.png"]),
+    ("sobol", ISHIGAMI, ["y_sensitivities.png"]),
+    ("sobol_decay", DECAY, ["y_scatter.png", "y_sensitivities.png"]),
 ])
 def test_sobol_figures(studies, tmp_path, name, model, expected):
     tree = report.open_result(studies(name, model, SOBOL))
@@ -297,7 +308,8 @@ def test_sobol_figures(studies, tmp_path, name, model, expected):
 
 
 def test_two_dimensional_field_is_summarised_without_failing(studies, tmp_path):
-    """An output over (t, k): no band or histogram, a table row and the convergence trace."""
+    """An output over (t, k): a table row, the scatter over t (one panel per k) and the
+    convergence trace."""
     tree = report.open_result(studies("mc_decay", DECAY, MC))
     runs = tree["runs"].to_dataset()
     stats = tree["statistics"].to_dataset()
@@ -312,7 +324,7 @@ def test_two_dimensional_field_is_summarised_without_failing(studies, tmp_path):
     table = report.summary_table(tree2)
     assert table_row(table, "z")[2] == "t = 0 s, k[1]"
     names = [p.name for p in report.write_figures(tree2, tmp_path)]
-    assert names == ["z_convergence.png"]
+    assert names == ["z_scatter.png", "z_convergence.png"]
 
 
 # --------------------------------------------------------------------------- the CLI
@@ -323,7 +335,7 @@ def test_cli_report_prints_table_and_writes_figures(studies, capsys):
     assert main(["report", str(path)]) == 0
     out = capsys.readouterr().out
     assert "study 'mc' (monte-carlo, complete)" in out
-    for name in ("y_histogram.png", "y_convergence.png"):
+    for name in ("y_histogram.png", "y_exceedance.png", "y_convergence.png"):
         assert f"figure: {path.parent / 'mc_figures' / name}" in out
         assert_png(path.parent / "mc_figures" / name)
 

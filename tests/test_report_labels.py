@@ -247,8 +247,8 @@ def test_figures_of_outputs_with_odd_names_stay_in_their_folder(tmp_path):
     folder = tmp_path / "a" / "figs"
     written = report.write_figures(tree_of(runs, stats), folder)
     assert sorted(p.name for p in written) == sorted(
-        ["_._histogram.png", "_._convergence.png",
-         "G_K_at_H_histogram.png", "G_K_at_H_convergence.png"])
+        ["_._histogram.png", "_._exceedance.png", "_._convergence.png",
+         "G_K_at_H_histogram.png", "G_K_at_H_exceedance.png", "G_K_at_H_convergence.png"])
     assert all(p.parent == folder and p.exists() for p in written)
     assert {p for p in tmp_path.rglob("*") if p.is_file()} == set(written)
 
@@ -306,12 +306,9 @@ def multilevel_tree(tmp_path_factory):
 
 
 def test_levels_figure_title_fits_and_each_axis_has_one_unit(multilevel_tree, tmp_path):
-    from uqflow.report_levels import levels_figure
-
-    runs = multilevel_tree["runs"].to_dataset()
-    stats = multilevel_tree["statistics"].to_dataset()
-    ctx = report.summary._Context(multilevel_tree.attrs["study_name"], "multilevel", runs, stats)
-    fig = levels_figure(ctx, "y")
+    view = report.ResultView(multilevel_tree)
+    spec = next(s for s in view.method_report.figures if s.kind == "levels")
+    fig = spec.draw(view, "y")
     fig.canvas.draw()
     renderer = fig.canvas.get_renderer()
     box = fig.bbox
@@ -351,7 +348,7 @@ def test_level_table_columns_say_which_cost_they_are(multilevel_tree):
 
 
 def test_error_against_cost_leaves_the_compile_time_out(multilevel_tree):
-    from uqflow.report_levels import cost_comparison
+    from uqflow.methods import compare_results as cost_comparison
 
     k = RandomInput.from_spec({"name": "k", "distribution": "uniform", "lower": 0.5,
                                "upper": 1.5})
@@ -371,6 +368,6 @@ def test_error_against_cost_leaves_the_compile_time_out(multilevel_tree):
 @pytest.mark.parametrize("unit, expected", [("Pa", "Pa^2"), ("m s-1", "(m s-1)^2"), ("-", "-"),
                                             ("", "-"), ("1", "-")])
 def test_a_dimensionless_variance_stays_dimensionless(unit, expected):
-    from uqflow.report_levels import squared
+    from uqflow.methods.level_report import squared
 
     assert squared(unit) == expected

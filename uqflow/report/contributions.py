@@ -32,11 +32,12 @@ class Sensitivity:
     """What each input contributes to an output's variance, as the method computed it.
 
     ``values`` has dims (``parameter``, ``index``, *the output's dims*): one entry per input
-    and kind of index (``index`` labels such as "first order S1", "total ST", or one label for
-    Taylor's g_k² s_k²); ``errors`` (same dims, or None) are half-widths of an interval whose
-    meaning ``error_label`` gives ("95 % bootstrap half-width"). ``quantity`` says what the
-    numbers are ("fraction of the variance", "variance [GPa²]"). The report draws a bar chart
-    per output (at its row point, or lines over a field's one dim) and a table."""
+    and kind of index (``index`` labels such as "first order S1", "total ST", or one label
+    for a linearization's g_k² s_k²); ``errors`` (same dims, or None) are half-widths of an
+    interval whose meaning ``error_label`` gives ("95 % bootstrap half-width"). ``quantity``
+    says what the numbers are ("fraction of the variance", "variance [GPa²]"). The report
+    draws a bar chart per output (at its row point, or lines over a field's one dim) and a
+    table."""
 
     title: str
     values: xr.DataArray
@@ -62,8 +63,8 @@ class FigureSpec:
 class MethodReport:
     """A method's part of a result's report (every field optional).
 
-    - ``description``: the method in words, for titles and legends ("Monte Carlo, 8 runs,
-      one-run Taylor as control variate").
+    - ``description``: the method in words, for titles and legends ("random sampling,
+      8 runs, a one-run surrogate as control variate").
     - ``runs_are_draws``: whether the ok runs (``uqflow.layout.sample_mask``) are draws from
       the inputs' distribution, so that their quantiles, histogram and exceedance curve
       describe the output's scatter; otherwise the report shows mean ± 1.96 std from the

@@ -5,11 +5,13 @@ point of a field output a table row is taken at."""
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import xarray as xr
 
 from uqflow.layout import STATISTIC, UNITS
+from uqflow.report.units import display_units, format_value, long_name, units_attr
 
 
 def grid(header: list[str], rows: list[list[str]], right: set[int] = frozenset()) -> list[str]:
@@ -21,6 +23,19 @@ def grid(header: list[str], rows: list[list[str]], right: set[int] = frozenset()
                          for i, (c, w) in enumerate(zip(cells, widths))).rstrip()
 
     return [line(header), "  ".join("-" * w for w in widths), *map(line, rows)]
+
+
+@dataclass(frozen=True)
+class Table:
+    """A table of text cells: drawn as a fixed-width ``grid`` in the text summary and as an
+    HTML table in the HTML report; ``right`` holds the indices of right-aligned columns."""
+
+    header: list[str]
+    rows: list[list[str]]
+    right: frozenset[int] = frozenset()
+
+    def lines(self) -> list[str]:
+        return grid(self.header, self.rows, set(self.right))
 
 
 def number(x) -> str:
@@ -77,15 +92,47 @@ def focus_point(stats: xr.Dataset, output: str) -> dict[str, int]:
 
 
 def where(ds: xr.Dataset, focus: dict[str, int]) -> str:
-    """'t = 0.001 s, probe = H' for a focus point, by coordinate value where there is one."""
+    """'t = 0.001 s, probe H (x = 120, y = 10 mm)' for a focus point: by coordinate value
+    where there is one; a label dim's non-dim coordinates (a probe's position) in brackets."""
     parts = []
     for dim, i in focus.items():
         if dim in ds.coords:
             coord = ds[dim]
             units = coord.attrs.get(UNITS, "")
             value = coord.values[i]
-            text = f"{value:.4g}" if isinstance(value, (float, np.floating)) else str(value)
-            parts.append(f"{dim} = {text}{' ' + units if units else ''}")
+            if isinstance(value, (float, np.floating, int, np.integer)):
+                text = f"{value:.4g}" if isinstance(value, (float, np.floating)) else str(value)
+                parts.append(f"{dim} = {text}{' ' + units if units else ''}")
+            else:
+                parts.append(f"{dim} {value}{_position(ds, dim, i)}")
         else:
             parts.append(f"{dim}[{i}]")
     return ", ".join(parts)
+
+
+def label_coordinates(ds: xr.Dataset, dim: str) -> list[str]:
+    """The non-dim numeric coordinates along ``dim`` alone (a probe's x and y)."""
+    return [str(c) for c in ds.coords if c != dim and ds[c].dims == (dim,)
+            and np.issubdtype(ds[c].dtype, np.number)]
+
+
+def _position(ds: xr.Dataset, dim: str, i: int) -> str:
+    """' (x = 120, y = 10 mm)': the label's coordinates, in one display unit where they
+    share their units (the unit picked from all the labels' values, so labels compare)."""
+    names = label_coordinates(ds, dim)
+    if not names:
+        return ""
+    shared = {units_attr(ds[c]) for c in names}
+    common = shared.pop() if len(shared) == 1 else None
+    if common is not None:
+        scale, label = display_units(np.concatenate([np.ravel(ds[c].values) for c in names]),
+                                     common)
+        text = ", ".join(f"{long_name(ds[c], c)} = {format_value(ds[c].values[i], scale)}"
+                         for c in names)
+        return f" ({text}{' ' + label if label else ''})"
+    pieces = []
+    for c in names:
+        scale, label = display_units(ds[c].values, units_attr(ds[c]))
+        pieces.append(f"{long_name(ds[c], c)} = {format_value(ds[c].values[i], scale)}"
+                      + (f" {label}" if label else ""))
+    return f" ({', '.join(pieces)})"

@@ -8,7 +8,7 @@ import numpy as np
 import xarray as xr
 
 from uqflow.errors import StudyError
-from uqflow.layout import METHOD, STATISTIC, STUDY_NAME, sample_mask
+from uqflow.layout import LONG_NAME, METHOD, STATISTIC, STATUS, STUDY_NAME, sample_mask
 from uqflow.report import tables
 from uqflow.report.contributions import MethodReport
 
@@ -52,6 +52,18 @@ class ResultView:
     def units(self, output: str) -> str:
         return tables.units_of(output, self.stats, self.runs)
 
+    def long_name(self, output: str) -> str:
+        """The output in words (its ``long_name`` attribute), else its name."""
+        for ds in (self.stats, self.runs):
+            if ds is not None and output in ds and ds[output].attrs.get(LONG_NAME):
+                return str(ds[output].attrs[LONG_NAME])
+        return output
+
+    @property
+    def description(self) -> str:
+        """The method in words for titles and legends (the method's own, else its name)."""
+        return self.method_report.description or f"method {self.method}"
+
     def statistic(self, output: str, label: str) -> xr.DataArray | None:
         return tables.statistic(self.stats, output, label)
 
@@ -64,7 +76,7 @@ class ResultView:
     def sample_values(self, output: str) -> np.ndarray | None:
         """The output in the runs that are draws from the inputs' distribution (realization
         first; ``uqflow.layout.sample_mask``), None without runs."""
-        if self.runs is None or output not in self.runs or "status" not in self.runs:
+        if self.runs is None or output not in self.runs or STATUS not in self.runs:
             return None
         return np.asarray(self.runs[output].values, dtype=float)[sample_mask(self.runs)]
 
