@@ -11,7 +11,7 @@ import xarray as xr
 from solvers.sph import exact
 from solvers.sph.constraints import ConstraintError
 from solvers.sph.interpolation import InterpolationError
-from solvers.sph.layouts import (Box, Disk, Ellipse, LayoutError, polar_layout, random_layout,
+from solvers.sph.layouts import (Box, Ellipse, LayoutError, polar_layout, random_layout,
                                  regular_layout)
 from solvers.sph.linear import LinearSolveError
 from solvers.sph.loading import run_tension
@@ -20,7 +20,8 @@ from solvers.sph.report import report as _report
 from solvers.sph.scene import MAX_STIFFNESS, Config, parse, stiffness_scale
 from solvers.sph.stiffness import Discretisation
 from uqflow.errors import SceneError, SolverError
-from uqflow.solver import DIAGNOSTIC_KIND, Solver, register_solver
+from uqflow import layout as result_layout
+from uqflow.solver import Solver, register_solver
 
 UNITS = {"matrix.E": "Pa", "matrix.nu": "", "inclusion.E": "Pa", "inclusion.nu": "",
          "interface.strength": "Pa", "load.eigenstrain": ""}
@@ -29,6 +30,34 @@ FIELDS = ("matrix.E", "inclusion.E", "interface.strength")
 #: ``output_kind = "diagnostic"`` (stored in the runs; no statistics, figures or allocation)
 DIAGNOSTICS = ("particles", "constraint_residual", "pair_error", "time_neighbours",
                "time_assembly", "time_transformation", "time_solve")
+#: every output's SI units and its name in words (CF ``units`` and ``long_name``)
+OUTPUTS = {
+    "volume_fraction": ("1", "inclusion volume fraction"),
+    "particles": ("1", "number of particles"),
+    "constraint_residual": ("m", "largest residual of the imposed constraints"),
+    "pair_error": ("1", "largest displacement jump across an intact interface pair, relative "
+                        "to the largest displacement"),
+    "time_neighbours": ("s", "time of the neighbour search"),
+    "time_assembly": ("s", "time of the stiffness assembly"),
+    "time_transformation": ("s", "time of the master–slave transformation"),
+    "time_solve": ("s", "time of the linear solves"),
+    "x": ("m", "particle position"),
+    "displacement": ("m", "displacement"),
+    "stress": ("Pa", "stress"),
+    "pair_break_step": ("1", "load step at which the interface pair breaks (0: never)"),
+    "strain": ("1", "applied strain"),
+    "macro_stress": ("Pa", "mean tensile stress σ_yy of the plate"),
+    "intact_pairs": ("1", "intact interface pairs"),
+    "detached_inclusions": ("1", "fully debonded inclusions"),
+    "effective_modulus": ("Pa", "apparent Young's modulus"),
+    "modulus_reuss_bound": ("Pa", "Reuss (lower) bound of the apparent Young's modulus"),
+    "modulus_voigt_bound": ("Pa", "Voigt (upper) bound of the apparent Young's modulus"),
+    "modulus_hs_lower": ("Pa", "Hashin–Shtrikman lower bound of the effective Young's "
+                               "modulus"),
+    "modulus_hs_upper": ("Pa", "Hashin–Shtrikman upper bound of the effective Young's "
+                               "modulus"),
+    "inclusion_detach_step": ("1", "load step at which the inclusion fully debonds (0: never)"),
+}
 #: random sequential addition: placements tried per inclusion before giving up
 ATTEMPTS_PER_INCLUSION = 2_000
 
@@ -146,40 +175,31 @@ class SPHSolver(Solver):
     def _make_template(self) -> xr.Dataset:
         c = self.cfg
         nan = np.nan
-        data = {"volume_fraction": ((), nan, "1"), "particles": ((), nan, "1"),
-                "constraint_residual": ((), nan, "m"), "pair_error": ((), nan, "1"),
-                "time_neighbours": ((), nan, "s"), "time_assembly": ((), nan, "s"),
-                "time_transformation": ((), nan, "s"), "time_solve": ((), nan, "s")}
+        data = {name: ((), nan) for name in ("volume_fraction", *DIAGNOSTICS)}
         coords = {}
         fixed = c.layout != "random"
         if fixed:
             n, npair = self.layout.x.shape[0], np.asarray(self.layout.pairs).shape[0]
-            data.update({"x": (("particle", "component"), np.full((n, 2), nan), "m"),
-                         "displacement": (("particle", "component"), np.full((n, 2), nan), "m"),
-                         "stress": (("particle", "voigt"), np.full((n, 3), nan), "Pa")})
+            data.update({"x": (("particle", "component"), np.full((n, 2), nan)),
+                         "displacement": (("particle", "component"), np.full((n, 2), nan)),
+                         "stress": (("particle", "voigt"), np.full((n, 3), nan))})
             coords.update({"particle": np.arange(n), "component": ["x", "y"],
                            "voigt": ["xx", "yy", "xy"]})
             if c.loading == "tension":
-                data["pair_break_step"] = (("pair",), np.full(npair, nan), "1")
+                data["pair_break_step"] = (("pair",), np.full(npair, nan))
                 coords["pair"] = np.arange(npair)
         if c.loading == "tension":
             n_incl = len(self.layout.inclusions)
-            data.update({"strain": (("step",), np.full(c.steps, nan), "1"),
-                         "macro_stress": (("step",), np.full(c.steps, nan), "Pa"),
-                         "intact_pairs": (("step",), np.full(c.steps, nan), "1"),
-                         "detached_inclusions": (("step",), np.full(c.steps, nan), "1"),
-                         "effective_modulus": ((), nan, "Pa"),
-                         "modulus_reuss_bound": ((), nan, "Pa"),
-                         "modulus_voigt_bound": ((), nan, "Pa"),
-                         "modulus_hs_lower": ((), nan, "Pa"),
-                         "modulus_hs_upper": ((), nan, "Pa"),
-                         "inclusion_detach_step": (("inclusion",), np.full(n_incl, nan), "1")})
+            per_step = (("step",), np.full(c.steps, nan))
+            data.update({name: per_step for name in ("strain", "macro_stress", "intact_pairs",
+                                                     "detached_inclusions")})
+            data.update({name: ((), nan) for name in (
+                "effective_modulus", "modulus_reuss_bound", "modulus_voigt_bound",
+                "modulus_hs_lower", "modulus_hs_upper")})
+            data["inclusion_detach_step"] = (("inclusion",), np.full(n_incl, nan))
             coords.update({"step": np.arange(1, c.steps + 1), "inclusion": np.arange(n_incl)})
-        def attrs(name, unit):
-            kind = {"output_kind": DIAGNOSTIC_KIND} if name in DIAGNOSTICS else {}
-            return {"units": unit, **kind}
-        return xr.Dataset({k: xr.Variable(d, v, attrs(k, u)) for k, (d, v, u) in data.items()},
-                          coords=coords)
+        return xr.Dataset({name: xr.Variable(dims, values, output_attributes(name))
+                           for name, (dims, values) in data.items()}, coords=coords)
 
     # -- one realization -------------------------------------------------------------------
 
@@ -300,6 +320,14 @@ class SPHSolver(Solver):
                "constraint_residual": sol.constraint_residual, "pair_error": sol.pair_error}
         out.update(self._timings(timings))
         return out
+
+
+def output_attributes(name: str) -> dict:
+    """An output's ``units``, ``long_name`` and, for a diagnostic, its ``output_kind``."""
+    units, long_name = OUTPUTS[name]
+    kind = {result_layout.OUTPUT_KIND: result_layout.DIAGNOSTIC_KIND} if name in DIAGNOSTICS \
+        else {}
+    return {result_layout.UNITS: units, result_layout.LONG_NAME: long_name, **kind}
 
 
 def _bounds(layout, E, nu, state) -> dict:

@@ -1,5 +1,6 @@
 """The sph Solver: scene errors, the contract, random layouts, bounds, studies on dask."""
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -97,11 +98,26 @@ def test_the_template_matches_a_run_and_runs_are_deterministic():
     assert set(template.data_vars) == set(ds.data_vars)
     for name in template.data_vars:
         assert template[name].dims == ds[name].dims
-        assert template[name].attrs["units"] == ds[name].attrs["units"]
+        assert template[name].attrs == ds[name].attrs
         assert np.all(np.isfinite(ds[name].values)), name
     again = solver.run({})
     assert np.array_equal(ds.displacement.values, again.displacement.values)
     assert set(solver.nominal()) == set(solver.parameter_units())
+
+
+@pytest.mark.parametrize("scene", [
+    example1(spacing=6.0),                                      # eigenstrain: particle fields
+    example1("regular", spacing=8.0, loading="tension", step=0.1, steps=2, edge="fixed"),
+    example3(**SMALL3),                                         # a random layout's outputs
+], ids=["eigenstrain", "tension", "random"])
+def test_every_output_carries_a_long_name_in_words_and_si_units(scene):
+    solver = SPHSolver.from_scene(scene)
+    template = solver.outputs()
+    for name, var in template.data_vars.items():
+        long_name = var.attrs.get("long_name", "")
+        # words a mechanics engineer reads: no snake_case name (σ_yy is a symbol, not one)
+        assert long_name and not re.search(r"\b[a-z]+_[a-z]+\b", long_name), name
+        assert var.attrs.get("units") in {"1", "m", "Pa", "s"}, name
 
 
 def test_a_random_layout_follows_the_realization_seed():
