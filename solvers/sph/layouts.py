@@ -49,24 +49,12 @@ class Box:
     def area(self) -> float:
         return (self.x1 - self.x0) * (self.y1 - self.y0)
 
-    @property
-    def perimeter(self) -> float:
-        return 2.0 * ((self.x1 - self.x0) + (self.y1 - self.y0))
-
 
 @dataclass(frozen=True)
 class Disk:
     cx: float
     cy: float
     radius: float
-
-    @property
-    def area(self) -> float:
-        return math.pi * self.radius ** 2
-
-    @property
-    def perimeter(self) -> float:
-        return 2.0 * math.pi * self.radius
 
 
 @dataclass(frozen=True)
@@ -202,10 +190,6 @@ class Layout:
     @property
     def volume_fraction(self) -> float:
         return float(self.phase_area[1:].sum() / self.phase_area.sum())
-
-    @property
-    def statistical_radius(self) -> np.ndarray:
-        return np.sqrt(self.volume / np.pi)
 
 
 def _interface_count(e: Ellipse, spacing: float) -> int:

@@ -101,7 +101,7 @@ class ElasticProblem:
         self.boundary = np.asarray(lay.boundary)
         self.pairs = np.asarray(lay.pairs).reshape(-1, 2)
         self.pair_inclusion = np.asarray(lay.pair_inclusion)
-        nb, npair = self.boundary.size, self.pairs.shape[0]
+        nb = self.boundary.size
         slaves = np.concatenate([self.boundary, self.pairs[:, 0]])
         if method == "master-slave-local":
             # seed §4.3: a slave's row sees no other slave, so Phi_ss is diagonal

@@ -13,8 +13,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from solvers.sph.interpolation import (Neighbours, find_neighbours, restricted_neighbours,
-                                       shape_functions)
+from solvers.sph.interpolation import find_neighbours, restricted_neighbours, shape_functions
 
 STATES = ("plane_strain", "plane_stress")
 
@@ -83,10 +82,6 @@ class Discretisation:
         self.gy = sf.matrix(sf.dpsi_dy)
         self.B = strain_operator(self.gx, self.gy)
         self.timings = {"neighbours": t1 - t0, "shape_functions": time.perf_counter() - t1}
-
-    @property
-    def support_counts(self) -> np.ndarray:
-        return self.neighbours.counts()
 
     def interpolation(self, points, phases, invisible=None, keep=None,
                       min_support: int = 0) -> sp.csr_matrix:
