@@ -88,6 +88,9 @@ def _parser() -> argparse.ArgumentParser:
     rep.add_argument("--figures", type=Path, default=None,
                      help="folder for the PNG figures (default: beside the result)")
     rep.add_argument("--no-figures", action="store_true", help="write no PNG figures")
+    rep.add_argument("--html", action="store_true",
+                     help="also write one self-contained HTML report per result "
+                          "(<stem>_report.html beside it, or in the --figures folder)")
     rep.add_argument("--time", type=float, default=None, metavar="SECONDS",
                      help="the output time of a solver's comparison tables (MPM: default the "
                           "last output time)")
@@ -123,14 +126,18 @@ def _run(args) -> int:
     print(f"result: {outcome.path}")
     figures = study.spec.output.figures and not args.no_figures
     folder = report.figure_folder(outcome.path)
-    if figures:
-        for fig in report.write_figures(tree, folder):
-            print(f"figure: {fig}")
+    written = report.write_figures(tree, folder) if figures else []
+    for fig in written:
+        print(f"figure: {fig}")
     text, extra = report.solver_report([tree], folder, figures=figures)
     if text:
         print(text)
     for fig in extra:
         print(f"figure: {fig}")
+    if figures:  # the HTML report beside the figures, with the solver's part
+        html = report.write_html(tree, folder.with_name(outcome.path.stem + "_report.html"),
+                                 solver_text=text, solver_figures=extra, figures=written)
+        print(f"report: {html}")
     return 0
 
 
@@ -187,7 +194,7 @@ def _report(args) -> int:
             cannot.append(f"{where}: cannot write the figures: {exc.strerror or exc}")
             return make(False)
 
-    trees = []
+    trees, drawn = [], []  # the results, and the figures written of each
     for path in args.results:
         tree = report.open_result(path)
         trees.append(tree)
@@ -202,17 +209,25 @@ def _report(args) -> int:
         for message in filter(None, notes.split("\n")):
             print(f"warning: {message}", file=sys.stderr)
         folder = args.figures or report.figure_folder(path)
-        for fig in draw(folder, lambda on: report.write_figures(tree, folder) if on else []):
+        drawn.append(draw(folder, lambda on: report.write_figures(tree, folder) if on else []))
+        for fig in drawn[-1]:
             print(f"figure: {fig}")
     shared = args.figures or report.figure_folder(args.results[0]).parent
+    added = []  # (text, figures) of the solver's report, then of the methods' comparison
     for make in (lambda on: report.solver_report(trees, shared, figures=on, time=args.time,
                                                  reference=args.reference),
                  lambda on: cost_comparison(trees, shared, figures=on)):
         text, figures = draw(shared, make)
+        added.append((text, figures))
         if text:
             print(text)
         for fig in figures:
             print(f"figure: {fig}")
+    for path, tree, written in zip(args.results, trees, drawn) if args.html else ():
+        html = report.write_html(tree, (args.figures or Path(path).parent)
+                                 / f"{Path(path).stem}_report.html", solver_text=added[0][0],
+                                 solver_figures=added[0][1], figures=written or None)
+        print(f"report: {html}")
     if cannot:
         print(f"uqflow: error: {cannot[0]} (the tables above are complete; choose a folder "
               f"with --figures or leave them out with --no-figures)", file=sys.stderr)
