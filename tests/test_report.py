@@ -385,3 +385,51 @@ def test_the_documented_ishigami_table_is_what_uqflow_prints(tmp_path):
             break
         assert times.sub("TIMES", line) in [times.sub("TIMES", p) for p in printed], line
     assert len([line for line in shown if line.startswith("y ")]) == 1
+
+
+def html_images(path):
+    """The data-file names of the images embedded in an HTML report, and any outside URL."""
+    from html.parser import HTMLParser
+
+    class Images(HTMLParser):
+        def __init__(self):
+            super().__init__()
+            self.names, self.urls = [], []
+
+        def handle_starttag(self, tag, attrs):
+            attrs = dict(attrs)
+            if tag == "img":
+                self.names.append(attrs["data-file"])
+            self.urls += [v for k, v in attrs.items()
+                          if k in ("src", "href") and not v.startswith("data:")]
+
+    page = Images()
+    page.feed(path.read_text(encoding="utf-8"))
+    return sorted(page.names), page.urls
+
+
+def test_cli_report_html_embeds_every_figure_it_wrote(studies, tmp_path, capsys):
+    path = studies("mc_decay", DECAY, MC)
+    folder = tmp_path / "f"
+    assert main(["report", str(path), "--html", "--figures", str(folder)]) == 0
+    out = capsys.readouterr().out
+    html = folder / "mc_decay_report.html"
+    assert f"report: {html}" in out
+    assert html_images(html) == (sorted(p.name for p in folder.glob("*.png")), [])
+    assert len(list(folder.glob("*.png"))) == 2  # the scatter and the method's convergence
+    # without --figures: beside the result, figures drawn for the report alone
+    assert main(["report", str(path), "--html", "--no-figures"]) == 0
+    names, _ = html_images(path.with_name("mc_decay_report.html"))
+    assert names == ["y_convergence.png", "y_scatter.png"]
+
+
+def test_cli_run_writes_the_html_report_beside_the_figures(tmp_path, capsys):
+    study = write_study(tmp_path, "decay", DECAY, 'kind = "monte-carlo"\nsamples = 16')
+    study.write_text(study.read_text().replace("figures = false", "figures = true"))
+    assert main(["run", str(study), "--quiet"]) == 0
+    html = tmp_path / "results" / "decay_report.html"
+    assert f"report: {html}" in capsys.readouterr().out
+    figures = sorted(p.name for p in (tmp_path / "results" / "decay_figures").glob("*.png"))
+    assert html_images(html) == (figures, []) and figures
+    assert main(["run", str(study), "--quiet", "--force", "--no-figures"]) == 0
+    assert "report:" not in capsys.readouterr().out
