@@ -150,13 +150,14 @@ def test_a_solver_that_accepts_any_scene_fails_bad_scene():
         "(validate every scene key and refuse unknown ones with SceneError)")
 
 
-def test_a_missing_unit_fails_the_template_check():
-    class Unitless(TinyModel):
-        def outputs(self):
-            template = super().outputs()
-            del template["y"].attrs["units"]
-            return template
+class Unitless(TinyModel):
+    def outputs(self):
+        template = super().outputs()
+        del template["y"].attrs["units"]
+        return template
 
+
+def test_a_missing_unit_fails_the_template_check():
     with pytest.raises(ConformanceError) as err:
         check_solver(Unitless, {})
     assert err.value.failures["outputs_template"] == (
@@ -176,13 +177,14 @@ def test_a_missing_long_name_is_a_warning_naming_the_outputs():
         check_solver(Unlabelled, {})
 
 
-def test_a_solver_whose_failure_escapes_as_base_exception_fails():
-    class Exits(TinyModel):
-        def run(self, params, fields=None):
-            if any(np.isnan(v) for v in params.values()):
-                raise SystemExit("gave up")
-            return super().run(params, fields)
+class Exits(TinyModel):
+    def run(self, params, fields=None):
+        if any(np.isnan(v) for v in params.values()):
+            raise SystemExit("gave up")
+        return super().run(params, fields)
 
+
+def test_a_solver_whose_failure_escapes_as_base_exception_fails():
     with pytest.raises(ConformanceError) as err:
         check_solver(Exits, {})
     assert err.value.failures["failure_capture"].startswith(
@@ -238,12 +240,13 @@ def test_an_analyze_that_drops_a_dim_fails_naming_output_and_dim(tmp_path):
         "over 'realization' only)")
 
 
-def test_a_method_with_a_lax_option_fails_strict_options(tmp_path):
-    class Lax(DimDropping):
-        def __init__(self, **options):
-            options.pop("no_such_option", None)  # swallows what it does not know
-            super().__init__(**options)
+class Lax(DimDropping):
+    def __init__(self, **options):
+        options.pop("no_such_option", None)  # swallows what it does not know
+        super().__init__(**options)
 
+
+def test_a_method_with_a_lax_option_fails_strict_options(tmp_path):
     with pytest.raises(ConformanceError) as err:
         check_method(Lax, {"samples": 4}, folder=tmp_path)
     assert err.value.failures["strict_options"] == (

@@ -1,16 +1,14 @@
 """A third party adds a propagation method without touching uqflow."""
 
 import os
+import re
 import subprocess
 import sys
-
-import numpy as np
-import xarray as xr
+import types
+from pathlib import Path
 
 import uqflow
 from uqflow.execute import run_study
-from uqflow.methods.base import (MethodOptions, PropagationMethod, finish_statistics,
-                                 make_design, ok_mask, output_names)
 from uqflow.study import load_study
 
 STUDY = """\
@@ -43,39 +41,31 @@ figures = false
 """
 
 
-class AntitheticOptions(MethodOptions):
-    pairs: int = 16
+def _method_from_the_docs():
+    """The antithetic Monte Carlo method of docs/writing-a-method.md (its first Python block),
+    as a module of its own: what a third party writes from that page."""
+    page = Path(__file__).resolve().parents[2] / "docs" / "writing-a-method.md"
+    code = re.search(r"```python\n(.*?)```", page.read_text(), re.S).group(1)
+    module = sys.modules.setdefault("docs_writing_a_method_method",
+                                    types.ModuleType("docs_writing_a_method_method"))
+    exec(compile(code, str(page), "exec"), module.__dict__)
+    return module.Antithetic
 
 
-@uqflow.register_method("antithetic-test")
-class Antithetic(PropagationMethod):
-    """Antithetic Monte Carlo: every point u comes with 1 - u."""
-
-    Options = AntitheticOptions
-
-    def plan(self, space, fields, seed):
-        u = np.random.default_rng(seed).random((self.options.pairs, len(space)))
-        return make_design(space, space.from_unit_hypercube(np.vstack([u, 1 - u])))
-
-    def analyze(self, design, runs):
-        ok = ok_mask(runs)
-        data = {}
-        for out in output_names(runs):
-            y = runs[out].values[ok]
-            data[out] = (("statistic",), [y.mean(), y.var(ddof=1)])
-        stats = xr.Dataset(data, coords={"statistic": ["mean", "variance"]})
-        return finish_statistics(stats, design, runs, self.name, [])
+Antithetic = _method_from_the_docs()
 
 
 def test_method_registered_through_the_public_api_runs_a_study(tmp_path):
     path = tmp_path / "study.toml"
-    path.write_text(STUDY.format(kind="antithetic-test"))
+    path.write_text(STUDY.format(kind="antithetic"))
     out = run_study(load_study(path), show_progress=False)
     # y = 1 + 2 x1 - x2 is linear: antithetic pairs give its mean exactly.
     exact_mean = 1 + 2 * 1.0 - 3.0
     assert abs(float(out.statistics["y"].sel(statistic="mean")) - exact_mean) < 1e-12
     assert out.runs.sizes["realization"] == 16
-    assert "antithetic-test" in uqflow.methods.method_registry.names()
+    assert "antithetic" in uqflow.methods.method_registry.names()
+    assert out.statistics.attrs["pairs_used"] == 8  # the docs' method ran
+    assert Antithetic.name == "antithetic"
 
 
 PLUGIN = '''
