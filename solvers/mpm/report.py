@@ -1,9 +1,11 @@
-"""What MPM results add to ``uqflow report``: seed 000's Tables 6-8 and 3/9, Figs. 5-6, 9-12.
+"""What MPM results add to ``uqflow report`` and ``uqflow run``: the scene map, and the
+comparison of several results of one scene in the layout of seed 000's Tables 6-8 and 3/9.
 
-``report(trees, folder, figures=True, time=None, reference=None) -> (text, pngs)`` compares
-several results of the same scene (different methods: ``monte-carlo`` plain or with a control
-variate, ``taylor``, ``taylor-local``, ``pce``, any method whose statistics carry ``mean`` and
-``variance``) and
+``report(trees, folder, figures=True, time=None, reference=None) -> (text, pngs)`` writes
+``scene_map.png`` (scene_map.py: every body, material and probe) for the results' scene, and
+compares the results (different methods: ``monte-carlo`` plain or with a control variate,
+``taylor``, ``taylor-local``, ``pce``, any method whose statistics carry ``mean`` and
+``variance``):
 
 - prints the seed's **Tables 6-8 layout**: for every probe output (flow stress, S11, S22,
   pressure p*, ...), probe and C.V., each result's mean and variance at one output time,
@@ -13,12 +15,14 @@ variate, ``taylor``, ``taylor-local``, ``pce``, any method whose statistics carr
 - prints the seed's **Tables 3/9 layout**: solver runs, failed runs, solver time, per-run
   time and the speed-up against a 10,000-sample Monte Carlo at our per-run time, beside the
   seed's timings;
-- draws the seed's **Figs. 5-6 and 9-12** for every (output, probe): mean and variance over
-  time, one line per result, the reference's band (mean ± 2 standard errors, variance ± 2
-  standard errors of the variance) shaded; one row of panels per C.V.
+- draws for every (output, probe) the mean and variance over time, one line per result,
+  the reference's band (mean ± 2 standard errors, variance ± 2 standard errors of the
+  variance) shaded; one row of panels per C.V. Labels are in words: "deviatoric stress s_xx
+  [GPa]", "probe H (x = 45, y = 0 mm)", times in µs (docs/mpm_report.md, "Labels").
 
-The rules (reference, time, error formulas) are in docs/mpm_report.md. The seed's numbers
-come from ``data/seed_tables.toml`` (an exact copy of ``tests/data/seed_tables.toml``).
+Seed 000 is named only where its numbers are printed beside ours (``SEED_LINE`` says what it
+is). The rules (reference, time, error formulas) are in docs/mpm_report.md. The seed's
+numbers come from ``data/seed_tables.toml`` (an exact copy of ``tests/data/seed_tables.toml``).
 """
 
 from __future__ import annotations
@@ -35,15 +39,22 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from solvers.mpm.scene import PROBE_QUANTITIES
+from solvers.mpm.probes import LABELS
+from solvers.mpm.scene import PROBE_QUANTITIES, parse
+from solvers.mpm.scene_map import probe_words, write_scene_map
 from uqflow.errors import StudyError
-from uqflow.solver import is_diagnostic
-from uqflow.report import figure_path, grid as _grid, seconds as _seconds
+from uqflow.layout import (LONG_NAME, STUDY_OVERRIDES, STUDY_READ_FILES, STUDY_TEXT,
+                           is_diagnostic)
+from uqflow.levels import scene_with
+from uqflow.report import (FigureWarning, ResultView, figure_path, grid, new_figure,
+                           save_figure, seconds)
 
 __all__ = ["report", "load_results", "seed_tables", "seed_moments", "seed_costs",
            "choose_reference", "table_time", "variance_error", "moments_tables", "cost_table",
            "draw_figures", "MPMResult", "MC_SAMPLES_COMPARED"]
 
+#: What seed 000 is, said once wherever its numbers are compared.
+SEED_LINE = "seed 000: stochastic MPM of contact explosions, Taylor vs Monte Carlo"
 #: The seed's Monte Carlo sample count, against which every speed-up is stated.
 MC_SAMPLES_COMPARED = 10_000
 #: Seed Tables 6-8 give means in 1e-2 Mbar and variances in 1e-6 Mbar²; 1 Mbar = 1e11 Pa.
@@ -52,10 +63,6 @@ SEED_VARIANCE_UNIT_PA2 = 1e-6 * 1e11 ** 2
 #: Which seed table holds which output (our output names).
 SEED_TABLE_OF_OUTPUT = {"flow_stress": "table6_flow_stress", "S11": "table7_S11",
                         "S22": "table8_S22"}
-#: The seed figure that shows an (output, probe); the others are drawn in the same style.
-SEED_FIGURE = {("pressure", "E"): "Fig. 5", ("pressure", "F"): "Fig. 6",
-               ("flow_stress", "H"): "Fig. 9", ("flow_stress", "I"): "Fig. 10",
-               ("S11", "G"): "Fig. 11", ("S22", "G"): "Fig. 12"}
 #: Two C.V.s are one group when they agree to this relative tolerance: the study files write
 #: them to a few digits, and input_cv = std/mean carries only rounding beyond that.
 CV_MATCH_RTOL = 1e-9
@@ -146,6 +153,7 @@ class MPMResult:
     cv: float | None
     cv_text: str
     scene: tuple[str, str]          # (what, identity) of the scene
+    words: str = ""                 # the method in words, for legends (its report hook's)
 
     @property
     def plain_monte_carlo(self) -> bool:
@@ -198,6 +206,66 @@ def _scene_identity(attrs: dict) -> tuple[str, str]:
     return f"scene '{description}'", description
 
 
+def scene_table(attrs: dict) -> tuple[dict | None, str]:
+    """The scene a result ran, as a table, and where it came from; (None, why) when it
+    cannot be had. The study's inline scene table; else the scene file the study read, if
+    it still holds the text the study read (the sha256 in ``study_read_files``); the
+    command line's overrides of scene keys (``study_overrides``) applied on top."""
+    try:
+        study = tomllib.loads(str(attrs.get(STUDY_TEXT, "")))
+    except tomllib.TOMLDecodeError:
+        study = {}
+    scene, where = study.get("scene"), "the study's inline scene table"
+    if not isinstance(scene, dict):
+        read = json.loads(str(attrs.get(STUDY_READ_FILES) or "{}"))
+        if "scene" not in read:
+            return None, "the result names no scene file and stores no scene table"
+        path, sha = read["scene"]
+        try:
+            text = Path(path).read_text(encoding="utf-8-sig")
+        except (OSError, UnicodeDecodeError):
+            return None, f"the scene file {path} cannot be read from here"
+        if hashlib.sha256(text.encode()).hexdigest() != sha:
+            return None, f"the scene file {path} changed after the run (sha256 differs)"
+        try:
+            scene = tomllib.loads(text)
+        except tomllib.TOMLDecodeError:
+            return None, f"the scene file {path} is not valid TOML"
+        where = f"scene file {path}"
+    try:
+        overrides = tomllib.loads(str(attrs.get(STUDY_OVERRIDES) or ""))
+    except tomllib.TOMLDecodeError:
+        overrides = {}
+    for key, value in _dotted(overrides.get("scene", {})).items():
+        scene = scene_with(scene, key, value)
+    return scene, where
+
+
+def _dotted(table: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in table.items():
+        if isinstance(v, dict):
+            out.update(_dotted(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def scene_map(tree: xr.DataTree, folder: Path) -> tuple[list[Path], list[str]]:
+    """``scene_map.png`` of the scene ``tree`` ran, in ``folder``; ([], [why not]) when the
+    scene cannot be had or drawn (the rest of the report goes on)."""
+    scene, where = scene_table(dict(tree.attrs))
+    if scene is None:
+        return [], [f"{_file_of(tree)}: no scene map: {where}"]
+    try:
+        cfg = parse(scene)
+        return [write_scene_map(cfg, Path(folder), title=f"{where}")], []
+    except Exception as exc:  # a map that cannot be drawn must not cost the report
+        warnings.warn(f"figure scene_map.png not written: {type(exc).__name__}: {exc}",
+                      FigureWarning, stacklevel=2)
+        return [], [f"{_file_of(tree)}: no scene map: {type(exc).__name__}: {exc}"]
+
+
 def _method_label(method: str, stats: xr.Dataset | None, options: dict) -> str:
     a = stats.attrs if stats is not None else {}
     if method == "monte-carlo":
@@ -213,6 +281,15 @@ def _method_label(method: str, stats: xr.Dataset | None, options: dict) -> str:
         order = a.get("order", options.get("order", "?"))
         return f"pce order {order}"
     return method
+
+
+def _method_words(tree: xr.DataTree, label: str) -> str:
+    """The method in words as its report hook says it ("Monte Carlo, 8 runs, one-run Taylor
+    as control variate"); the compact label where the method says nothing."""
+    try:
+        return ResultView(tree).method_report.description or label
+    except Exception:  # a method's hook that fails must not cost the comparison
+        return label
 
 
 def _probe_outputs(ds: xr.Dataset | None, want_statistic: bool) -> list[str]:
@@ -253,12 +330,13 @@ def _read(tree: xr.DataTree) -> MPMResult:
         options = {}
     outputs = _probe_outputs(stats, True) if stats is not None else _probe_outputs(runs, False)
     cv, cv_text, parameters = _common_cv(source)
+    label = _method_label(method, stats, options)
     return MPMResult(
         file=_file_of(tree), name=str(attrs.get("study_name", "?")), method=method,
-        label=_method_label(method, stats, options), attrs=attrs, runs=runs, stats=stats,
+        label=label, attrs=attrs, runs=runs, stats=stats,
         outputs=outputs, probes=[str(p) for p in source["probe"].values],
         times=np.asarray(source["time"].values, float), parameters=parameters, cv=cv,
-        cv_text=cv_text, scene=_scene_identity(attrs))
+        cv_text=cv_text, scene=_scene_identity(attrs), words=_method_words(tree, label))
 
 
 def load_results(trees) -> tuple[list[MPMResult], list[str], list[str]]:
@@ -406,8 +484,21 @@ def _groups(results: list[MPMResult]) -> list[list[MPMResult]]:
     return groups
 
 
+def input_family(parameters) -> str | None:
+    """Which of the seed's examples a result's random inputs match: "jc" when every input is
+    a Johnson–Cook parameter (example 2), "eos" when every one is a Mie–Grüneisen EOS
+    parameter (example 1), else None. The one place that reads a parameter's model from its
+    dotted name (``<material>.jc.<name>``, ``<material>.eos.<name>``), until the materials'
+    parameter tables say it (docs/mpm_report.md, "Which seed rows")."""
+    parameters = tuple(parameters)
+    for family in ("jc", "eos"):
+        if parameters and all(f".{family}." in p for p in parameters):
+            return family
+    return None
+
+
 def _is_johnson_cook(res: MPMResult) -> bool:
-    return bool(res.parameters) and all(".jc." in p for p in res.parameters)
+    return input_family(res.parameters) == "jc"
 
 
 def _seed_row(res: MPMResult, output: str, probe: str) -> SeedMoments | None:
@@ -432,6 +523,28 @@ def output_units(results: list[MPMResult], output: str) -> str:
             if ds is not None and output in ds and "units" in ds[output].attrs:
                 return str(ds[output].attrs["units"])
     return PROBE_QUANTITIES.get(output, ("",))[0]
+
+
+def output_words(results: list[MPMResult], output: str) -> str:
+    """The output in words ("deviatoric stress s_xx"): its ``long_name`` in the results, else
+    the solver's label of it, else its name."""
+    for res in results:
+        for ds in (res.stats, res.runs):
+            if ds is not None and output in ds and ds[output].attrs.get(LONG_NAME):
+                return str(ds[output].attrs[LONG_NAME])
+    return LABELS.get(output, output)
+
+
+def probe_label(results: list[MPMResult], j: int) -> str:
+    """"probe H (x = 45, y = 0 mm)" from the results' ``probe_x``, ``probe_y`` coordinates
+    (m); "probe H" for a result without them."""
+    res = results[0]
+    name = res.probes[j]
+    for ds in (res.stats, res.runs):
+        if ds is not None and "probe_x" in ds.coords and "probe_y" in ds.coords:
+            return probe_words(name, float(ds["probe_x"].values[j]),
+                               float(ds["probe_y"].values[j]))
+    return f"probe {name}"
 
 
 def _scale(units: str) -> tuple[float, str, str]:
@@ -480,21 +593,22 @@ def moments_tables(results: list[MPMResult], outputs: list[str], time: float | N
     seeded = False
     for out in outputs:
         div, unit, unit2 = _scale(output_units(results, out))
-        seed_key = SEED_TABLE_OF_OUTPUT.get(out)
         seed_name = {"table6_flow_stress": "Table 6", "table7_S11": "Table 7",
-                     "table8_S22": "Table 8"}.get(seed_key, "Tables 6-8")
-        lines += ["", f"{out} at {when}: seed {seed_name} layout; mean [{unit}], variance "
-                      f"[{unit2}]; 'vs ref' = relative error against the reference, "
-                      f"(z) = difference in reference standard errors"]
+                     "table8_S22": "Table 8"}.get(SEED_TABLE_OF_OUTPUT.get(out), "")
         rows = []
         for group, ref in zip(groups, refs):
             for j, probe in enumerate(results[0].probes):
                 rows += _moment_rows(group, ref, out, k, j, probe, div)
-        seeded = seeded or any(row[2] == "seed" for row in rows)
-        lines += _grid(["probe", "C.V.", "result", "method", "runs", "mean", "vs ref",
-                        "variance", "vs ref"], rows, {4, 5, 6, 7, 8})
+        with_seed = any(row[2] == "seed" for row in rows)
+        seeded = seeded or with_seed
+        lines += ["", f"{output_words(results, out)} ({out}) at {when}: mean [{unit}], "
+                      f"variance [{unit2}]; 'vs ref' = relative error against the reference, "
+                      f"(z) = difference in reference standard errors"
+                      + (f"; rows 'seed': seed 000's {seed_name}" if with_seed else "")]
+        lines += grid(["probe", "C.V.", "result", "method", "runs", "mean", "vs ref",
+                       "variance", "vs ref"], rows, {4, 5, 6, 7, 8})
     if seeded:
-        lines += ["", seed_difference_line(results[0].times[k])]
+        lines += ["", SEED_LINE, seed_difference_line(results[0].times[k])]
     return "\n".join(lines)
 
 
@@ -678,10 +792,11 @@ def cost_table(results: list[MPMResult]) -> str:
     time less compile time): the header's per-run time and the rows' use one definition."""
     per_run, how = _per_run_baseline(results)
     mc_time = MC_SAMPLES_COMPARED * per_run
-    lines = [f"Cost (seed Tables 3 and 9 layout). A run's time is its wall time less numba's "
-             f"compile time. Our per-run time {_seconds(per_run)} ({how}); a "
+    lines = [f"Cost, beside the timings of seed 000's Tables 3 and 9 ({SEED_LINE}). "
+             f"A run's time is its wall time less numba's "
+             f"compile time. Our per-run time {seconds(per_run)} ({how}); a "
              f"{MC_SAMPLES_COMPARED:,}-sample Monte Carlo at our per-run time = "
-             f"{MC_SAMPLES_COMPARED:,} × {_seconds(per_run)} = {_seconds(mc_time)}; speed-up "
+             f"{MC_SAMPLES_COMPARED:,} × {seconds(per_run)} = {seconds(mc_time)}; speed-up "
              f"= that / the result's solver time (the sum of its run times); per run = the "
              f"same median over the result's own runs"]
     rows, compiled, unrecorded = [], [], []
@@ -690,24 +805,23 @@ def cost_table(results: list[MPMResult]) -> str:
         solver, per, compile_ = _result_cost(res)
         speedup = mc_time / solver if np.isfinite(solver) and solver > 0 else math.nan
         rows.append([res.file, res.label, res.cv_text, f"{runs}", f"{failed}",
-                     _seconds(solver), _seconds(per),
+                     seconds(solver), seconds(per),
                      f"{speedup:,.0f}" if np.isfinite(speedup) else "?"])
         if np.isfinite(compile_):
-            compiled.append(f"{res.file} {_seconds(compile_)}")
+            compiled.append(f"{res.file} {seconds(compile_)}")
         else:
             unrecorded.append(res.file)
-    kinds = {("jc" if _is_johnson_cook(r) else "eos" if r.parameters and all(
-        ".eos." in p for p in r.parameters) else None) for r in results}
+    kinds = {input_family(r.parameters) for r in results}
     shown = [c for key, c in seed_costs().items() if key in kinds] \
         or list(seed_costs().values())
     for cost in shown:
         rows.append([f"seed {cost.example} ({cost.table})", "SMPM", f"{cost.cv:g}", "1", "-",
-                     _seconds(cost.smpm_seconds), "-", f"{cost.speedup:,.0f}"])
-        rows.append([f"seed {cost.example} ({cost.table})", f"Monte Carlo", f"{cost.cv:g}",
-                     f"{cost.mc_samples:,}", "-", _seconds(cost.mc_seconds),
-                     _seconds(cost.per_run_seconds), "1"])
-    lines += _grid(["result", "method", "C.V.", "runs", "failed", "solver time", "per run",
-                    f"speed-up vs {MC_SAMPLES_COMPARED:,} MC"], rows, {3, 4, 5, 6, 7})
+                     seconds(cost.smpm_seconds), "-", f"{cost.speedup:,.0f}"])
+        rows.append([f"seed {cost.example} ({cost.table})", "Monte Carlo", f"{cost.cv:g}",
+                     f"{cost.mc_samples:,}", "-", seconds(cost.mc_seconds),
+                     seconds(cost.per_run_seconds), "1"])
+    lines += grid(["result", "method", "C.V.", "runs", "failed", "solver time", "per run",
+                   f"speed-up vs {MC_SAMPLES_COMPARED:,} MC"], rows, {3, 4, 5, 6, 7})
     if compiled:
         lines.append("numba compile time (the first runs of each process; left out of every "
                      "time above): " + ", ".join(compiled))
@@ -719,19 +833,12 @@ def cost_table(results: list[MPMResult]) -> str:
 
 # ------------------------------------------------------------------------------ figures
 
-def _figure(width, height, nrows, ncols):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(width, height), layout="constrained")
-    FigureCanvasAgg(fig)
-    return fig, fig.subplots(nrows, ncols, squeeze=False, sharex=True)
-
-
 def _draw_one(results, groups, refs, out, j, probe):
     div, unit, unit2 = _scale(output_units(results, out))
-    fig, axes = _figure(11.0, 3.6 * len(groups), len(groups), 2)
+    fig, axes = new_figure(11.0, 3.6 * len(groups), len(groups), 2, squeeze=False,
+                           sharex=True)
     t_us = results[0].times * 1e6
+    words, where = output_words(results, out), probe_label(results, j)
     colors = ["#1f4e79", "#c0392b", "#2e8b57", "#8e44ad", "#d35400", "#7f8c8d", "#16a085"]
     for row, (group, ref) in enumerate(zip(groups, refs)):
         ax_mean, ax_var = axes[row]
@@ -741,35 +848,34 @@ def _draw_one(results, groups, refs, out, j, probe):
             if se is not None:
                 s = np.asarray(se.isel(probe=j).values, float) / div
                 ax_mean.fill_between(t_us, mean - BAND_WIDTH * s, mean + BAND_WIDTH * s,
-                                     color="0.8", label=f"reference ± {BAND_WIDTH:g} stderr")
+                                     color="0.8", label=f"reference ± {BAND_WIDTH:g} standard "
+                                                        f"errors of its mean")
             var = np.asarray(ref.statistic(out, "variance").isel(probe=j).values,
                              float) / div ** 2
             err, _ = variance_error(ref, out)
             if err is not None:
                 e = np.asarray(err.isel(probe=j).values, float) / div ** 2
                 ax_var.fill_between(t_us, var - BAND_WIDTH * e, var + BAND_WIDTH * e,
-                                    color="0.8", label=f"reference ± {BAND_WIDTH:g} stderr")
+                                    color="0.8", label=f"reference ± {BAND_WIDTH:g} standard "
+                                                       f"errors of its variance")
         for n, res in enumerate(r for r in group if r.stats is not None):
             style = dict(color=colors[n % len(colors)], lw=1.8 if res is ref else 1.1,
                          ls="-" if res is ref else ("--", ":", "-.")[n % 3])
-            label = f"{res.label} ({res.file})" + (", reference" if res is ref else "")
+            label = f"{res.words} ({res.file})" + (", reference" if res is ref else "")
             for ax, stat, d in ((ax_mean, "mean", div), (ax_var, "variance", div ** 2)):
                 values = res.statistic(out, stat)
                 if values is not None:
                     ax.plot(t_us, np.asarray(values.isel(probe=j).values, float) / d,
                             label=label, **style)
-        ax_mean.set_ylabel(f"mean {out} [{unit}]")
-        ax_var.set_ylabel(f"variance of {out} [{unit2}]")
+        ax_mean.set_ylabel(f"mean {words} [{unit}]")
+        ax_var.set_ylabel(f"variance of {words} [{unit2}]")
         for ax, what in ((ax_mean, "mean"), (ax_var, "variance")):
-            ax.set_title(f"{what} of {out} at {probe}, C.V. {group[0].cv_text}",
-                         fontsize="medium")
+            ax.set_title(f"{what}, input C.V. {group[0].cv_text}", fontsize="medium")
             ax.grid(alpha=0.3)
         ax_mean.legend(fontsize="small", loc="best")
     for ax in axes[-1]:
         ax.set_xlabel("time [µs]")
-    seed = SEED_FIGURE.get((out, probe))
-    fig.suptitle(f"{out} at probe {probe}: mean and variance over time by method"
-                 + (f" (seed {seed})" if seed else " (seed Figs. 5-6, 9-12 layout)"))
+    fig.suptitle(f"{words} at {where}: mean and variance over time, by method")
     return fig
 
 
@@ -791,14 +897,11 @@ def draw_figures(results: list[MPMResult], outputs: list[str], folder: Path,
             try:
                 fig = _draw_one(with_stats, groups, refs, out, j, probe)
             except Exception as exc:  # one broken figure must not cost the others
-                from uqflow.report import FigureWarning
                 warnings.warn(f"figure {name} not written: {type(exc).__name__}: {exc}",
                               FigureWarning, stacklevel=2)
                 continue
             path.parent.mkdir(parents=True, exist_ok=True)
-            fig.savefig(path, dpi=100, format="png")
-            fig.clear()
-            written.append(path)
+            written.append(save_figure(fig, path, dpi=100))
     return written
 
 
@@ -806,8 +909,11 @@ def draw_figures(results: list[MPMResult], outputs: list[str], folder: Path,
 
 def report(trees, folder, figures: bool = True, time: float | None = None,
            reference: str | None = None) -> tuple[str, list[Path]]:
-    """Seed 000's comparisons for a set of MPM results of one scene: the text (Tables 6-8 and
-    3/9 layouts) and the PNG figures written into ``folder`` (none with ``figures=False``).
+    """The report of a set of MPM results of one scene: the text (each result's probe
+    statistics against the reference in the layout of seed 000's Tables 6-8, the cost in
+    that of Tables 3/9) and the PNG figures written into ``folder``: the scene map
+    (``scene_map.png``) and the mean and variance of every output at every probe (none with
+    ``figures=False``).
 
     ``time`` (seconds): the output time of Tables 6-8 (nearest output time; default the last).
     ``reference``: the file or study name of the reference result (default: the rule of
@@ -815,8 +921,11 @@ def report(trees, folder, figures: bool = True, time: float | None = None,
     trees = list(trees)
     if not trees:
         return "", []
+    maps, map_notes = scene_map(trees[0], Path(folder)) if figures else ([], [])
     results, outputs, notes = load_results(trees)
-    parts = ["MPM comparison (seed 000, Tables 6-8 and 3/9)"]
+    notes += map_notes
+    parts = ["MPM comparison: each result's probe statistics against the reference, and the "
+             "cost"]
     for res in results:
         if not str(res.attrs.get("study") or "").strip():
             why = str(res.attrs.get("study_text_omitted") or "").split(";")[0] \
@@ -838,7 +947,7 @@ def report(trees, folder, figures: bool = True, time: float | None = None,
         text += "\n\n" + "\n".join(f"note: {n}" for n in notes)
     pngs = draw_figures(results, outputs, Path(folder), time, reference) \
         if figures and outputs else []
-    return text, pngs
+    return text, maps + pngs
 
 
 # ------------------------------------------------------------------------------ command line

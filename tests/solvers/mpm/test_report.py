@@ -37,20 +37,30 @@ def write(path: Path, *, method: str, mean=1.0e9, variance=5e15, stderr=None, va
           status=None, wall=1.0, cv=0.1, parameters=JC, scene=("scene.toml", SCENE_SHA),
           outputs=("flow_stress",), stats_attrs=None, statistics=True,
           with_sensitivities=None, extra_stats=None, compile_time=None, study_text=True,
-          extra_runs=None) -> Path:
+          extra_runs=None, probe_xy=None, long_names=None, attrs_extra=None) -> Path:
     """A result file: ``values`` (realization, time, probe) or one realization at ``mean``;
     statistics ``mean``, ``variance``, ``std`` (and ``stderr`` when given) over (time, probe);
     ``compile_time`` (s per realization) as the executor records it, none when None (a result
-    from before it did); ``study_text=False``: the study text not stored (too large)."""
+    from before it did); ``study_text=False``: the study text not stored (too large);
+    ``probe_xy``: the probes' points (m) as coordinates probe_x, probe_y, as the solver writes
+    them; ``long_names``: {output: long_name}; ``attrs_extra``: more root attributes."""
     values = np.asarray(values if values is not None else _field(mean)[None], float)
     n = values.shape[0]
     status = np.asarray(status if status is not None else ["ok"] * n)
     wall = np.broadcast_to(np.asarray(wall, float), (n,)).copy()
     coords = {"time": ("time", TIMES, {"units": "s"}), "probe": PROBES,
               "parameter": list(parameters)}
+    if probe_xy is not None:
+        xy = np.asarray(probe_xy, float)
+        coords["probe_x"] = ("probe", xy[:, 0], {"units": "m", "long_name": "x"})
+        coords["probe_y"] = ("probe", xy[:, 1], {"units": "m", "long_name": "y"})
+    long_names = long_names or {}
+
+    def _attrs(o):
+        return {"units": "Pa", **({"long_name": long_names[o]} if o in long_names else {})}
     inputs = {"input_cv": ("parameter", np.full(len(parameters), cv))}
     runs = xr.Dataset(
-        {**{o: (("realization", "time", "probe"), values, {"units": "Pa"}) for o in outputs},
+        {**{o: (("realization", "time", "probe"), values, _attrs(o)) for o in outputs},
          "status": ("realization", status), "message": ("realization", [""] * n),
          "wall_time": ("realization", wall), **inputs},
         coords={**coords, "realization": np.arange(n)})
@@ -68,7 +78,7 @@ def write(path: Path, *, method: str, mean=1.0e9, variance=5e15, stderr=None, va
         if stderr is not None:
             block.append(_field(stderr))
         stats = xr.Dataset({o: (("statistic", "time", "probe"), np.stack(block),
-                                {"units": "Pa"}) for o in outputs} | inputs,
+                                _attrs(o)) for o in outputs} | inputs,
                            coords={**coords, "statistic": labels})
         stats.attrs.update({"method": method, "solver_runs": int(np.sum(status != "pending")),
                             "failed_runs": int(np.sum(status == "failed")),
@@ -80,6 +90,7 @@ def write(path: Path, *, method: str, mean=1.0e9, variance=5e15, stderr=None, va
                                                f'scene = "{scene[0]}"\n',
              "study_read_files": json.dumps({"scene": list(scene)}), "solver": "mpm",
              "solver_description": "mpm: test", "method": method, "method_options": "{}"}
+    attrs.update(attrs_extra or {})
     if not study_text:
         del attrs["study"]
         attrs["study_text_omitted"] = ("the study text (2000000 bytes) is larger than 1048576 "
@@ -408,7 +419,7 @@ def test_the_mpm_solver_hook_is_the_report(tmp_path):
 
     mc = write(tmp_path / "mc.nc", method="monte-carlo", stderr=1e7)
     text, pngs = solver_report(trees(mc), tmp_path, figures=False)
-    assert text.startswith("MPM comparison (seed 000") and pngs == []
+    assert text.startswith("MPM comparison: ") and pngs == []
 
 
 # ----------------------------------------------------------------------------- real results
@@ -453,7 +464,8 @@ def test_real_tiny_mpm_results_report(tmp_path):
     text, pngs = mpm_report.report(trees(*paths), tmp_path / "figs")
     assert "C.V. 0.1: reference mc.nc (monte-carlo sobol 16)" in text
     assert "t = 5 µs (the last output time)" in text
-    assert len(pngs) == 12 and all(p.stat().st_size > 0 for p in pngs)
+    assert len(pngs) == 13 and all(p.stat().st_size > 0 for p in pngs)
+    assert pngs[0].name == "scene_map.png"        # the scene the studies read, drawn
 
 
 def test_module_command_line_takes_time_and_reference(tmp_path, capsys):
