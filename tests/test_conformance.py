@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import os
+import re
+import subprocess
+import sys
 import warnings
 
 import numpy as np
@@ -92,6 +96,25 @@ def test_built_in_method_passes_check_method(kind, tmp_path):
 @pytest.mark.parametrize("name, check", list(checks(TinyModel, {})))
 def test_checks_one_by_one_for_pytest(name, check):
     check()
+
+
+def test_a_solver_with_a_random_field_is_deterministic_under_the_same_field():
+    from uqflow.fields import FieldSample, FieldSpec, RandomField
+
+    bar = AnalyticSolver.from_scene(dict(model="random_E_bar", points=8))
+    field = RandomField(FieldSpec(name="bar.E", correlation_length=0.05, modes=3,
+                                  cv=0.05), bar.field_points("bar.E"))
+    germs = np.random.default_rng(7).standard_normal(field.n_modes)
+    sample = FieldSample([field], {"bar.E": germs})
+    assert check_solver(bar, fields=sample)["deterministic"] == "ok"
+    nominal = float(bar.run({})["end_displacement"])
+    assert float(bar.run({}, sample)["end_displacement"]) != nominal  # the field acts
+
+
+def test_an_instance_is_checked_without_its_scene_checks():
+    outcome = check_solver(TinyModel.from_scene({}))
+    assert outcome["bad_scene"].startswith("not applicable: bad_scene: no scene given")
+    assert outcome["deterministic"] == "ok"
 
 
 # ---------------------------------------------------------------- a broken third-party solver
@@ -258,3 +281,123 @@ def test_a_check_that_does_not_apply_is_a_skip():
     found = dict(checks(GamutBarSolver, GAMUT_BAR_TINY))
     with pytest.raises(NotApplicable, match="declares none"):
         found["local_sensitivities"]()
+
+
+# ---------------------------------------------------------------- solver_from_function
+
+def _tip(F=1000.0, L=2.0):
+    """Tip deflection-like product and a line over three stations."""
+    return {"d": F * L**3, "line": F * np.array([0.0, 0.5, 1.0]) * L}
+
+
+Tip = uqflow.solver_from_function(_tip, outputs={"d": (), "line": ("station",)},
+                                  units={"d": "m", "line": "m"},
+                                  coords={"station": [0.0, 0.5, 1.0]}, name="tip")
+
+
+def test_a_function_solver_passes_check_solver_and_runs_its_function():
+    assert check_solver(Tip, {"L": 3.0})["bad_scene"] == "ok"
+    result = Tip.from_scene({"L": 3.0}).run({"F": 2.0})
+    assert float(result["d"]) == 2.0 * 27.0  # exact in binary: small integers
+    assert result["line"].values.tolist() == [0.0, 3.0, 6.0]
+    assert result["line"].attrs == {"units": "m", "long_name": "line"}
+
+
+def test_a_function_solver_pickles_to_the_same_class():
+    import pickle
+
+    copy = pickle.loads(pickle.dumps(Tip.from_scene({"F": 5.0})))
+    assert type(copy) is Tip and copy.nominal() == {"F": 5.0, "L": 2.0}
+
+
+def _half_done(F=1.0):
+    """Forgets an output for F > 0, returns it on a wrong grid for F <= 0."""
+    return {"d": F} if F > 0 else {"d": F, "line": [1.0, 2.0]}
+
+
+HalfDone = uqflow.solver_from_function(_half_done, outputs={"d": (), "line": ("station",)},
+                                       units={"d": "m", "line": "m"},
+                                       coords={"station": [0.0, 0.5, 1.0]})
+
+
+@pytest.mark.parametrize("force, message", [
+    (1.0, "_half_done returned no output 'line'"),
+    (-1.0, "_half_done returned output 'line' of shape (2,); its dims ('station',) have "
+           "shape (3,)"),
+])
+def test_a_function_solver_says_which_output_is_wrong(force, message):
+    with pytest.raises(uqflow.SolverError, match=re.escape(message)):
+        HalfDone.from_scene({}).run({"F": force})
+
+
+@pytest.mark.parametrize("kwargs, error", [
+    (dict(outputs="d", units={}), "output 'd' has no units"),
+    (dict(outputs=["d", "e"], units="m"), "give units as {output: units}"),
+    (dict(outputs={"d": ("x",)}, units="m"), "dim 'x' of output 'd' has no coordinate"),
+    (dict(outputs="d", units="m", parameters={"a b": 1.0}), "'a b' is not a dotted name"),
+    (dict(outputs="d", units="m", parameters={"G": 1.0}), "_tip takes no argument 'G'"),
+])
+def test_a_function_solver_made_wrong_is_refused_when_made(kwargs, error):
+    with pytest.raises((TypeError, ValueError), match=re.escape(error)):
+        uqflow.solver_from_function(_tip, **kwargs)
+
+
+def test_a_function_without_defaults_needs_parameters():
+    with pytest.raises(TypeError, match="parameter 'x' of f has no numeric default"):
+        def f(x):
+            return x
+        uqflow.solver_from_function(f, outputs="y", units="m")
+
+
+PLUGIN = '''
+import uqflow
+
+
+def beam(F=1000.0, L=2.0):
+    return F * L
+
+
+Beam = uqflow.solver_from_function(beam, outputs="moment", units="N m", name="beam-fn")
+'''
+
+BEAM_STUDY = """\
+name = "beam"
+solver = "beam-fn"
+scene = { L = 3.0 }
+
+[[inputs]]
+name = "F"
+distribution = "uniform"
+lower = 900.0
+upper = 1100.0
+
+[method]
+kind = "taylor"
+
+[execution]
+workers = 0
+
+[output]
+path = "out/beam.nc"
+figures = false
+"""
+
+
+def test_a_function_solver_from_an_entry_point_runs_a_study(tmp_path):
+    # A package with a dist-info folder on sys.path is what pip leaves behind.
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "beamplug.py").write_text(PLUGIN)
+    info = site / "beamplug-0.1.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: beamplug\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text("[uqflow.solvers]\nbeam-fn = beamplug:Beam\n")
+    (tmp_path / "beam.toml").write_text(BEAM_STUDY)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        filter(None, [str(site), os.environ.get("PYTHONPATH")])))
+    done = subprocess.run([sys.executable, "-m", "uqflow.cli", "run", str(tmp_path / "beam.toml"),
+                           "--quiet"], env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    stats = uqflow.open_result(tmp_path / "out" / "beam.nc")["statistics"]
+    # moment = 3 F is linear: Taylor's mean is exact, 3 × 1000 (binary-exact integers)
+    assert float(stats["moment"].sel(statistic="mean")) == 3000.0
