@@ -41,7 +41,11 @@ from uqflow.solver import get_solver
 from uqflow.study import StudySpec, load_study
 
 ROOT = Path(__file__).resolve().parent.parent
-PAGES = [ROOT / "README.md"] + sorted((ROOT / "docs").glob("*.md"))
+#: pages whose blocks build on each other, like a notebook's cells: tests/test_extension_docs.py
+#: runs their Python blocks in order in one namespace and loads their study files
+SEQUENTIAL_PAGES = {"writing-a-solver.md", "writing-a-method.md"}
+PAGES = [ROOT / "README.md"] + sorted(p for p in (ROOT / "docs").glob("*.md")
+                                      if p.name not in SEQUENTIAL_PAGES)
 SCENES = ROOT / "studies" / "scenes"
 MPM_SCENE = "scenes/mpm_contact_thin_small.toml"
 BLOCK = re.compile(r"^```toml[ \t]*\n(.*?)^```", re.S | re.M)
