@@ -63,6 +63,7 @@ def test_writing_a_solver_runs_and_its_numbers_hold(tmp_path, monkeypatch):
     assert ns["deflection"] == pytest.approx(1000.0 * 2.0**3 / (3 * 200e9 * inertia),
                                              rel=1e-14, abs=0)
     assert ns["deflection"] == pytest.approx(3.2e-3, rel=1e-14, abs=0)
+    # σ = F L (h/2)/I: four roundings of O(1) factors, ≤ 1e-15; 1e-14 is ~50 ulp
     assert ns["stress"] == pytest.approx(24e6, rel=1e-14, abs=0)
     assert "I = 4.1667·10⁻⁶ m⁴" in text and round(inertia * 1e6, 4) == 4.1667
     # the study's mean: E[F] L³/(3 I) E[1/E], E[1/E] ≈ (1 + cv²)/μ_E (second order; the
