@@ -38,6 +38,9 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
+from solvers.gamut_bar.bar_figure import draw as draw_bar, field_realizations
+from uqflow.report import FigureWarning, figure_path, new_figure, save_figure
+
 __all__ = ["report", "mean_curve", "comparison_tables", "identify", "seed_tables",
            "GamutResult", "Table", "STRAINS"]
 
@@ -114,6 +117,8 @@ class GamutResult:
     runs: xr.Dataset
     ok: np.ndarray = field(repr=False)
     source: str = "study"       # where the case was read: "study", "description" or ""
+    scene: dict = field(default_factory=dict)          # as the study wrote it
+    field_tables: list = field(default_factory=list)   # the study's [[fields]]
 
     @property
     def stochastic(self) -> bool:
@@ -155,6 +160,14 @@ class GamutResult:
                 GRIDS.index(self.grid) if self.grid in GRIDS else 9, self.stochastic)
 
 
+def _study_of(attrs: dict) -> dict:
+    """The stored study text, parsed ({} if there is none or it is not TOML)."""
+    try:
+        return tomllib.loads(str(attrs.get("study") or ""))
+    except (tomllib.TOMLDecodeError, ValueError):
+        return {}
+
+
 def _scene_of(attrs: dict) -> tuple[dict, str]:
     """The scene of the stored study text (a scene file is read relative to the study file)
     and where it came from: "study" or, as the last resort, "description" (the solver's
@@ -162,8 +175,7 @@ def _scene_of(attrs: dict) -> tuple[dict, str]:
     neither tells."""
     scene = None
     try:
-        study = tomllib.loads(str(attrs.get("study") or ""))
-        scene = study.get("scene")
+        scene = _study_of(attrs).get("scene")
         if isinstance(scene, str):
             base = Path(str(attrs.get("study_file", "."))).parent
             scene = tomllib.loads((base / scene).read_text(encoding="utf-8-sig"))
@@ -203,10 +215,12 @@ def identify(tree: xr.DataTree) -> GamutResult | None:
     method = str(attrs.get("method") or (tree["statistics"].attrs.get("method", "")
                                          if "statistics" in tree.children else ""))
     overrides = {k: float(scene[k]) for k in PROPERTY_KEYS if k in scene}
+    tables = _study_of(attrs).get("fields", [])
     return GamutResult(tree=tree, name=str(attrs.get("study_name", "?")), method=method,
                        material=str(scene["material"]), overrides=overrides,
                        grid=str(scene["grid"]), loading=str(scene["loading"]), runs=runs,
-                       ok=ok, source=source)
+                       ok=ok, source=source, scene=found,
+                       field_tables=tables if isinstance(tables, list) else [])
 
 
 # ------------------------------------------------------------------------------ mean curve
@@ -584,19 +598,8 @@ def comparison_tables(trees, strains=STRAINS) -> list[Table]:
 # ------------------------------------------------------------------------------ figures
 
 def _figure(width=6.4, height=4.4, ncols=1, nrows=1, **kwargs):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(width, height), layout="constrained")
-    FigureCanvasAgg(fig)
-    return fig, fig.subplots(nrows, ncols, squeeze=False, **kwargs)
-
-
-def _save(fig, path: Path) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110, format="png")
-    fig.clear()
-    return path
+    fig, axes = new_figure(width, height, nrows, ncols, squeeze=False, **kwargs)
+    return fig, axes
 
 
 def _realization_label(res: GamutResult, i: int) -> str:
@@ -808,10 +811,24 @@ def _fig_constants(idx: _Index, case: str, grid: str, seed: dict):
     return fig
 
 
-def _figures(results: list[GamutResult], folder: Path) -> list[Path]:
+def _fig_bar_fields(res: GamutResult, solver_class):
+    """The bar with its field realizations (solvers/gamut_bar/bar_figure.py)."""
+    bar = solver_class.from_scene(res.scene)
+    note = ""
+    if res.source != "study" and res.stochastic:
+        note = f"field realizations not drawn: {_without_study_text(dict(res.tree.attrs))}"
+    realizations = field_realizations(bar, res.field_tables, res.runs)
+    kind = (f"{len(realizations[0].values)} realizations of its random fields" if realizations
+            else "its nominal properties")
+    title = f"{res.name}: the bar ({res.describe()}) with {kind}"
+    return draw_bar(bar, realizations, title, note)
+
+
+def _figures(results: list[GamutResult], folder: Path, solver_class) -> list[Path]:
     idx = _Index(results)
     seed = seed_tables()
-    jobs = []
+    jobs = [("bar_fields" + ("" if len(results) == 1 else f"_{r.name}"),
+             lambda r=r: _fig_bar_fields(r, solver_class)) for r in results]
     for case, grid in idx.groups("monotonic"):
         slug = (idx.get(case, "monotonic", grid, True)
                 or idx.get(case, "monotonic", grid, False)).slug
@@ -831,21 +848,24 @@ def _figures(results: list[GamutResult], folder: Path) -> list[Path]:
         try:
             fig = draw()
         except Exception as exc:  # one broken figure must not cost the others
-            from uqflow.report import FigureWarning
             warnings.warn(f"figure {name} not written: {type(exc).__name__}: {exc}",
                           FigureWarning, stacklevel=2)
             continue
         if fig is not None:
-            written.append(_save(fig, Path(folder) / name))
+            Path(folder).mkdir(parents=True, exist_ok=True)
+            written.append(save_figure(fig, figure_path(folder, name.removesuffix(".png"))))
     return written
 
 
 # ------------------------------------------------------------------------------ the hook
 
-def report(trees, folder, figures: bool = True) -> tuple[str, list[Path]]:
+def report(trees, folder, figures: bool = True, *, solver_class) -> tuple[str, list[Path]]:
     """Seed 002's comparisons for any set of gamut-bar results: the text (Table 1 with ours
     beside the seed's numbers, n'/K' spread, failure, mean monotonic curves) and the PNG
-    figures written into ``folder`` (none with ``figures=False``)."""
+    figures written into ``folder`` (none with ``figures=False``): the bar with its field
+    realizations (``bar_fields.png``; ``bar_fields_<study>.png`` for several results), and
+    the seed's figures. ``solver_class``: the gamut-bar solver (``GamutBarSolver.report``
+    passes itself), which builds each result's bar from its scene."""
     found = [r for r in map(identify, trees) if r is not None]
     results = [r for r in found if r.source]
     left_out = [f"note: {r.name}: {_without_study_text(dict(r.tree.attrs))}, and the solver's "
@@ -854,5 +874,5 @@ def report(trees, folder, figures: bool = True) -> tuple[str, list[Path]]:
         return "\n".join(left_out), []
     text = "\n\n".join([t.text() for t in _tables(results)] + (["\n".join(left_out)]
                                                                  if left_out else []))
-    pngs = _figures(results, Path(folder)) if figures else []
+    pngs = _figures(results, Path(folder), solver_class) if figures else []
     return text, pngs

@@ -26,6 +26,9 @@ UNITS = {"bar.E": "Pa", "bar.R": "", "bar.w": "", "bar.rho": "kg m-3", "bar.sigm
          "bar.sigma_f": "Pa", "bar.eps_f": "", "bar.n_ro": "", "bar.K_ro": "",
          "bar.area": "m2", "bar.length": "m"}      # "" where dimensionless (Solver contract)
 FIELDS = ("bar.E", "bar.R", "bar.w", "bar.rho")   # bar.w at nonlocal-bond midpoints
+#: open range (lower, upper) of a field's values: the physical range of its parameter
+FIELD_RANGES = {"bar.E": (0.0, math.inf), "bar.R": (0.0, 1.0), "bar.rho": (0.0, math.inf),
+                "bar.w": (0.0, math.inf)}
 DIAGNOSTIC_OUTPUTS = {"load_steps": "load steps the run followed (not counting the bisection "
                                     "of the failure load)",
                       "newton_iterations": "Newton iterations of those load steps",
@@ -69,8 +72,11 @@ class GamutBarSolver(Solver):
         lo, hi = self.cfg["amplitude_range"]
         return np.geomspace(lo * p["sigma_y"], hi * p["sigma_y"], self.cfg["cycles"])
 
-    #: ``uqflow report`` on gamut-bar results: the seed's Table 1 beside ours, Figs. 21-32
-    report = staticmethod(_report)
+    @classmethod
+    def report(cls, trees, folder, figures=True):
+        """What gamut-bar results add to their report: the bar with its field realizations,
+        and the comparisons with seed 002's Table 1 and figures (solvers/gamut_bar/report.py)."""
+        return _report(trees, folder, figures, solver_class=cls)
 
     def describe(self) -> str:
         c = self.cfg
@@ -101,6 +107,10 @@ class GamutBarSolver(Solver):
             idx = np.unique(bonds.midpoint_index)
             return (0.5 * (x[idx // 2] + x[(idx + 1) // 2]))[:, None]
         return (0.5 * (x[:-1] + x[1:]))[:, None]
+
+    def field_range(self, name: str) -> tuple[float, float]:
+        """The open range (lower, upper) a field's values must lie in."""
+        return FIELD_RANGES[_field_key(name)]
 
     def outputs(self) -> xr.Dataset:
         return self._template.copy(deep=True)
@@ -183,16 +193,15 @@ class GamutBarSolver(Solver):
         sigma = self.cfg["sigma_stdev"] * sbar
         cut = self._cut_length(L)
         mid = 0.5 * (x[:-1] + x[1:])
-        E_seg = _field_values(fields, "bar.E", mid, q["E"], 0.0, math.inf, "Pa")
-        R_seg = _field_values(fields, "bar.R", mid, q["R"], 0.0, 1.0, "")
-        rho = _field_values(fields, "bar.rho", mid, q["rho"], 0.0, math.inf, "kg/m3")
+        E_seg = _field_values(fields, "bar.E", mid, q["E"], "Pa")
+        R_seg = _field_values(fields, "bar.R", mid, q["R"], "")
+        rho = _field_values(fields, "bar.rho", mid, q["rho"], "kg/m3")
         bonds = nonlocal_bonds(x, cut)
         w_nominal = bond_weights(x, bonds, sigma, sbar, self.n_families)
         w = w_nominal
         if fields is not None and _field_key_in(fields, "bar.w") is not None:
             bmid = 0.5 * (x[bonds.p] + x[bonds.q])
-            mu = _field_values(fields, "bar.w", bmid, q["w"], 0.0, math.inf, "",
-                               what="nonlocal bond")
+            mu = _field_values(fields, "bar.w", bmid, q["w"], "", what="nonlocal bond")
             w = bond_weights(x, bonds, sigma, sbar, self.n_families, mu)
         cal = calibrate(q["E"], q["sigma_y"], q["n_ro"], q["K_ro"], q["eps_f"], R_cal,
                         self.weights)
@@ -303,9 +312,10 @@ def _check_fields(fields):
                               f"{', '.join(FIELDS)})")
 
 
-def _field_values(fields, name, points, mean, lower, upper, unit, what="local bond"):
+def _field_values(fields, name, points, mean, unit, what="local bond"):
     """The realization's field ``name`` at ``points`` (or the scalar ``mean`` everywhere);
-    SolverError if a value is outside (lower, upper) or not finite."""
+    SolverError if a value is outside its range (``FIELD_RANGES``) or not finite."""
+    lower, upper = FIELD_RANGES[name]
     key = _field_key_in(fields, name) if fields is not None else None
     if key is None:
         vals = np.full(points.size, float(mean))

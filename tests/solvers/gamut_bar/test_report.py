@@ -12,6 +12,7 @@ import pytest
 import xarray as xr
 
 import uqflow
+from solvers.gamut_bar import GamutBarSolver
 from solvers.gamut_bar import report as gb
 from uqflow.execute import run_study
 from uqflow.study import load_study
@@ -111,13 +112,13 @@ def test_other_solvers_give_nothing(trees):
     tree = trees[0].copy()
     tree.attrs = dict(tree.attrs, solver="analytic")
     assert gb.identify(tree) is None
-    assert gb.report([tree], Path("unused")) == ("", [])
+    assert GamutBarSolver.report([tree], Path("unused")) == ("", [])
 
 
 # ----------------------------------------------------------------------------- the table
 
 def test_table1_has_the_seeds_numbers_and_ours(trees, tmp_path):
-    text, _ = gb.report(trees, tmp_path, figures=False)
+    text, _ = GamutBarSolver.report(trees, tmp_path, figures=False)
     seed = gb.seed_tables()
     m1, m2 = seed["table1_material1"], seed["table1_material2"]
     # the seed's numbers, as it prints them (K' in MPa)
@@ -154,7 +155,7 @@ def test_table1_has_the_seeds_numbers_and_ours(trees, tmp_path):
 
 
 def test_monotonic_tables(trees, tmp_path):
-    text, _ = gb.report(trees, tmp_path, figures=False)
+    text, _ = GamutBarSolver.report(trees, tmp_path, figures=False)
     sto = _by_name(trees, "m1-monotonic-stochastic-uniform")
     runs = sto["runs"].to_dataset()
     failure = float(runs["failure_strain"].mean())
@@ -179,13 +180,13 @@ def test_without_a_deterministic_result_its_columns_are_left_out(trees, tmp_path
     printed "mean/det. - 1 ... +nan %". The columns against the deterministic bar are left
     out, with a note; with a deterministic result they are there, and never NaN."""
     alone = _by_name(trees, "m1-monotonic-stochastic-uniform")
-    text, _ = gb.report([alone], tmp_path, figures=False)
+    text, _ = GamutBarSolver.report([alone], tmp_path, figures=False)
     assert "nan" not in text.lower()
     assert "mean/det." not in text and "deterministic [MPa]" not in text
     assert text.count(gb.NO_DETERMINISTIC_NOTE) == 2          # curve and failure tables
     assert "mean/RO - 1" in text
     both = [alone, _by_name(trees, "m1-monotonic-deterministic-uniform")]
-    text, _ = gb.report(both, tmp_path, figures=False)
+    text, _ = GamutBarSolver.report(both, tmp_path, figures=False)
     assert "mean/det. - 1" in text and "nan" not in text.lower()
     assert gb.NO_DETERMINISTIC_NOTE not in text
     assert gb._rel(1.0, float("nan")) == "" and gb._rel(float("nan"), 1.0) == ""
@@ -205,18 +206,18 @@ def test_a_result_without_its_study_text_reports_with_a_note(trees, tmp_path):
                "stored; study_text_sha256 identifies it")
     big = _without_study(_by_name(trees, "m1-monotonic-stochastic-uniform"),
                          study_text_omitted=omitted)
-    text, _ = gb.report([big], tmp_path, figures=False)
+    text, _ = GamutBarSolver.report([big], tmp_path, figures=False)
     assert ("t-m1-monotonic-stochastic-uniform: the study text (2000000 bytes) is larger than "
             "1048576 bytes and is not stored; its case is read from the solver's description, "
             "which names no property override (such as n_ro)") in text
     assert gb.identify(big).describe() == "M1, uniform grid, monotonic"
     bare = _without_study(_by_name(trees, "m1-cyclic-stochastic-uniform"),
                           solver_description="gamut_bar")
-    text, pngs = gb.report([big, bare], tmp_path, figures=False)
+    text, pngs = GamutBarSolver.report([big, bare], tmp_path, figures=False)
     assert ("note: t-m1-cyclic-stochastic-uniform: the result stores no study text, and the "
             "solver's description names no case: left out") in text
     assert "cyclic" not in text.split("gamut_bar results")[1].split("\n\n")[0]
-    assert gb.report([bare], tmp_path) == (
+    assert GamutBarSolver.report([bare], tmp_path) == (
         "note: t-m1-cyclic-stochastic-uniform: the result stores no study text, and the "
         "solver's description names no case: left out", [])
 
@@ -229,7 +230,7 @@ def test_a_failed_realization_is_left_out(trees, tmp_path):
     runs["status"] = ("realization", status.astype(str))
     runs["n_prime"] = runs["n_prime"].where(runs["status"] == "ok")
     broken = xr.DataTree.from_dict({"/": xr.Dataset(attrs=dict(tree.attrs)), "runs": runs})
-    text, _ = gb.report([broken], tmp_path, figures=False)
+    text, _ = GamutBarSolver.report([broken], tmp_path, figures=False)
     expected = float(runs["n_prime"].values[1:].mean())
     assert f"{expected:.4g} / 0.0612" in text
     assert "means over the 2 of 3 realizations" in text
@@ -292,9 +293,10 @@ PNG = b"\x89PNG\r\n\x1a\n"
 
 def test_figures_are_pngs(trees, tmp_path):
     folder = tmp_path / "figs"
-    _, pngs = gb.report(trees, folder)
+    _, pngs = GamutBarSolver.report(trees, folder)
     names = {p.name for p in pngs}
     assert names == {
+        *(f"bar_fields_{t.attrs['study_name']}.png" for t in trees),
         "gamut_bar_m1_uniform_monotonic.png",
         *(f"gamut_bar_m1_{g}_cyclic_{k}.png" for g in ("uniform", "stochastic")
           for k in ("loops", "loglog", "constants")),
@@ -310,15 +312,17 @@ def test_figures_are_pngs(trees, tmp_path):
 def test_only_what_the_results_allow(trees, tmp_path):
     det = [_by_name(trees, "m1-monotonic-deterministic-uniform"),
            _by_name(trees, "m1-cyclic-deterministic-uniform")]
-    text, pngs = gb.report(det, tmp_path)
+    text, pngs = GamutBarSolver.report(det, tmp_path)
     # no per-realization constants without stochastic results; loops of the deterministic run
     assert sorted(p.name for p in pngs) == [
+        "bar_fields_t-m1-cyclic-deterministic-uniform.png",
+        "bar_fields_t-m1-monotonic-deterministic-uniform.png",
         "gamut_bar_m1_uniform_cyclic_loglog.png", "gamut_bar_m1_uniform_cyclic_loops.png",
         "gamut_bar_m1_uniform_monotonic.png"]
     assert "n' and K' over the realizations" not in text
     assert "0.06244 (" in text                         # the deterministic column
     mono = [_by_name(trees, "m1-monotonic-deterministic-uniform")]
-    text, pngs = gb.report(mono, tmp_path / "none", figures=False)
+    text, pngs = GamutBarSolver.report(mono, tmp_path / "none", figures=False)
     assert pngs == [] and not (tmp_path / "none").exists()
     assert "Table 1" not in text and "Monotonic curves" in text
 
