@@ -29,17 +29,22 @@ import xarray as xr
 
 from uqflow import progress as progress_mod
 from uqflow.errors import ResultFileError, StudyError, UqflowError
-from uqflow.levels import (SEED_KEY_VARIABLE, AlignedSolver, level_array,
-                           same_level_runs)
-from uqflow.realization import (SENSITIVITY_DIM, STATUS_FAILED, STATUS_PENDING,
-                                add_field_value_variables,
-                                batch_arguments, empty_runs, is_sensitivity_variable,
+from uqflow.layout import (COMPLETE, CONVENTIONS, CREATED, ELAPSED_TIME, FAILED_RUNS,
+                           FIELD_PREFIX, FINISHED, MESSAGE, METHOD, METHOD_OPTIONS, PARAMETER,
+                           PLANNED_REALIZATIONS, REALIZATION, REALIZATION_SEED, RESUMED,
+                           RUN_COLUMNS, SEED, SEED_KEY, SENSITIVITY_DIM, SOLVER,
+                           SOLVER_DESCRIPTION, SOLVER_RUNS, STATUS, STATUS_FAILED,
+                           STATUS_PENDING, STOPPED_EARLY, STUDY_FILE, STUDY_HASH, STUDY_NAME,
+                           STUDY_OVERRIDES, STUDY_READ_FILES, STUDY_TEXT, STUDY_TEXT_HASH,
+                           STUDY_TEXT_OMITTED, TITLE, WARNINGS, WORKERS,
+                           is_sensitivity_variable)
+from uqflow.levels import AlignedSolver, level_array, same_level_runs
+from uqflow.realization import (add_field_value_variables, batch_arguments, empty_runs,
                                 realization_prefix, run_batch, store_batch)
 from uqflow.store import (check_unlocked, check_writable, now, read_runs, result_lock, versions,
                           write_result)
-from uqflow.study import Study, scheduler_address_problem
+from uqflow.study import SET_OPTION, Study, scheduler_address_problem
 
-_RUN_COLUMNS = {"status", "message", "wall_time", "compile_time", "clipped_points"}
 #: how long a client waits for a dask scheduler before saying it cannot reach it
 CONNECT_TIMEOUT_S = 30.0
 
@@ -100,31 +105,32 @@ MAX_STORED_STUDY_BYTES = 1 << 20
 def _study_text_attrs(text: str) -> dict:
     size = len(text.encode())
     if size <= MAX_STORED_STUDY_BYTES:
-        return {"study": text}
-    return {"study_text_omitted": f"the study text ({size} bytes) is larger than "
+        return {STUDY_TEXT: text}
+    return {STUDY_TEXT_OMITTED: f"the study text ({size} bytes) is larger than "
                                   f"{MAX_STORED_STUDY_BYTES} bytes and is not stored; "
-                                  f"study_text_sha256 identifies it"}
+                                  f"{STUDY_TEXT_HASH} identifies it"}
 
 
 def _root_attrs(study: Study, n_planned: int) -> dict:
     spec = study.spec
     return {
-        "title": f"uqflow study '{study.name}'",
-        "study_name": study.name,
-        "study_file": str(study.path),
+        TITLE: f"uqflow study '{study.name}'",
+        STUDY_NAME: study.name,
+        STUDY_FILE: str(study.path),
         **_study_text_attrs(study.text),
-        "study_sha256": study.sha256,
-        "study_text_sha256": _text_sha256(study.text),
-        "study_read_files": json.dumps(study.read_files, sort_keys=True),
-        "solver": spec.solver,
-        "solver_description": study.solver.describe(),
-        "method": spec.method.kind,
-        "method_options": json.dumps(study.method.options.model_dump(), default=str),
-        "seed": spec.execution.seed,
-        "planned_realizations": n_planned,
-        "created": now(),
-        "complete": 0,
-        "Conventions": "CF-1.10",
+        STUDY_HASH: study.sha256,
+        STUDY_TEXT_HASH: _text_sha256(study.text),
+        STUDY_READ_FILES: json.dumps(study.read_files, sort_keys=True),
+        SOLVER: spec.solver,
+        SOLVER_DESCRIPTION: study.solver.describe(),
+        METHOD: spec.method.kind,
+        METHOD_OPTIONS: json.dumps(study.method.options.model_dump(), default=str),
+        SEED: spec.execution.seed,
+        PLANNED_REALIZATIONS: n_planned,
+        CREATED: now(),
+        COMPLETE: 0,
+        CONVENTIONS: "CF-1.10",
+        **({STUDY_OVERRIDES: study.overrides_text} if study.overrides else {}),
         **versions(),
     }
 
@@ -153,13 +159,23 @@ class _Checkpoint:
 
 
 def _check_provenance(study: Study, attrs: dict, path: Path) -> None:
-    """Refuse to resume a result made by another study, or by this study with a changed
-    scene file (naming the file that changed)."""
-    if attrs.get("study_sha256") == study.sha256:
+    """Refuse to resume a result made by another study, by this study with a changed
+    scene file (naming the file that changed) or with other ``--set`` overrides."""
+    if attrs.get(STUDY_HASH) == study.sha256:
         return
-    if attrs.get("study_text_sha256") == _text_sha256(study.text):
+    stored_overrides = str(attrs.get(STUDY_OVERRIDES, ""))
+    if attrs.get(STUDY_TEXT_HASH) == _text_sha256(study.text) and \
+            stored_overrides != study.overrides_text:
+        def shown(text):
+            return "; ".join(text.splitlines()) or "none"
+        raise StudyError(f"{path} was made with other {SET_OPTION} overrides "
+                         f"({shown(stored_overrides)}) than these "
+                         f"({shown(study.overrides_text)}); resume with the same ones, or use "
+                         f"--force to start again", file=str(study.path),
+                         key=SET_OPTION)
+    if attrs.get(STUDY_TEXT_HASH) == _text_sha256(study.text):
         try:
-            stored = json.loads(str(attrs.get("study_read_files", "{}")))
+            stored = json.loads(str(attrs.get(STUDY_READ_FILES, "{}")))
         except ValueError:
             stored = {}
         for key, (file, sha) in sorted(study.read_files.items()):
@@ -180,10 +196,10 @@ def _prepare(study: Study, resume: bool, path: Path):
         runs, attrs = read_runs(path, verify=True)
         _check_provenance(study, attrs, path)
         _check_stored_design(runs, fresh, study, path)
-        attrs["resumed"] = now()
-        attrs.setdefault("planned_realizations", runs.sizes["realization"])
+        attrs[RESUMED] = now()
+        attrs.setdefault(PLANNED_REALIZATIONS, runs.sizes[REALIZATION])
         return runs, attrs
-    return fresh, _root_attrs(study, fresh.sizes["realization"])
+    return fresh, _root_attrs(study, fresh.sizes[REALIZATION])
 
 
 def _planned_runs(study: Study) -> xr.Dataset:
@@ -199,7 +215,7 @@ def _planned_runs(study: Study) -> xr.Dataset:
 
 
 def _empty(design) -> bool:
-    return isinstance(design, xr.Dataset) and design.sizes.get("realization", 0) == 0
+    return isinstance(design, xr.Dataset) and design.sizes.get(REALIZATION, 0) == 0
 
 
 def _runs_of(design: xr.Dataset, study: Study) -> xr.Dataset:
@@ -209,9 +225,9 @@ def _runs_of(design: xr.Dataset, study: Study) -> xr.Dataset:
     # A seed per realization, spawned by index (by seed_key where a design couples rows: the
     # same sample at two levels draws the same layout): reproducible without the rest of the
     # design.
-    keys = runs[SEED_KEY_VARIABLE].values if SEED_KEY_VARIABLE in runs else \
-        runs["realization"].values
-    runs["realization_seed"] = ("realization", np.array(
+    keys = runs[SEED_KEY].values if SEED_KEY in runs else \
+        runs[REALIZATION].values
+    runs[REALIZATION_SEED] = (REALIZATION, np.array(
         [np.random.SeedSequence(study.spec.execution.seed, spawn_key=(int(i),))
          .generate_state(1)[0] for i in keys], dtype=np.uint32))
     return runs
@@ -221,15 +237,15 @@ def _check_stored_design(stored: xr.Dataset, fresh: xr.Dataset, study: Study,
                          path: Path) -> None:
     """The partial result must hold this study's design (a prefix of it, if it stopped
     early) and every variable a run writes: another uqflow version may plan differently."""
-    n = stored.sizes.get("realization", 0)
-    if study.method.extends and n > fresh.sizes["realization"]:
+    n = stored.sizes.get(REALIZATION, 0)
+    if study.method.extends and n > fresh.sizes[REALIZATION]:
         # rows the method added after its plan: the plan must open the stored design
-        n = fresh.sizes["realization"]
+        n = fresh.sizes[REALIZATION]
         stored = realization_prefix(stored, n)
     prefix = realization_prefix(fresh, n)
     problem = None
-    if not 0 < n <= fresh.sizes["realization"]:
-        problem = f"{n} realizations where this study plans {fresh.sizes['realization']}"
+    if not 0 < n <= fresh.sizes[REALIZATION]:
+        problem = f"{n} realizations where this study plans {fresh.sizes[REALIZATION]}"
     else:
         for name, var in prefix.variables.items():
             if name not in stored.variables:
@@ -239,8 +255,8 @@ def _check_stored_design(stored: xr.Dataset, fresh: xr.Dataset, study: Study,
             if mine.dims != var.dims or mine.shape != var.shape:
                 problem = f"'{name}' has dims {mine.dims} {mine.shape}, not {var.dims} {var.shape}"
                 break
-            designed = name not in (*study.outputs, *_RUN_COLUMNS) and \
-                not str(name).startswith("field_") and not is_sensitivity_variable(name)
+            designed = name not in (*study.outputs, *RUN_COLUMNS) and \
+                not str(name).startswith(FIELD_PREFIX) and not is_sensitivity_variable(name)
             if designed and not _same_values(mine.values, var.values):
                 problem = f"its '{name}' differ from this study's plan"
                 break
@@ -253,7 +269,7 @@ def _check_stored_design(stored: xr.Dataset, fresh: xr.Dataset, study: Study,
 def _design_of(runs: xr.Dataset, study: Study) -> xr.Dataset:
     """The design inside ``runs``: everything but what a run writes (outputs, their
     derivatives, the run columns)."""
-    written = [*study.outputs, *_RUN_COLUMNS,
+    written = [*study.outputs, *RUN_COLUMNS,
                *(name for name in runs.data_vars if is_sensitivity_variable(name))]
     return runs.drop_vars(written, errors="ignore")
 
@@ -272,7 +288,7 @@ class _Stopper:
 
     def __init__(self, method, design: xr.Dataset, runs: xr.Dataset, n_planned: int):
         self.method, self.design, self.runs = method, design, runs
-        n = runs.sizes["realization"]
+        n = runs.sizes[REALIZATION]
         points = np.asarray(method.stop_points(int(n_planned)), dtype=np.int64)
         self.points = [int(p) for p in points if 0 < p <= n]
         self.next = 0
@@ -284,7 +300,7 @@ class _Stopper:
 
     def advance(self) -> bool:
         """Ask at every count whose prefix is now finished; True once one says enough."""
-        status = self.runs["status"].values
+        status = self.runs[STATUS].values
         pending = np.flatnonzero(status == STATUS_PENDING)
         first_pending = int(pending[0]) if pending.size else status.size
         while self.keep is None and self.next < len(self.points):
@@ -306,24 +322,24 @@ class _Execution:
                  checkpoint: _Checkpoint, bar):
         self.study, self.runs, self.design = study, runs, design
         self.checkpoint, self.bar = checkpoint, bar
-        self.n_total = runs.sizes["realization"]
+        self.n_total = runs.sizes[REALIZATION]
         self.stopper = _Stopper(study.method, design, runs,
-                                int(attrs.get("planned_realizations", self.n_total)))
-        self.names = [str(p) for p in runs["parameter"].values]
+                                int(attrs.get(PLANNED_REALIZATIONS, self.n_total)))
+        self.names = [str(p) for p in runs[PARAMETER].values]
         self.levels = level_array(runs)
 
     def add(self, more: xr.Dataset) -> np.ndarray:
         """Append the method's new rows ``more`` (a design) as pending runs; their indices."""
-        n = self.runs.sizes["realization"]
+        n = self.runs.sizes[REALIZATION]
         # added rows run without sensitivities: the first rows' sensitivity runs stay as they
         # are (a dim of its own, not concatenated)
         new = _runs_of(more, self.study).drop_dims(SENSITIVITY_DIM, errors="ignore") \
-            .assign_coords(realization=np.arange(n, n + more.sizes["realization"]))
-        self.runs = xr.concat([self.runs, new], dim="realization", data_vars="minimal",
+            .assign_coords({REALIZATION: np.arange(n, n + more.sizes[REALIZATION])})
+        self.runs = xr.concat([self.runs, new], dim=REALIZATION, data_vars="minimal",
                               coords="minimal", compat="override", join="override",
                               combine_attrs="override")
         self.design = _design_of(self.runs, self.study)
-        self.n_total = self.runs.sizes["realization"]
+        self.n_total = self.runs.sizes[REALIZATION]
         self.levels = level_array(self.runs)
         self.stopper = _Stopper(self.study.method, self.design, self.runs, self.n_total)
         self.bar.total = self.n_total
@@ -331,23 +347,23 @@ class _Execution:
 
     def record(self, indices: np.ndarray, result: dict) -> str | None:
         """Store a task's results; the reason to stop, if any."""
-        done = indices[:len(result["status"])]
+        done = indices[:len(result[STATUS])]
         store_batch(self.runs, done, result)
-        self.bar.update(len(done), result["status"].count(STATUS_FAILED))
+        self.bar.update(len(done), result[STATUS].count(STATUS_FAILED))
         self.checkpoint.dirty = True
         ex = self.study.spec.execution
-        failed = int((self.runs["status"].values == STATUS_FAILED).sum())
+        failed = int((self.runs[STATUS].values == STATUS_FAILED).sum())
         if failed > ex.max_failure_fraction * self.n_total:
             return _failure_stop(self.runs, failed, self.n_total, ex.max_failure_fraction)
         return "enough" if self.stopper.advance() else None
 
 
 def _failure_stop(runs, failed, n_total, fraction):
-    status = runs["status"].values
+    status = runs[STATUS].values
     first = int(np.flatnonzero(status == STATUS_FAILED)[0])
     return (f"failed:{failed} of {n_total} realizations failed (more than "
             f"max_failure_fraction {fraction:g}); first, realization {first}: "
-            f"{runs['message'].values[first]}")
+            f"{runs[MESSAGE].values[first]}")
 
 
 def run_study(study: Study, *, workers: int | None = None, scheduler: str | None = None,
@@ -379,8 +395,8 @@ def run_study(study: Study, *, workers: int | None = None, scheduler: str | None
     check_unlocked(path, **where)  # before "exists": another run may be writing it now
     check_writable(path, replace=resume or force, **where)
     runs, attrs = _prepare(study, resume, path)
-    pending = np.flatnonzero(runs["status"].values == STATUS_PENDING)
-    resumed = int(runs.sizes["realization"] - pending.size)
+    pending = np.flatnonzero(runs[STATUS].values == STATUS_PENDING)
+    resumed = int(runs.sizes[REALIZATION] - pending.size)
     design = _design_of(runs, study)
     in_process = workers == 0 and scheduler is None
 
@@ -399,7 +415,7 @@ def run_study(study: Study, *, workers: int | None = None, scheduler: str | None
                 checkpoint.write(runs)
             except ResultFileError as exc:
                 raise StudyError(str(exc)) from None
-            bar = progress_mod.Progress(runs.sizes["realization"], resumed,
+            bar = progress_mod.Progress(runs.sizes[REALIZATION], resumed,
                                         enabled=show_progress)
             execution = _Execution(study, runs, design, attrs, checkpoint, bar)
             stop_reason = "enough" if execution.stopper.advance() else None
@@ -437,17 +453,17 @@ def run_study(study: Study, *, workers: int | None = None, scheduler: str | None
         if keep is not None:
             runs = realization_prefix(runs, keep)
             design = realization_prefix(design, keep)
-            attrs["stopped_early"] = f"target reached after {keep} realizations"
+            attrs[STOPPED_EARLY] = f"target reached after {keep} realizations"
         statistics = study.method.analyze(design, runs)
-        attrs.update(complete=1, finished=now(),
-                     elapsed_time=float(attrs.get("elapsed_time", 0.0))
-                     + time.perf_counter() - started,
-                     solver_runs=statistics.attrs.get("solver_runs", 0),
-                     failed_runs=statistics.attrs.get("failed_runs", 0),
-                     workers=workers if scheduler is None else f"scheduler {scheduler}")
+        attrs.update({COMPLETE: 1, FINISHED: now(),
+                      ELAPSED_TIME: float(attrs.get(ELAPSED_TIME, 0.0))
+                      + time.perf_counter() - started,
+                      SOLVER_RUNS: statistics.attrs.get(SOLVER_RUNS, 0),
+                      FAILED_RUNS: statistics.attrs.get(FAILED_RUNS, 0),
+                      WORKERS: workers if scheduler is None else f"scheduler {scheduler}"})
         with _ctrl_c_deferred():
             write_result(path, runs, statistics, attrs)
-        warnings = [w for w in statistics.attrs.get("warnings", "").split("\n") if w]
+        warnings = [w for w in statistics.attrs.get(WARNINGS, "").split("\n") if w]
         return Outcome(path, runs, statistics, attrs, resumed, warnings)
 
 
@@ -466,7 +482,7 @@ def _run_in_process(execution: _Execution, pending: np.ndarray) -> str | None:
         result = run_batch(solver, execution.names, outputs=study.outputs,
                            budget=execution.checkpoint.seconds_until_due(),
                            **batch_arguments(runs, chunk, study.fields))
-        start += len(result["status"])
+        start += len(result[STATUS])
         reason = execution.record(chunk, result)
         if reason:
             return reason
@@ -606,8 +622,8 @@ def _run_on_dask(execution: _Execution, client, pending: np.ndarray, workers: in
                 reason = execution.record(indices, result)
                 if reason:
                     break
-                if len(result["status"]) < len(indices):
-                    submit(indices[len(result["status"]):])
+                if len(result[STATUS]) < len(indices):
+                    submit(indices[len(result[STATUS]):])
             execution.checkpoint.maybe(runs)
     finally:
         if active:

@@ -27,6 +27,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 from scipy import optimize, special
 
+from uqflow.layout import FIELD_PREFIX, GERM_PREFIX
+
 __all__ = ["GermSpec", "FieldSpec", "KLBasis", "RandomField", "FieldSample", "germ_seed"]
 
 KERNELS = ("exponential", "squared_exponential")
@@ -725,12 +727,12 @@ class FieldSample(Mapping):
 
 def germ_variable(field_name: str) -> str:
     """Name of the design variable holding a field's KL germs (netCDF-safe)."""
-    return "germ_" + re.sub(r"[^0-9A-Za-z_]", "_", field_name)
+    return GERM_PREFIX + re.sub(r"[^0-9A-Za-z_]", "_", field_name)
 
 
 def field_value_variable(parameter: str) -> str:
     """Name of the runs variable holding a stored field's values for ``parameter``."""
-    return "field_" + re.sub(r"[^0-9A-Za-z_]", "_", parameter)
+    return FIELD_PREFIX + re.sub(r"[^0-9A-Za-z_]", "_", parameter)
 
 
 def germ_seed(seed: np.random.SeedSequence, realization: int,

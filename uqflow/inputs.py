@@ -17,6 +17,7 @@ import numpy as np
 from scipy import integrate, optimize, special, stats
 
 from uqflow.errors import StudyError
+from uqflow.layout import INPUT_CV, INPUT_MEAN, INPUT_SKEWNESS, INPUT_STD
 
 DISTRIBUTIONS = ("normal", "truncnormal", "lognormal", "uniform", "weibull", "beta")
 
@@ -624,10 +625,10 @@ class InputSpace:
     def summary(self) -> dict[str, np.ndarray]:
         """Mean, std, C.V. and skewness of every input (stored with every result)."""
         return {
-            "input_mean": self.means,
-            "input_std": self.stds,
-            "input_cv": np.array([i.cv for i in self.inputs]),
-            "input_skewness": np.array([i.skewness for i in self.inputs]),
+            INPUT_MEAN: self.means,
+            INPUT_STD: self.stds,
+            INPUT_CV: np.array([i.cv for i in self.inputs]),
+            INPUT_SKEWNESS: np.array([i.skewness for i in self.inputs]),
         }
 
 

@@ -11,6 +11,10 @@ from __future__ import annotations
 import numpy as np
 import xarray as xr
 
+# ----------------------------------------------------------------------------- groups
+#: the groups of a result file below its root (``uqflow.store``)
+RUNS_GROUP, STATISTICS_GROUP = "runs", "statistics"
+
 # ----------------------------------------------------------------------------- dims
 REALIZATION = "realization"
 PARAMETER, PARAMETER_J = "parameter", "parameter_j"

@@ -28,9 +28,11 @@ import xarray as xr
 from pydantic import BaseModel, ConfigDict, Field
 
 from uqflow.errors import SceneError, SolverError, StudyError
+from uqflow.layout import LEVEL, SEED_KEY
 
-#: design variables of a study with levels
-LEVEL_VARIABLE, SEED_KEY_VARIABLE = "level", "seed_key"
+#: the design variables of a study with levels, by the names the fidelity methods import
+#: (``uqflow.layout.LEVEL`` and ``SEED_KEY`` are their home)
+LEVEL_VARIABLE, SEED_KEY_VARIABLE = LEVEL, SEED_KEY
 #: most values a [levels] table takes
 MAX_LEVELS = 16
 
@@ -199,9 +201,9 @@ class AlignedSolver:
 
 def level_array(design: xr.Dataset) -> np.ndarray | None:
     """The ``level`` of each realization, or None for a design without levels."""
-    if LEVEL_VARIABLE not in design.variables:
+    if LEVEL not in design.variables:
         return None
-    return np.asarray(design[LEVEL_VARIABLE].values, dtype=np.int64)
+    return np.asarray(design[LEVEL].values, dtype=np.int64)
 
 
 def same_level_runs(indices: np.ndarray, levels: np.ndarray | None) -> list[np.ndarray]:

@@ -27,23 +27,30 @@ import xarray as xr
 
 from uqflow.errors import SolverError
 from uqflow.fields import FieldSample, field_value_variable, germ_variable
-from uqflow.layout import (GRADIENT_SUFFIX, HESSIAN_SUFFIX, SENSITIVITY_COORD,  # noqa: F401
-                           SENSITIVITY_DIM, STATUS_FAILED, STATUS_OK, STATUS_PENDING,
-                           WITH_SENSITIVITIES as SENSITIVITY_FLAG, gradient_variable,
-                           hessian_variable, is_diagnostic, is_sensitivity_variable)
+from uqflow.layout import (CLIPPED_POINTS, COMPILE_TIME, GERM_PREFIX, INPUTS, LONG_NAME,
+                           MESSAGE, PARAMETER, PARAMETER_J, REALIZATION, REALIZATION_SEED,
+                           SENSITIVITY_COORD, SENSITIVITY_DIM, STATUS, STATUS_FAILED, STATUS_OK,
+                           STATUS_PENDING, UNITS, WALL_TIME, WITH_SENSITIVITIES,
+                           gradient_variable, hessian_variable, is_diagnostic,
+                           is_sensitivity_variable)
+
+#: the design's flag of sensitivity runs, by the name methods and benchmarks know it
+#: (docs/taylor_local.md); ``uqflow.layout.WITH_SENSITIVITIES`` is its home
+SENSITIVITY_FLAG = WITH_SENSITIVITIES
+
 
 def sensitivity_flags(design: xr.Dataset) -> np.ndarray:
     """Which realizations of ``design`` run with sensitivities (all False without the flag)."""
-    if SENSITIVITY_FLAG not in design.variables:
-        return np.zeros(design.sizes["realization"], dtype=bool)
-    return np.asarray(design[SENSITIVITY_FLAG].values).astype(bool)
+    if WITH_SENSITIVITIES not in design.variables:
+        return np.zeros(design.sizes[REALIZATION], dtype=bool)
+    return np.asarray(design[WITH_SENSITIVITIES].values).astype(bool)
 
 
 def sensitivity_arrays(runs: xr.Dataset, output: str):
     """(realization indices, gradient, hessian) of ``output``'s sensitivity runs, arrays of
     shapes (m,), (m, *dims, n) and (m, *dims, n, n); NaN where a realization did not run ok."""
     if SENSITIVITY_COORD not in runs.coords:
-        raise KeyError(f"the runs hold no sensitivity runs (no '{SENSITIVITY_FLAG}' in the "
+        raise KeyError(f"the runs hold no sensitivity runs (no '{WITH_SENSITIVITIES}' in the "
                        f"design)")
     return (np.asarray(runs[SENSITIVITY_COORD].values, dtype=np.int64),
             np.asarray(runs[gradient_variable(output)].values, dtype=float),
@@ -53,7 +60,7 @@ def sensitivity_arrays(runs: xr.Dataset, output: str):
 def realization_prefix(runs: xr.Dataset, n: int) -> xr.Dataset:
     """The first ``n`` realizations of ``runs`` (or of a design), with their sensitivity
     runs only."""
-    prefix = runs.isel(realization=slice(0, n))
+    prefix = runs.isel({REALIZATION: slice(0, n)})
     if SENSITIVITY_COORD in runs.coords:
         keep = np.flatnonzero(runs[SENSITIVITY_COORD].values < n)
         prefix = prefix.isel({SENSITIVITY_DIM: keep})
@@ -66,48 +73,48 @@ def _per_parameter(units: str, power: int) -> str:
 
 
 def _add_sensitivity_variables(runs: xr.Dataset, template: xr.Dataset) -> xr.Dataset:
-    if SENSITIVITY_FLAG not in runs.variables:
+    if WITH_SENSITIVITIES not in runs.variables:
         return runs
     flagged = np.flatnonzero(sensitivity_flags(runs))
-    parameters = [str(p) for p in runs["parameter"].values]
+    parameters = [str(p) for p in runs[PARAMETER].values]
     n, m = len(parameters), flagged.size
     runs = runs.assign_coords({SENSITIVITY_COORD: (SENSITIVITY_DIM, flagged.astype(np.int64), {
-        "long_name": "realization run with local sensitivities"})})
-    if "parameter_j" not in runs.coords:
-        runs = runs.assign_coords(parameter_j=("parameter_j", parameters))
+        LONG_NAME: "realization run with local sensitivities"})})
+    if PARAMETER_J not in runs.coords:
+        runs = runs.assign_coords({PARAMETER_J: (PARAMETER_J, parameters)})
     for name, var in template.data_vars.items():
         if is_diagnostic(var):  # a timing or a counter has no derivative
             continue
-        units = var.attrs.get("units", "")
+        units = var.attrs.get(UNITS, "")
         runs[gradient_variable(name)] = xr.Variable(
-            (SENSITIVITY_DIM, *var.dims, "parameter"), np.full((m, *var.shape, n), np.nan),
-            {"long_name": f"local derivative d{name}/dx_k at the realization's parameters "
-                          f"(frozen state)", "units": _per_parameter(units, 1)})
+            (SENSITIVITY_DIM, *var.dims, PARAMETER), np.full((m, *var.shape, n), np.nan),
+            {LONG_NAME: f"local derivative d{name}/dx_k at the realization's parameters "
+                          f"(frozen state)", UNITS: _per_parameter(units, 1)})
         runs[hessian_variable(name)] = xr.Variable(
-            (SENSITIVITY_DIM, *var.dims, "parameter", "parameter_j"),
+            (SENSITIVITY_DIM, *var.dims, PARAMETER, PARAMETER_J),
             np.full((m, *var.shape, n, n), np.nan),
-            {"long_name": f"local second derivative d2{name}/dx_k dx_j at the realization's "
-                          f"parameters (frozen state)", "units": _per_parameter(units, 2)})
+            {LONG_NAME: f"local second derivative d2{name}/dx_k dx_j at the realization's "
+                          f"parameters (frozen state)", UNITS: _per_parameter(units, 2)})
     return runs
 
 
 def empty_runs(design: xr.Dataset, template: xr.Dataset) -> xr.Dataset:
     """The runs dataset before anything ran: NaN outputs, every realization pending."""
-    n = design.sizes["realization"]
+    n = design.sizes[REALIZATION]
     runs = design.copy()
     for name, var in template.data_vars.items():
-        runs[name] = xr.Variable(("realization", *var.dims),
+        runs[name] = xr.Variable((REALIZATION, *var.dims),
                                  np.full((n, *var.shape), np.nan), dict(var.attrs))
     runs = runs.assign_coords({c: template.coords[c] for c in template.coords})
-    runs["status"] = ("realization", np.full(n, STATUS_PENDING, dtype=object))
-    runs["message"] = ("realization", np.full(n, "", dtype=object))
-    runs["wall_time"] = ("realization", np.full(n, np.nan), {"units": "s"})
-    runs["compile_time"] = ("realization", np.full(n, np.nan), {
-        "units": "s", "long_name": "part of wall_time numba spent compiling (0 when every "
+    runs[STATUS] = (REALIZATION, np.full(n, STATUS_PENDING, dtype=object))
+    runs[MESSAGE] = (REALIZATION, np.full(n, "", dtype=object))
+    runs[WALL_TIME] = (REALIZATION, np.full(n, np.nan), {UNITS: "s"})
+    runs[COMPILE_TIME] = (REALIZATION, np.full(n, np.nan), {
+        UNITS: "s", LONG_NAME: "part of wall_time numba spent compiling (0 when every "
                                    "kernel was compiled or loaded from the cache before)"})
-    if any(str(v).startswith("germ_") for v in design.data_vars):
-        runs["clipped_points"] = ("realization", np.zeros(n, dtype=np.int64), {
-            "long_name": "field values clipped into the parameter's physical range"})
+    if any(str(v).startswith(GERM_PREFIX) for v in design.data_vars):
+        runs[CLIPPED_POINTS] = (REALIZATION, np.zeros(n, dtype=np.int64), {
+            LONG_NAME: "field values clipped into the parameter's physical range"})
     return _add_sensitivity_variables(runs, template)
 
 
@@ -120,9 +127,9 @@ def add_field_value_variables(runs: xr.Dataset, fields: list | None, solver) -> 
         for parameter in field.targets:
             name = field_value_variable(parameter)
             n = len(np.asarray(solver.field_points(parameter)))
-            runs[name] = (("realization", f"{name}_point"),
-                          np.full((runs.sizes["realization"], n), np.nan),
-                          {"long_name": f"random-field values of {parameter}"})
+            runs[name] = ((REALIZATION, f"{name}_point"),
+                          np.full((runs.sizes[REALIZATION], n), np.nan),
+                          {LONG_NAME: f"random-field values of {parameter}"})
     return runs
 
 
@@ -137,8 +144,8 @@ def _derivatives(result: xr.Dataset, output: str, wrt: list[str], dims: tuple) -
     """``output``'s gradient and Hessian from a solver's dataset, as arrays with the
     parameter dims last, in ``wrt`` order (whatever order the solver used)."""
     got = {}
-    for name, extra in ((gradient_variable(output), ("parameter",)),
-                        (hessian_variable(output), ("parameter", "parameter_j"))):
+    for name, extra in ((gradient_variable(output), (PARAMETER,)),
+                        (hessian_variable(output), (PARAMETER, PARAMETER_J))):
         if name not in result.variables:
             raise SolverError(f"run_with_sensitivities returned no '{name}'")
         var = result[name]
@@ -265,7 +272,7 @@ def run_batch(solver, names: list[str], values: np.ndarray, outputs: list[str],
     respect to ``names``, under "sensitivities"). With ``budget`` (seconds) the batch
     returns after the first realization that ends past it, so finished realizations reach
     the caller (and its checkpoint) in bounded time: the result then covers the first
-    ``len(result["status"])`` rows, at least one.
+    ``len(result[STATUS])`` rows, at least one.
     """
     start = time.perf_counter()
     # once per batch: inspect is slow next to a run
@@ -301,22 +308,22 @@ def run_batch(solver, names: list[str], values: np.ndarray, outputs: list[str],
                            if flagged else None)
         if budget is not None and time.perf_counter() - start >= budget:
             break
-    return {"status": statuses, "message": messages, "wall_time": times,
-            "compile_time": compiling, "outputs": results,
-            "clipped_points": clipped, "field_values": evaluated,
+    return {STATUS: statuses, MESSAGE: messages, WALL_TIME: times,
+            COMPILE_TIME: compiling, "outputs": results,
+            CLIPPED_POINTS: clipped, "field_values": evaluated,
             "sensitivities": derivatives}
 
 
 def batch_arguments(runs: xr.Dataset, indices: np.ndarray, fields: list | None) -> dict:
     """The per-row inputs of ``run_batch`` for realizations ``indices`` of ``runs``."""
-    args = {"values": runs["inputs"].values[indices]}
+    args = {"values": runs[INPUTS].values[indices]}
     if fields:
         args["fields"] = fields
         args["germs"] = {germ_variable(f.name): runs[germ_variable(f.name)].values[indices]
                          for f in fields}
-    if "realization_seed" in runs:
-        args["seeds"] = runs["realization_seed"].values[indices]
-    if SENSITIVITY_FLAG in runs.variables:
+    if REALIZATION_SEED in runs:
+        args["seeds"] = runs[REALIZATION_SEED].values[indices]
+    if WITH_SENSITIVITIES in runs.variables:
         args["sensitivities"] = sensitivity_flags(runs)[indices]
     return args
 
@@ -324,24 +331,24 @@ def batch_arguments(runs: xr.Dataset, indices: np.ndarray, fields: list | None) 
 def store_batch(runs: xr.Dataset, indices: np.ndarray, batch: dict) -> None:
     """Write a finished batch into ``runs`` in place (``indices`` may be longer than the
     batch's results when it stopped at its time budget: only the first ones are written)."""
-    indices = indices[:len(batch["status"])]
+    indices = indices[:len(batch[STATUS])]
     position = {}
     if SENSITIVITY_COORD in runs.coords:
         position = {int(r): j for j, r in enumerate(runs[SENSITIVITY_COORD].values)}
     for k, idx in enumerate(indices):
-        runs["status"].values[idx] = batch["status"][k]
-        runs["message"].values[idx] = batch["message"][k]
-        runs["wall_time"].values[idx] = batch["wall_time"][k]
-        if "compile_time" in runs and "compile_time" in batch:
-            runs["compile_time"].values[idx] = batch["compile_time"][k]
-        if "clipped_points" in runs:
-            runs["clipped_points"].values[idx] = batch["clipped_points"][k]
+        runs[STATUS].values[idx] = batch[STATUS][k]
+        runs[MESSAGE].values[idx] = batch[MESSAGE][k]
+        runs[WALL_TIME].values[idx] = batch[WALL_TIME][k]
+        if COMPILE_TIME in runs and COMPILE_TIME in batch:
+            runs[COMPILE_TIME].values[idx] = batch[COMPILE_TIME][k]
+        if CLIPPED_POINTS in runs:
+            runs[CLIPPED_POINTS].values[idx] = batch[CLIPPED_POINTS][k]
         for parameter, values in batch.get("field_values", [{}] * len(indices))[k].items():
             stored = runs[field_value_variable(parameter)].values[idx]
             n = min(stored.size, values.size)  # random grids may move the point count
             stored[:] = np.nan
             stored[:n] = values[:n]
-        ok = batch["status"][k] == STATUS_OK
+        ok = batch[STATUS][k] == STATUS_OK
         for name, vals in batch["outputs"].items():
             if vals[k] is not None and ok:
                 runs[name].values[idx] = vals[k]
@@ -358,8 +365,8 @@ def evaluate_design(solver, design: xr.Dataset, outputs: list[str] | None = None
     template = solver.outputs()
     outputs = list(template.data_vars) if outputs is None else list(outputs)
     runs = add_field_value_variables(empty_runs(design, template[outputs]), fields, solver)
-    names = [str(p) for p in design["parameter"].values]
-    every = np.arange(design.sizes["realization"])
+    names = [str(p) for p in design[PARAMETER].values]
+    every = np.arange(design.sizes[REALIZATION])
     batch = run_batch(solver, names, outputs=outputs, **batch_arguments(runs, every, fields))
     store_batch(runs, every, batch)
     return runs

@@ -25,6 +25,8 @@ import numpy as np
 import xarray as xr
 
 from uqflow.errors import SceneError, SolverError
+# A solver marks its diagnostics with these: importable from here beside the contract,
+# their home is ``uqflow.layout``.
 from uqflow.layout import DIAGNOSTIC_KIND, is_diagnostic
 from uqflow.registry import Registry
 
@@ -49,10 +51,10 @@ class Solver(abc.ABC):
 
     Outputs and diagnostics: every variable of the ``outputs()`` template is stored per
     realization in the result's runs. One whose attribute ``output_kind`` is "diagnostic"
-    (``uqflow.methods.base.DIAGNOSTIC_KIND``) says how the run went rather than what it
+    (``uqflow.layout.DIAGNOSTIC_KIND``) says how the run went rather than what it
     predicts (a wall time per phase, a step or iteration count): it is stored in the runs
     like the others, but no method gives it statistics, the report draws no figure of it, and
-    no method allocates samples on it (``uqflow.methods.base.is_diagnostic``). An output
+    no method allocates samples on it (``uqflow.layout.is_diagnostic``). An output
     without the attribute, or with ``output_kind = "quantity"``, is an uncertain quantity.
     """
 
@@ -99,8 +101,8 @@ class Solver(abc.ABC):
         with dims (*o's dims, "parameter") and ``o + "__hessian"`` with dims (*o's dims,
         "parameter", "parameter_j"); coordinates ``parameter`` = ``parameter_j`` = list(wrt).
         Derivatives are at the realization's own parameter values, with the state the run
-        computed held fixed (``uqflow.realization.gradient_variable``/``hessian_variable``
-        give the names)."""
+        computed held fixed (``uqflow.layout.gradient_variable``/``hessian_variable`` give the
+        names)."""
         raise NotImplementedError(f"solver '{self.name}' has no local sensitivities "
                                   f"(local_sensitivities() is empty)")
 

@@ -30,6 +30,8 @@ import numpy as np
 import xarray as xr
 
 from uqflow.errors import ResultFileError, StudyError
+from uqflow.layout import (MESSAGE, RUNS_GROUP, RUNS_HASH, STATISTICS_GROUP, STATUS,
+                           VERSION_PREFIX)
 
 ENGINE = "netcdf4"
 
@@ -39,9 +41,9 @@ def versions() -> dict[str, str]:
     for pkg in ("uqflow", "numpy", "numba", "dask", "distributed", "xarray", "chaospy", "SALib",
                 "scipy"):
         try:
-            out[f"version_{pkg}"] = version(pkg)
+            out[VERSION_PREFIX + pkg] = version(pkg)
         except PackageNotFoundError:
-            out[f"version_{pkg}"] = "not installed"
+            out[VERSION_PREFIX + pkg] = "not installed"
     return out
 
 
@@ -228,10 +230,10 @@ def write_result(path: Path, runs: xr.Dataset, statistics: xr.Dataset | None,
     one-line ``ResultFileError`` names the file and the reason.
     """
     path = Path(path)
-    groups = {"/": xr.Dataset(attrs=_netcdf_attrs({**attrs, "runs_sha256": runs_checksum(runs)})),
-              "runs": _clean(runs)}
+    groups = {"/": xr.Dataset(attrs=_netcdf_attrs({**attrs, RUNS_HASH: runs_checksum(runs)})),
+              RUNS_GROUP: _clean(runs)}
     if statistics is not None:
-        groups["statistics"] = _clean(statistics)
+        groups[STATISTICS_GROUP] = _clean(statistics)
     tree = xr.DataTree.from_dict(groups)
     tmp = path.with_name(path.name + ".tmp")
     try:
@@ -262,7 +264,7 @@ def open_result(path: str | Path) -> xr.DataTree:
             tree = tree.load()
     except (OSError, ValueError) as exc:
         raise StudyError(f"not a uqflow result file ({exc})", file=str(path)) from None
-    if not {"runs", "statistics"} & set(tree.children):
+    if not {RUNS_GROUP, STATISTICS_GROUP} & set(tree.children):
         raise StudyError("has neither a 'runs' nor a 'statistics' group: not a uqflow result "
                          "file", file=str(path))
     return tree
@@ -275,17 +277,18 @@ def read_runs(path: Path, verify: bool = False) -> tuple[xr.Dataset, dict]:
     edited file is refused rather than resumed into wrong statistics.
     """
     tree = open_result(path)
-    if "runs" not in tree.children:
-        raise StudyError("has no 'runs' group: not a uqflow result file", file=str(path))
-    runs = tree["runs"].to_dataset()
-    for name in ("status", "message"):
+    if RUNS_GROUP not in tree.children:
+        raise StudyError(f"has no '{RUNS_GROUP}' group: not a uqflow result file",
+                         file=str(path))
+    runs = tree[RUNS_GROUP].to_dataset()
+    for name in (STATUS, MESSAGE):
         if name not in runs:
             raise StudyError(f"runs has no '{name}' variable: not a uqflow result file",
                              file=str(path))
         runs[name] = runs[name].astype(object)
     attrs = dict(tree.attrs)
     if verify:
-        stored = attrs.get("runs_sha256")
+        stored = attrs.get(RUNS_HASH)
         if stored is None:
             raise StudyError("has no checksum of its runs (runs_sha256), so a resume cannot "
                              "trust them; use --force to start again", file=str(path))

@@ -10,12 +10,15 @@ against the study file's folder. The reference for users is docs/study-files.md.
 
 from __future__ import annotations
 
+import copy
 import difflib
 import hashlib
+import json
 import re
 import tomllib
 import unicodedata
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, get_args
@@ -199,6 +202,8 @@ class Study:
     read_files: dict[str, tuple[str, str]] = field(default_factory=dict)
     #: fidelity levels (``[levels]``); ``scene`` and ``solver`` are then the finest level's
     levels: Levels | None = None
+    #: keys set from outside the file (``uqflow run --set``), applied before validation
+    overrides: dict[str, Any] = field(default_factory=dict)
 
     @property
     def name(self) -> str:
@@ -211,7 +216,14 @@ class Study:
         digest = hashlib.sha256(self.text.encode())
         for key in sorted(self.read_files):
             digest.update(f"\0{key}\0{self.read_files[key][1]}".encode())
+        if self.overrides:  # a study without overrides keeps the hash it always had
+            digest.update(f"\0--set\0{self.overrides_text}".encode())
         return digest.hexdigest()
+
+    @property
+    def overrides_text(self) -> str:
+        """The overrides as TOML lines ``key = value``, in the order given ("" for none)."""
+        return "".join(f"{key} = {toml_value(value)}\n" for key, value in self.overrides.items())
 
 
 def _key(loc) -> str:
@@ -360,6 +372,109 @@ def validation_error(exc: ValidationError, file: str, prefix: str = "",
     return StudyError(reason, file=file, key=key or None)
 
 
+# ----------------------------------------------------------------------------- overrides
+
+#: where an override comes from, as errors name it
+SET_OPTION = "--set"
+
+
+def parse_override(text: str) -> tuple[str, Any]:
+    """``KEY=VALUE`` of ``--set`` as (key, value): the value is read as a TOML value (``64``,
+    ``0.1``, ``"lhs"``, ``true``, ``[1, 2]``, ``{ model = "ishigami" }``); a bare word that is
+    not valid TOML (``pce``, ``sobol``) is taken as a string."""
+    key, equals, value = text.partition("=")
+    key = key.strip()
+    if not equals or not key:
+        raise StudyError(f"expected KEY=VALUE (e.g. method.samples=64), got {text!r}",
+                         key=SET_OPTION)
+    try:
+        parsed = tomllib.loads(f"value = {value.strip()}")
+    except tomllib.TOMLDecodeError:
+        return key, value.strip()
+    return key, parsed["value"] if list(parsed) == ["value"] else value.strip()
+
+
+def toml_value(value) -> str:
+    """``value`` written as a TOML value (what ``parse_override`` reads back)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        text = repr(float(value)) if isinstance(value, float) else str(value)
+        return {"nan": "nan", "inf": "inf", "-inf": "-inf"}.get(text, text)
+    if isinstance(value, str):
+        # JSON's escapes (\", \\, \n, \uXXXX) are TOML's; non-ASCII stays as it is
+        return json.dumps(value, ensure_ascii=False)
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(toml_value(v) for v in value) + "]"
+    if isinstance(value, Mapping):
+        return "{ " + ", ".join(f"{json.dumps(str(k), ensure_ascii=False)} = {toml_value(v)}"
+                                for k, v in value.items()) + " }"
+    return toml_value(str(value))  # a date or time read from TOML
+
+
+def _key_parts(key: str) -> list[str]:
+    """``inputs.0.cv`` or ``inputs[0].cv`` as ["inputs", "0", "cv"]."""
+    return [part for part in re.sub(r"\[(\d+)\]", r".\1", key).split(".")]
+
+
+def _set_key(document: dict, key: str, value) -> None:
+    """Set the dotted ``key`` of the TOML ``document`` (an array of tables entered by index),
+    creating tables on the way; a one-line ``StudyError`` naming ``--set`` where the key
+    cannot be set."""
+    parts = _key_parts(key)
+    if any(not part.strip() for part in parts):
+        raise StudyError(f"'{key}' is not a dotted key (e.g. method.samples, inputs.0.cv)",
+                         key=SET_OPTION)
+    here, path = document, []
+    for i, part in enumerate(parts):
+        last = i == len(parts) - 1
+        where = ".".join(path) or "the study"
+        if isinstance(here, list):
+            if not part.isdigit() or int(part) >= len(here):
+                raise StudyError(f"{key}: {where} has {len(here)} entries (0 to "
+                                 f"{len(here) - 1}); {SET_OPTION} sets keys of an entry by "
+                                 f"its index, it adds none", key=SET_OPTION)
+            part = int(part)
+        elif not isinstance(here, dict):
+            raise StudyError(f"{key}: {where} is {_shown(here)}, not a table",
+                             key=SET_OPTION)
+        if last:
+            here[part] = copy.deepcopy(value)
+        else:
+            if isinstance(here, dict) and part not in here:
+                here[part] = {}
+            here = here[part]
+        path.append(str(part))
+
+
+def _apply_overrides(document: dict, overrides: Mapping[str, Any]) -> tuple[dict, dict]:
+    """The document with ``overrides`` set, and the overrides that reach into a scene file
+    (``scene.<key>`` where ``scene`` names a file): those apply to the scene's table."""
+    document = copy.deepcopy(document)
+    into_scene = {}
+    for key, value in overrides.items():
+        parts = _key_parts(key)
+        if parts[0] == "scene" and len(parts) > 1 and isinstance(document.get("scene"), str):
+            into_scene[".".join(parts[1:])] = value
+        else:
+            _set_key(document, key, value)
+    return document, into_scene
+
+
+def _overridden(error: StudyError, overrides: Mapping[str, Any]) -> StudyError:
+    """``error`` saying which override it comes from, when its key is (in or above) one."""
+    if not overrides or error.key is None:
+        return error
+    mine = _key_parts(error.key)
+    for key, value in overrides.items():
+        theirs = _key_parts(key)
+        n = min(len(mine), len(theirs))
+        if mine[:n] == theirs[:n]:
+            return type(error)(f"{error.reason} (from {SET_OPTION} {key}={toml_value(value)})",
+                               file=error.file, key=error.key)
+    return error
+
+
 def read_toml(path: Path, file_label: str) -> tuple[dict, str]:
     """A TOML file (study or scene) and its text. UTF-8, with or without the byte-order mark
     some Windows editors write (TOML itself does not allow one)."""
@@ -375,28 +490,42 @@ def read_toml(path: Path, file_label: str) -> tuple[dict, str]:
         raise StudyError(f"not valid TOML: {exc}", file=file_label) from None
 
 
-def load_study(path: str | Path) -> Study:
-    """Read, validate and resolve a study file; raise ``StudyError`` on any problem."""
+def load_study(path: str | Path, overrides: Mapping[str, Any] | None = None) -> Study:
+    """Read, validate and resolve a study file; raise ``StudyError`` on any problem.
+
+    ``overrides`` ({dotted key: value}, as ``uqflow run --set key=value`` gives them:
+    ``{"method.samples": 64, "inputs.0.cv": 0.2}``) are set in the parsed file before it is
+    validated, and validated exactly like it; an error they cause names the key and
+    ``--set``. The study's text stays the file's; ``Study.overrides`` keeps them (the result
+    records them, and its provenance hash covers them).
+    """
     path = Path(path)
     label = str(path)
+    overrides = dict(overrides or {})
     raw, text = read_toml(path, label)
+    try:
+        raw, scene_overrides = _apply_overrides(raw, overrides)
+    except StudyError as exc:
+        raise exc.located(label) from None
     try:
         spec = StudySpec.model_validate(raw)
     except ValidationError as exc:
-        raise validation_error(exc, label, data=raw, model=StudySpec) from None
+        raise _overridden(validation_error(exc, label, data=raw, model=StudySpec),
+                          overrides) from None
     try:
         # numpy's overflow warnings would print beside the one-line error (or the "ok"); every
         # value that matters is checked for finiteness instead.
         with warnings.catch_warnings(), np.errstate(all="ignore"):
             warnings.simplefilter("ignore", RuntimeWarning)
-            return _resolve(spec, path, text, label)
-    except SceneError as exc:
-        raise exc.located(label) from None
-    except StudyError as exc:
-        raise exc.located(label) from None
+            study = _resolve(spec, path, text, label, scene_overrides)
+    except StudyError as exc:  # SceneError too
+        raise _overridden(exc.located(label), overrides) from None
+    study.overrides = overrides
+    return study
 
 
-def _resolve(spec: StudySpec, path: Path, text: str, label: str) -> Study:
+def _resolve(spec: StudySpec, path: Path, text: str, label: str,
+             scene_overrides: Mapping[str, Any]) -> Study:
     folder = path.parent
     try:
         solver_class = get_solver(spec.solver)
@@ -404,6 +533,13 @@ def _resolve(spec: StudySpec, path: Path, text: str, label: str) -> Study:
         raise StudyError(exc.reason, key="solver") from None
 
     scene, scene_label, scene_text = _load_scene(spec.scene, folder, label)
+    if scene_overrides:
+        scene = copy.deepcopy(scene)
+        for key, value in scene_overrides.items():
+            try:
+                _set_key(scene, key, value)
+            except StudyError as exc:
+                raise StudyError(f"scene.{exc.reason}", key=SET_OPTION) from None
     read_files = {} if scene_label is None else \
         {"scene": (scene_label, hashlib.sha256(scene_text.encode()).hexdigest())}
     try:

@@ -41,11 +41,15 @@ from pydantic import BaseModel, ConfigDict, field_validator
 
 from uqflow.errors import StudyError
 from uqflow.inputs import InputSpace
-from uqflow.registry import Registry
-from uqflow.layout import (DIAGNOSTIC_KIND, FIDELITY_DESIGN_VARIABLES,  # noqa: F401 (re-exported)
-                           is_diagnostic, ok_mask, output_names, sample_mask)
-
-method_registry = Registry("uqflow.methods", "method")
+from uqflow.registry import method_registry
+from uqflow.layout import (COMPILE_TIME, FAILED_RUNS, INPUT_CORRELATION, INPUT_KURTOSIS,
+                           INPUT_SUMMARY, INPUTS, METHOD, PARAMETER, PARAMETER_J,
+                           PARAMETER_UNITS, REALIZATION, SOLVER_COMPILE_TIME, SOLVER_RUNS,
+                           SOLVER_WALL_TIME, STATISTIC, STATUS, STATUS_FAILED, STATUS_PENDING,
+                           UNITS, WALL_TIME, WARNINGS, output_names)
+# What every method needs beside the contract, importable from ``uqflow.methods`` as the
+# README's custom method does; ``uqflow.layout`` is their home.
+from uqflow.layout import is_diagnostic, ok_mask, sample_mask  # noqa: F401 (re-exported)
 
 
 def register_method(name: str):
@@ -213,6 +217,13 @@ class PropagationMethod(abc.ABC):
         """
         return None
 
+    @classmethod
+    def compare(cls, trees: list, folder, figures: bool = True) -> tuple[str, list]:
+        """What ``uqflow report a.nc b.nc`` adds when results of this method are among
+        ``trees``: a text and the figures written into ``folder`` (none unless ``figures``).
+        ("", []) by default."""
+        return "", []
+
     def __repr__(self) -> str:
         opts = ", ".join(f"{k}={v!r}" for k, v in self.options.model_dump().items())
         return f"{type(self).__name__}({opts})"
@@ -223,37 +234,37 @@ def make_design(space: InputSpace, values: np.ndarray, **variables) -> xr.Datase
     values = np.asarray(values, dtype=float)
     values = values.reshape(values.shape[0] if values.ndim else 1, len(space))
     n = values.shape[0]
-    data = {"inputs": (("realization", "parameter"), values)}
-    data.update({k: ("parameter", v) for k, v in space.summary().items()})
-    data["input_kurtosis"] = ("parameter", np.array([i.kurtosis for i in space.inputs]))
-    data["input_correlation"] = (("parameter", "parameter_j"), space.correlation)
+    data = {INPUTS: ((REALIZATION, PARAMETER), values)}
+    data.update({k: (PARAMETER, v) for k, v in space.summary().items()})
+    data[INPUT_KURTOSIS] = (PARAMETER, np.array([i.kurtosis for i in space.inputs]))
+    data[INPUT_CORRELATION] = ((PARAMETER, PARAMETER_J), space.correlation)
     data.update(variables)
     units = [inp.units for inp in space.inputs]
     return xr.Dataset(
         data,
-        coords={"realization": np.arange(n), "parameter": space.names,
-                "parameter_j": space.names,
-                "parameter_units": ("parameter", units)},
+        coords={REALIZATION: np.arange(n), PARAMETER: space.names,
+                PARAMETER_J: space.names,
+                PARAMETER_UNITS: (PARAMETER, units)},
     )
 
 
 def cost_attrs(runs: xr.Dataset) -> dict:
-    status = runs["status"].values
-    done = status != "pending"
+    status = runs[STATUS].values
+    done = status != STATUS_PENDING
     cost = {
-        "solver_runs": int(done.sum()),
-        "failed_runs": int((status == "failed").sum()),
-        "solver_wall_time": float(np.nansum(runs["wall_time"].values[done])),
+        SOLVER_RUNS: int(done.sum()),
+        FAILED_RUNS: int((status == STATUS_FAILED).sum()),
+        SOLVER_WALL_TIME: float(np.nansum(runs[WALL_TIME].values[done])),
     }
-    if "compile_time" in runs:
-        cost["solver_compile_time"] = float(np.nansum(runs["compile_time"].values[done]))
+    if COMPILE_TIME in runs:
+        cost[SOLVER_COMPILE_TIME] = float(np.nansum(runs[COMPILE_TIME].values[done]))
     return cost
 
 
 def failure_warning(runs: xr.Dataset) -> list[str]:
     cost = cost_attrs(runs)
-    if cost["failed_runs"]:
-        return [f"{cost['failed_runs']} of {cost['solver_runs']} realizations failed; the "
+    if cost[FAILED_RUNS]:
+        return [f"{cost[FAILED_RUNS]} of {cost[SOLVER_RUNS]} realizations failed; the "
                 f"statistics use the others, which biases them if failures depend on the inputs"]
     return []
 
@@ -261,8 +272,7 @@ def failure_warning(runs: xr.Dataset) -> list[str]:
 def finish_statistics(stats: xr.Dataset, design: xr.Dataset, runs: xr.Dataset,
                       method: str, warnings: list[str]) -> xr.Dataset:
     """Attach input summary, units, cost and warnings to a statistics dataset."""
-    for v in ("input_mean", "input_std", "input_cv", "input_skewness", "input_kurtosis",
-              "input_correlation"):
+    for v in INPUT_SUMMARY:
         if v in design:
             stats[v] = design[v]
     outputs = sorted(output_names(runs), key=len, reverse=True)
@@ -270,10 +280,10 @@ def finish_statistics(stats: xr.Dataset, design: xr.Dataset, runs: xr.Dataset,
         # y_max is its own output, not y's "_max" extra: the longest matching name owns it.
         owner = next((o for o in outputs if name == o or name.startswith(o + "_")), None)
         if owner is not None:
-            stats[name].attrs.setdefault("units", runs[owner].attrs.get("units", ""))
+            stats[name].attrs.setdefault(UNITS, runs[owner].attrs.get(UNITS, ""))
     stats.attrs.update(cost_attrs(runs))
-    stats.attrs["method"] = method
-    stats.attrs["warnings"] = "\n".join([*warnings, *reduced_dims_warnings(stats, runs)])
+    stats.attrs[METHOD] = method
+    stats.attrs[WARNINGS] = "\n".join([*warnings, *reduced_dims_warnings(stats, runs)])
     return stats
 
 
@@ -283,9 +293,9 @@ def reduced_dims_warnings(stats: xr.Dataset, runs: xr.Dataset) -> list[str]:
     should know the numbers are not per point."""
     found = []
     for out in output_names(runs):
-        if out not in stats.data_vars or "statistic" not in stats[out].dims:
+        if out not in stats.data_vars or STATISTIC not in stats[out].dims:
             continue
-        lost = [d for d in runs[out].dims if d != "realization" and d not in stats[out].dims]
+        lost = [d for d in runs[out].dims if d != REALIZATION and d not in stats[out].dims]
         if lost:
             found.append(f"the statistics of '{out}' have no dim {', '.join(map(repr, lost))} "
                          f"of its runs: the method reduced them (its numbers are not per "
