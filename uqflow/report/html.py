@@ -24,7 +24,7 @@ h1 { font-size: 1.5em; } h2 { font-size: 1.2em; border-bottom: 1px solid #ccc; }
 table { border-collapse: collapse; margin: 0.6em 0; }
 th, td { border: 1px solid #ccc; padding: 0.2em 0.6em; }
 th { background: #eef2f7; } td.number { text-align: right; font-variant-numeric: tabular-nums; }
-pre { background: #f7f7f7; padding: 0.6em; overflow-x: auto; }
+pre { background: #f7f7f7; padding: 0.6em; white-space: pre-wrap; }
 figure { margin: 1em 0; } figure img { max-width: 100%; border: 1px solid #ddd; }
 figcaption { font-size: 0.9em; color: #555; }
 """

@@ -19,7 +19,7 @@ PREFIXES = {-12: "p", -9: "n", -6: "µ", -3: "m", 0: "", 3: "k", 6: "M", 9: "G",
 #: units a prefix is put in front of, and the largest power each takes (seconds stay seconds
 #: above 1: a kilosecond reads worse than 1000 s)
 PREFIXED_UNITS = {"Pa": 12, "m": 3, "s": 0, "J": 12, "N": 12, "W": 12, "V": 9, "A": 6,
-                  "Hz": 12, "g": 3, "K": 0}
+                  "Hz": 12}
 
 
 def display_units(values, units: str) -> tuple[float, str]:
