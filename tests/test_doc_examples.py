@@ -541,10 +541,10 @@ RESULTS_PAGE = ROOT / "docs" / "results.md"
 
 
 def test_every_figure_the_report_draws_is_on_the_results_page():
-    from uqflow.report.summary import _FIGURES
+    from uqflow.report.framework_figures import FRAMEWORK_FIGURES
     text = RESULTS_PAGE.read_text(encoding="utf-8")
     table = text[text.index("## The figures"):]
-    for kind, _ in _FIGURES:
+    for kind, _ in FRAMEWORK_FIGURES:
         assert f"| `<out>_{kind}.png` |" in table, kind
 
 
@@ -570,8 +570,9 @@ def test_the_convergence_figure_is_drawn_where_the_results_page_says(tmp_path):
 
     one_count = {"kind": "monte-carlo", "samples": 8, "rule": "sobol", "replicates": 8}
     two_counts = dict(one_count, samples=16)
-    assert figures("one", one_count) == ["y_histogram.png"]
-    assert figures("two", two_counts) == ["y_convergence.png", "y_histogram.png"]
+    assert figures("one", one_count) == ["y_exceedance.png", "y_histogram.png"]
+    assert figures("two", two_counts) == ["y_convergence.png", "y_exceedance.png",
+                                          "y_histogram.png"]
     assert figures("kl", two_counts, relabel="kl-weibull") == []
 
 
