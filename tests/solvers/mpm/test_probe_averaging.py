@@ -289,7 +289,9 @@ def test_flow_stress_total_rate_has_no_elastic_step_jump():
     assert np.all(smooth < jump)
     assert smooth.max() < 0.3 * jump.max()
     assert np.all(ds.flow_stress_total_rate.values[0] == ds.flow_stress.values[0])
-    assert ds.flow_stress_total_rate.attrs["long_name"].startswith(
+    # the label a figure shows, and the definition beside it
+    assert ds.flow_stress_total_rate.attrs["long_name"] == "flow stress at the total strain rate"
+    assert ds.flow_stress_total_rate.attrs["description"].startswith(
         "Johnson-Cook flow stress at the step's total equivalent strain rate")
 
 
