@@ -75,11 +75,13 @@ def _parser() -> argparse.ArgumentParser:
     mode.add_argument("--force", action="store_true", help="overwrite an existing result")
     run.add_argument("--no-figures", action="store_true", help="write no PNG figures")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_set_option(run)
 
     val = sub.add_parser("validate", help="check study files without running them")
     val.add_argument("studies", type=Path, nargs="+", metavar="study",
                      help="study files (TOML); each is checked and gets one line, ok or its "
                           "error")
+    _add_set_option(val)
 
     rep = sub.add_parser("report", help="print the table and redraw the figures of results; "
                          "a solver may add a comparison across several results")
@@ -102,6 +104,22 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def _add_set_option(command) -> None:
+    command.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                         dest="overrides",
+                         help="override a key of the study file, e.g. method.samples=64, "
+                              "method.kind=pce, inputs.0.cv=0.2 (a TOML value; a bare word "
+                              "is a string); repeatable (docs/study-files.md, Overrides)")
+
+
+def _overrides(args) -> dict:
+    """The ``--set`` options as {key: value}, in the order given (a key set twice: the
+    last value)."""
+    from uqflow.study import parse_override
+
+    return dict(parse_override(text) for text in args.overrides)
+
+
 def _run(args) -> int:
     from uqflow import report
     from uqflow.execute import run_study
@@ -110,7 +128,7 @@ def _run(args) -> int:
     if args.workers is not None and not 0 <= args.workers <= MAX_WORKERS:
         raise StudyError(f"must be between 0 and {MAX_WORKERS} (docs/study-files.md, Limits), "
                          f"got {args.workers}", key="--workers")
-    study = load_study(args.study)
+    study = load_study(args.study, overrides=_overrides(args))
     with warnings.catch_warnings():
         # Methods also return their warnings in the result; print each once, below the table.
         warnings.simplefilter("ignore", AccuracyWarning)
@@ -147,9 +165,10 @@ def _validate(args) -> int:
     from uqflow.study import load_study
 
     failed = 0
+    overrides = _overrides(args)
     for path in args.studies:
         try:
-            study = load_study(path)
+            study = load_study(path, overrides=overrides)
         except StudyError as exc:
             print(f"uqflow: error: {exc}", file=sys.stderr)
             failed += 1
@@ -174,6 +193,7 @@ def _report(args) -> int:
     """Tables of every result, then figures. A figures folder that cannot be written still
     gets the tables printed, then one line naming the folder, exit 2."""
     from uqflow import report
+    from uqflow.layout import STATISTICS_GROUP, WARNINGS
     from uqflow.report_levels import cost_comparison
 
     if args.figures is not None and not args.no_figures and args.figures.exists() \
@@ -204,8 +224,8 @@ def _report(args) -> int:
             print(report.summary_table(tree))
         except StudyError as exc:  # a result file that is not what uqflow writes
             raise exc.located(str(path)) from None
-        notes = tree["statistics"].attrs.get("warnings", "") \
-            if "statistics" in tree.children else ""
+        notes = tree[STATISTICS_GROUP].attrs.get(WARNINGS, "") \
+            if STATISTICS_GROUP in tree.children else ""
         for message in filter(None, notes.split("\n")):
             print(f"warning: {message}", file=sys.stderr)
         folder = args.figures or report.figure_folder(path)
