@@ -188,6 +188,21 @@ def test_a_missing_unit_fails_the_template_check():
         "when dimensionless) on 'y')")
 
 
+class Shifted(TinyModel):
+    """Its runs put the profile at other positions than its template says."""
+
+    def run(self, params, fields=None):
+        return super().run(params, fields).assign_coords(s=self.S + 1.0)
+
+
+def test_a_run_on_other_coordinates_than_the_template_fails():
+    with pytest.raises(ConformanceError) as err:
+        check_solver(Shifted, {})
+    assert err.value.failures["run_matches_template"].startswith(
+        "run_matches_template: coordinate 's' of output 'profile' in run(nominal parameters) "
+        "differs (the template's: [0. 1. 2.]...)")
+
+
 class Unlabelled(TinyModel):
     def outputs(self):
         template = super().outputs()

@@ -229,13 +229,16 @@ def _compare_with_template(check: str, result: xr.Dataset, template: xr.Dataset,
             raise _fail(check, f"output '{out}' of run({when}) has units "
                                f"{got.attrs.get(UNITS)!r}, the template {var.attrs.get(UNITS)!r}",
                         "give the run's variables the template's attributes")
-        for dim in var.dims:
-            if dim in template.coords:
-                if dim not in result.coords or not np.array_equal(
-                        np.asarray(result[dim].values), np.asarray(template[dim].values)):
-                    raise _fail(check, f"coordinate '{dim}' of output '{out}' in run({when}) "
-                                       f"differs from the template's",
-                                "the runs' coordinates must be the template's")
+        for coord, values in template.coords.items():
+            if not set(values.dims) <= set(var.dims):
+                continue  # a coordinate of other outputs' dims
+            if coord not in result.coords or not np.array_equal(
+                    np.asarray(result[coord].values), np.asarray(values.values)):
+                raise _fail(check, f"coordinate '{coord}' of output '{out}' in run({when}) "
+                                   f"{'is missing' if coord not in result.coords else 'differs'}"
+                                   f" (the template's: {np.asarray(values.values)[:4]}...)",
+                            "give the runs the template's coordinates, e.g. build the result "
+                            "from a copy of outputs()")
 
 
 def check_solver_run_matches_template(case: _SolverCase) -> None:

@@ -14,6 +14,7 @@ from uqflow.errors import SceneError, SolverError
 from uqflow.inputs import InputSpace, RandomInput
 from uqflow.realization import evaluate_design
 from uqflow.sampling import unit_hypercube
+from uqflow.testing import check_solver
 from uqflow.solver import Solver, get_solver
 
 EPS = np.finfo(float).eps
@@ -358,3 +359,12 @@ def test_every_output_has_a_label_a_reader_understands(model):
     template = AnalyticSolver.from_scene({"model": model}).outputs()
     for name, var in template.data_vars.items():
         assert var.attrs["long_name"] and var.attrs["long_name"] != name, name
+
+
+@pytest.mark.parametrize("model", sorted(MODELS))
+def test_every_model_passes_the_conformance_kit(model):
+    outcome = check_solver(AnalyticSolver, {"model": model},
+                           bad_scenes={"scene.model": {"model": "no-such-model"}})
+    assert all(v == "ok" for k, v in outcome.items() if k != "local_sensitivities")
+    smooth = hasattr(MODELS[model], "derivatives")
+    assert (outcome["local_sensitivities"] == "ok") == smooth
