@@ -106,6 +106,8 @@ def test_a_probe_reads_with_its_position_in_display_units():
     assert report.where(stats, {"probe": 0}) == "probe H (x = 120, y = 10 mm)"
     assert report.where(stats, {"t": 1, "probe": 1}) == \
         "t = 2e-05 s, probe I (x = 200, y = 10 mm)"
+    unplaced = stats.drop_vars(["probe_x", "probe_y"])
+    assert report.where(unplaced, {"probe": 0}) == "probe = H"
 
 
 # --------------------------------------------------------------------------- the scatter band

@@ -100,11 +100,13 @@ def where(ds: xr.Dataset, focus: dict[str, int]) -> str:
             coord = ds[dim]
             units = coord.attrs.get(UNITS, "")
             value = coord.values[i]
-            if isinstance(value, (float, np.floating, int, np.integer)):
-                text = f"{value:.4g}" if isinstance(value, (float, np.floating)) else str(value)
-                parts.append(f"{dim} = {text}{' ' + units if units else ''}")
-            else:
-                parts.append(f"{dim} {value}{_position(ds, dim, i)}")
+            position = "" if isinstance(value, (float, np.floating, int, np.integer)) \
+                else _position(ds, dim, i)
+            if position:  # a label placed somewhere: 'probe H (x = 120, y = 10 mm)'
+                parts.append(f"{dim} {value}{position}")
+                continue
+            text = f"{value:.4g}" if isinstance(value, (float, np.floating)) else str(value)
+            parts.append(f"{dim} = {text}{' ' + units if units else ''}")
         else:
             parts.append(f"{dim}[{i}]")
     return ", ".join(parts)
