@@ -210,3 +210,16 @@ def test_the_figure_colours_are_the_swatches_of_the_legend():
     colours = {to_rgba(h.get_facecolor()) for h in fig.legends[0].legend_handles[:3]}
     bodies = {to_rgba(p.get_facecolor()) for p in _by_gid(fig.axes[0], "body:").values()}
     assert colours == bodies
+
+
+def test_the_docs_state_the_probe_panels_rule():
+    from pathlib import Path
+
+    from solvers.mpm import scene_map
+
+    doc = " ".join((Path(__file__).resolve().parents[3] / "docs" / "mpm_report.md").read_text(
+        encoding="utf-8").split())
+    assert "smaller than a fifth of the domain in both directions" in doc
+    assert "(margin: half their spread, at least 4 cells)" in doc
+    assert (scene_map.ZOOM_BELOW, scene_map.ZOOM_MARGIN, scene_map.ZOOM_MIN_CELLS) == \
+        (0.2, 0.5, 4)

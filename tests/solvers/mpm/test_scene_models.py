@@ -224,3 +224,47 @@ def test_a_scene_file_error_names_the_scene_file_and_key(tmp_path):
         load_study(tmp_path / "study.toml")
     assert err.value.file == str(tmp_path / "scene.toml")
     assert err.value.key == "scene.cfl" and "finite number" in err.value.reason
+
+
+# ------------------------------------------------------------------------------ the docs
+
+DOC = REPO / "docs" / "mpm_scenes.md"
+
+
+def _schema_rows() -> list[list[str]]:
+    text = DOC.read_text(encoding="utf-8")
+    part = text.split("## The scene file, declared", 1)[1].split("\n## ", 1)[0]
+    return [[c.strip() for c in line.strip("|").split("|")] for line in part.splitlines()
+            if line.startswith("| ") and not line.startswith("| table")]
+
+
+def test_the_docs_list_every_top_level_key_with_its_default():
+    rows = {r[1].strip("`"): r for r in _schema_rows() if r[0] == "top"}
+    assert sorted(rows) == sorted(SceneSpec.model_fields)
+    for key, (_, _, _, default) in rows.items():
+        field = SceneSpec.model_fields[key]
+        if default == "required":
+            assert field.is_required(), key
+        elif default.startswith("`") and key not in ("bulk_viscosity",):
+            value = tomllib.loads(f"v = {default.strip('`')}")["v"]
+            written = field.default
+            assert (list(written) if isinstance(written, tuple) else written) == value, key
+    spec = validate(_tiny())
+    assert (spec.bulk_viscosity.Q1, spec.bulk_viscosity.Q2) == (1.5, 0.06)
+    assert spec.sample_interval == spec.end_time / 100
+
+
+@pytest.mark.parametrize("change, line", [
+    ((("cfl",), "fast"), "scene.cfl: must be a finite number, got 'fast'"),
+    ((("bodies",), [{"name": "p", "material": "m", "shape": "polygon",
+                     "vertices": [[0.0, 0.0], [0.05, "x"], [0.0, 0.05]]}]),
+     "scene.bodies[0].vertices[1]: must be a pair of finite numbers [a, b], got [0.05, 'x']"),
+    ((("materials", "m", "jc"), {"A": 1.0}),
+     "scene.materials.m.jc.A: material 'elastic' has no parameter 'jc.A' (takes rho0, E, nu)"),
+    ((("domain", "colour"), 1), "scene.domain.colour: unknown key (known: x, y)"),
+])
+def test_the_docs_error_examples_are_the_errors(change, line):
+    assert f"{line}`" in DOC.read_text(encoding="utf-8").replace("\n", " ")
+    with pytest.raises(SceneError) as err:
+        parse(_with(*change))
+    assert str(err.value) == line
