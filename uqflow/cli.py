@@ -194,7 +194,7 @@ def _report(args) -> int:
     gets the tables printed, then one line naming the folder, exit 2."""
     from uqflow import report
     from uqflow.layout import STATISTICS_GROUP, WARNINGS
-    from uqflow.report_levels import cost_comparison
+    from uqflow.methods import compare_results as cost_comparison
 
     if args.figures is not None and not args.no_figures and args.figures.exists() \
             and not args.figures.is_dir():

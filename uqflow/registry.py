@@ -71,3 +71,9 @@ class Registry:
             doc = (self._classes[name].__doc__ or "").strip().splitlines()
             out[name] = doc[0] if doc else ""
         return out
+
+
+#: Propagation methods by name (``uqflow.methods.register_method``). It lives here, not in
+#: ``uqflow.methods``, so that the report layer finds a result's method without importing the
+#: methods, which import the report layer; the built-ins register on the first lookup.
+method_registry = Registry("uqflow.methods", "method", builtins=("uqflow.methods",))

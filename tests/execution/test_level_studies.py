@@ -248,7 +248,7 @@ def test_a_surrogate_needs_local_derivatives(write_study):
 
 
 def test_report_compares_error_against_cost_across_results(write_study, tmp_path):
-    from uqflow.report_levels import cost_comparison
+    from uqflow.methods.level_report import cost_comparison
 
     ml = run_study(load_study(level_study(write_study, "cmp_ml")), show_progress=False)
     plain_path = write_study(name="cmp_plain", scene='{ model = "euler_decay", steps = 16 }',

@@ -16,7 +16,7 @@ from uqflow.inputs import InputSpace, RandomInput
 from uqflow.methods.monte_carlo import MonteCarlo
 from uqflow.methods.taylor import NOISE
 from uqflow.realization import evaluate_design
-from uqflow.report.summary import _Context, summary_table
+from uqflow.report import ResultView, summary_table
 from uqflow.store import open_result
 from uqflow.study import load_study
 
@@ -250,8 +250,9 @@ def test_a_study_stops_on_the_control_variate_error_and_stores_it(tmp_path):
     assert _stat(stats, "mean") == pytest.approx(2.0, abs=64 * 2 * 2**-52)
     assert (tmp_path / "s.nc").exists()
     # the report's histogram and faint runs show the samples, not the stencil points
-    assert _Context("s", "monte-carlo", result.runs, stats).ok_values("y").shape == (16,)
-    table = summary_table(open_result(tmp_path / "s.nc"))
+    tree = open_result(tmp_path / "s.nc")
+    assert ResultView(tree).sample_values("y").shape == (16,)
+    table = summary_table(tree)
     assert "control variate taylor (3 control run(s))" in table
     assert "y: rho 1, the surrogate reproduces it to rounding" in table
 

@@ -20,6 +20,7 @@ from scipy import stats as sps
 
 import uqflow.methods.monte_carlo as monte_carlo
 from uqflow import report
+from uqflow.methods.monte_carlo import convergence_figure
 from uqflow.errors import StudyError
 from uqflow.execute import run_study
 from uqflow.inputs import InputSpace, RandomInput
@@ -299,8 +300,7 @@ def test_report_states_the_error_estimate(quickstart):
 def test_convergence_figure_draws_the_rqmc_band(quickstart):
     _, tree = quickstart
     stats = tree["statistics"].to_dataset()
-    ctx = report.summary._Context("quickstart", "monte-carlo", tree["runs"].to_dataset(), stats)
-    fig = report.summary._convergence(ctx, "y")
+    fig = convergence_figure(report.ResultView(tree), "y")
     ax = fig.axes[0]
     labels = [t.get_text() for t in ax.get_legend().get_texts()]
     assert "95 % interval, randomized QMC (8 replicates, t with 7 dof)" in labels

@@ -418,3 +418,44 @@ def control_attrs(design, samples, used: bool) -> dict:
             else f"{failed} failed sample(s) dropped from both the outputs and the surrogate "
                  f"values (the pairs stay matched)"),
     }
+
+
+def report_lines(stats, outputs: list[str], focus_of, where_of) -> list[str]:
+    """What the control variate bought, per output at its row's point, for the report's notes
+    (docs/control_variates.md); none for a result without a control. ``focus_of(out)`` is an
+    output's row point, ``where_of(focus)`` its words."""
+    if not stats.attrs.get("control"):
+        return []
+    if not int(stats.attrs.get("control_used", 0)):
+        return [f"control variate {stats.attrs['control']}: not used (its control runs "
+                f"failed), plain Monte Carlo"]
+    lines = [f"control variate {stats.attrs['control']} ({stats.attrs['control_runs']} "
+             f"control run(s)): correlation rho with the surrogate, variance reduction "
+             f"1/(1 - rho^2), equivalent plain samples n/(1 - rho^2)"]
+    for out in outputs:
+        if f"{out}_correlation" not in stats:
+            continue
+        focus = focus_of(out)
+        rho, gain, count = (float(stats[f"{out}_{v}"].isel(focus)) for v in
+                            ("correlation", "variance_reduction", "equivalent_samples"))
+        where = f" at {where_of(focus)}" if focus else ""
+        if np.isfinite(gain):
+            lines.append(f"  {out}{where}: rho {rho:.6g}, reduction {gain:.3g}x, "
+                         f"equivalent to {count:.3g} plain samples")
+        else:
+            lines.append(f"  {out}{where}: rho 1, the surrogate reproduces it to rounding "
+                         f"(no error left to reduce)")
+    return lines
+
+
+def described(stats) -> str:
+    """The control variate in words, for a legend ('' without one)."""
+    control = stats.attrs.get("control")
+    if not control:
+        return ""
+    if not int(stats.attrs.get("control_used", 0)):
+        return f"its {control} control variate unused (the control runs failed)"
+    runs = int(stats.attrs.get("control_runs", 0))
+    if control == "taylor-local":
+        return f"{'one' if runs == 1 else runs}-run Taylor as control variate"
+    return f"Taylor from {runs} finite-difference runs as control variate"

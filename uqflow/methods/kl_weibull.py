@@ -18,7 +18,10 @@ from pydantic import Field
 from uqflow.errors import StudyError
 from uqflow.fields import germ_seed, germ_variable
 from uqflow.methods.base import make_design, register_method
-from uqflow.methods.monte_carlo import MonteCarlo, SampleStatisticsOptions
+from uqflow.layout import SOLVER_RUNS
+from uqflow.methods.monte_carlo import (MonteCarlo, SampleStatisticsOptions,
+                                        convergence_figure, sample_notes)
+from uqflow.report import FigureSpec, MethodReport
 from uqflow.sampling import unit_hypercube
 
 
@@ -103,6 +106,24 @@ class KLWeibull(MonteCarlo):
             old = stats.attrs.get("warnings", "")
             stats.attrs["warnings"] = "\n".join([w for w in [old, *warnings] if w])
         return stats
+
+    @classmethod
+    def report(cls, view):
+        """Which error the interval rests on, and each output's convergence; the runs are
+        draws of the fields and inputs, so the report shows their scatter as Monte Carlo's."""
+        stats = view.stats
+        try:
+            names = list(json.loads(stats.attrs.get("fields", "{}")))
+        except (TypeError, ValueError):
+            names = []
+        runs = int(stats.attrs.get(SOLVER_RUNS, 0))
+        fields = f"random field{'' if len(names) == 1 else 's'} {', '.join(names)}" \
+            if names else "random fields"
+        return MethodReport(
+            description=f"Monte Carlo over the {fields} (KL expansion), {runs} "
+                        f"run{'' if runs == 1 else 's'}",
+            runs_are_draws=True, notes=sample_notes(view),
+            figures=[FigureSpec("convergence", convergence_figure)])
 
 
 def fields_described(design) -> dict:

@@ -33,13 +33,20 @@ from scipy import stats as sps
 from uqflow.errors import AccuracyWarning
 
 from uqflow.methods import control_variate as cv
+from uqflow.layout import (CONFIDENCE, SOLVER_RUNS, STATISTIC, STATISTIC_CI_HIGH,
+                           STATISTIC_CI_LOW)
 from uqflow.methods.base import (MethodOptions, PropagationMethod, failure_warning,
                                  finish_statistics, make_design, ok_mask, output_names,
                                  register_method)
+from uqflow.report import (Column, FigureSpec, MethodReport, axis_label, new_figure, number,
+                           scientific_ticks)
 from uqflow.sampling import QUASI_RANDOM_RULES, replicated_unit_hypercube, unit_hypercube
 
 #: ``stderr_kind`` of the statistics, per rule: which formula the standard error uses.
 STDERR_KINDS = {"random": "iid", "lhs": "iid-conservative", "sobol": "rqmc", "halton": "rqmc"}
+#: each rule's points in words, for a legend
+RULE_WORDS = {"random": "independent random points", "lhs": "Latin hypercube",
+              "sobol": "scrambled Sobol' points", "halton": "scrambled Halton points"}
 
 
 class SampleStatisticsOptions(MethodOptions):
@@ -298,6 +305,23 @@ class MonteCarlo(PropagationMethod):
             stats.attrs.update(cv.control_attrs(design, samples, surrogates is not None))
         return stats
 
+    @classmethod
+    def report(cls, view):
+        """The interval of the mean, which error it rests on, what a control variate bought,
+        the rule, and each output's convergence; the runs are draws (a control variate's
+        control runs are left out by ``uqflow.layout.sample_mask``)."""
+        stats = view.stats
+        rule = stats.attrs.get("rule")
+        return MethodReport(
+            description=_description(stats),
+            runs_are_draws=True,
+            columns=[_interval_column(stats)] if STATISTIC_CI_LOW in stats[STATISTIC].values
+            else [],
+            notes=sample_notes(view) + cv.report_lines(stats, view.outputs, view.focus,
+                                                       view.where),
+            cost_details=[f"rule {rule}"] if rule else [],
+            figures=[FigureSpec("convergence", convergence_figure)])
+
     def _trace(self, y, dims):
         """Running mean, std and standard error after the first n realizations, n log-spaced."""
         n = y.shape[0]
@@ -324,6 +348,74 @@ class MonteCarlo(PropagationMethod):
         block = np.stack([mean, np.sqrt(var), np.sqrt(var / c)], axis=1)
         return (("trace_samples", "trace_statistic", *dims), block,
                 {"long_name": "running estimates against sample count"}), counts
+
+
+def _description(stats) -> str:
+    """'Monte Carlo, 8 runs (scrambled Sobol' points), one-run Taylor as control variate'."""
+    samples = int(stats.attrs.get(SOLVER_RUNS, 0)) - int(stats.attrs.get("control_runs", 0))
+    rule = RULE_WORDS.get(str(stats.attrs.get("rule", "")))
+    text = f"Monte Carlo, {samples} run{'' if samples == 1 else 's'}" + \
+        (f" ({rule})" if rule else "")
+    control = cv.described(stats)
+    return f"{text}, {control}" if control else text
+
+
+def _interval_column(stats) -> Column:
+    level = float(stats.attrs.get(CONFIDENCE, 0.95))
+
+    def interval(out, focus):
+        at = stats[out].isel(focus)
+        return (f"{number(at.sel({STATISTIC: STATISTIC_CI_LOW}))} .. "
+                f"{number(at.sel({STATISTIC: STATISTIC_CI_HIGH}))}")
+
+    return Column(f"{100 * level:g} % CI of the mean [u]", interval)
+
+
+def sample_notes(view) -> list[str]:
+    """Which error the interval of the mean rests on: it decides how far it can be trusted."""
+    note = view.stats.attrs.get("stderr_note")
+    return [f"standard error and interval of the mean: {note}"] if note else []
+
+
+def convergence_figure(view, out: str):
+    """The running mean with its interval, and the running std, against the sample count at
+    the output's row point (None without a trace of at least two counts)."""
+    stats = view.stats
+    if f"{out}_trace" not in stats:
+        return None
+    counts = np.asarray(stats["trace_samples"].values, float)
+    if counts.size < 2:
+        return None
+    focus = view.focus(out)
+    trace = stats[f"{out}_trace"].isel(focus)
+    mean, std, stderr = (np.asarray(trace.sel(trace_statistic=s).values, float)
+                         for s in ("mean", "std", "stderr"))
+    units = view.units(out)
+    fig, (ax, ax2) = new_figure(height=5.2, rows=2)
+    level = float(stats.attrs.get(CONFIDENCE, 0.95))
+    replicates = stats.attrs.get("replicates")
+    if stats.attrs.get("stderr_kind") == "rqmc" and replicates:
+        # The band is the interval the table reports: t with R - 1 degrees of freedom.
+        half = sps.t.ppf(0.5 + level / 2, int(replicates) - 1) * stderr
+        label = (f"{100 * level:g} % interval, randomized QMC ({int(replicates)} replicates, "
+                 f"t with {int(replicates) - 1} dof)")
+    else:
+        half, label = 1.96 * stderr, "± 1.96 stderr"
+    ax.fill_between(counts, mean - half, mean + half, color="#9ab7d3", alpha=0.6, linewidth=0,
+                    label=label)
+    ax.plot(counts, mean, color="#1f4e79", marker="o", markersize=3, label="running mean")
+    ax.axhline(mean[-1], color="#c0392b", linestyle="--", linewidth=1,
+               label=f"final mean {mean[-1]:.4g}")
+    ax.set_ylabel(axis_label(f"mean of {out}", units))
+    scientific_ticks(ax, "y")
+    ax.legend(loc="best", fontsize="small")
+    ax2.plot(counts, std, color="#2e7d32", marker="o", markersize=3, label="running std")
+    ax2.set_ylabel(axis_label(f"std of {out}", units))
+    scientific_ticks(ax2, "y")
+    ax2.set_xlabel("number of samples")
+    ax2.set_xscale("log")
+    ax.set_title(view.title(out, "Monte Carlo convergence", focus))
+    return fig
 
 
 def _stderr_note(rule: str, replicates: int | None, dof: int, control: bool = False) -> str:

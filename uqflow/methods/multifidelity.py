@@ -32,6 +32,8 @@ from scipy import stats as sps
 from uqflow.errors import StudyError
 from uqflow.levels import LEVEL_VARIABLE
 from uqflow.methods import control_variate as cv
+from uqflow.layout import SOLVER_RUNS
+from uqflow.methods import level_report
 from uqflow.methods.base import finish_statistics, output_names, register_method
 from uqflow.methods.fidelity_sampling import (FidelityOptions, FidelitySampling, flat,
                                               output_shape)
@@ -296,3 +298,17 @@ class Multifidelity(FidelitySampling):
                            total_cost=spent, dropped_samples=dropped,
                            surrogate=self.options.surrogate if free else "none")
         return finish_statistics(stats, design, runs, self.name, warnings)
+
+    @classmethod
+    def report(cls, view):
+        """How sure each output's estimate is and what it saved, the model table; the
+        runs are at several models, not draws of the finest one."""
+        runs = int(view.stats.attrs.get(SOLVER_RUNS, 0))
+        count = view.stats.sizes.get(level_report.MODEL, 0)
+        return level_report.level_report(
+            view, f"Multifidelity Monte Carlo, {count} model{'' if count == 1 else 's'}, "
+                  f"{runs} run{'' if runs == 1 else 's'}")
+
+    #: one comparison for multilevel and multifidelity results (``compare_results`` asks it
+    #: once): the error each result bought against its solver time, beside plain Monte Carlo
+    compare = classmethod(level_report.compare)

@@ -29,6 +29,8 @@ from pydantic import Field
 from scipy import stats as sps
 
 from uqflow.levels import LEVEL_VARIABLE
+from uqflow.layout import SOLVER_RUNS
+from uqflow.methods import level_report
 from uqflow.methods.base import finish_statistics, output_names, register_method
 from uqflow.methods.fidelity_sampling import (FidelityOptions, FidelitySampling, flat,
                                               output_shape, point_label)
@@ -199,3 +201,17 @@ class Multilevel(FidelitySampling):
         stats.attrs.update(gamma=gamma, variance_share=theta, rounds=int(
             runs["round"].values.max()) + 1, total_cost=float(np.dot(n + failed, C)))
         return finish_statistics(stats, design, runs, self.name, warnings)
+
+    @classmethod
+    def report(cls, view):
+        """How sure each output's estimate is and what it saved, the level table and the levels figure; the
+        runs are at several levels, not draws of the finest one."""
+        runs = int(view.stats.attrs.get(SOLVER_RUNS, 0))
+        count = view.stats.sizes.get(level_report.LEVEL, 0)
+        return level_report.level_report(
+            view, f"Multilevel Monte Carlo, {count} level{'' if count == 1 else 's'}, {runs} "
+                  f"run{'' if runs == 1 else 's'}")
+
+    #: one comparison for multilevel and multifidelity results (``compare_results`` asks it
+    #: once): the error each result bought against its solver time, beside plain Monte Carlo
+    compare = classmethod(level_report.compare)

@@ -11,6 +11,7 @@ from uqflow.fields import germ_variable
 from uqflow.methods.base import (PropagationMethod, failure_warning, finish_statistics,
                                  make_design, ok_mask, output_names, register_method)
 from uqflow.methods.kl_weibull import field_attrs, fields_described
+from uqflow.report import MethodReport
 
 
 @register_method("nominal")
@@ -45,3 +46,10 @@ class Nominal(PropagationMethod):
                                      if d != "realization" and d in stats.dims})
         stats.attrs.update(fields_described(design))
         return finish_statistics(stats, design, runs, self.name, failure_warning(runs))
+
+    @classmethod
+    def report(cls, view):
+        """The deterministic run in words; it is no draw, and its std is 0 by construction."""
+        fields = " and the random fields" if view.stats.attrs.get("fields") else ""
+        return MethodReport(description=f"Nominal run: one run with the inputs{fields} at "
+                                        f"their means")

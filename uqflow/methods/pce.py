@@ -23,7 +23,11 @@ from uqflow.errors import StudyError
 from uqflow.inputs import UNIT_CLIP
 from uqflow.methods.base import (MethodOptions, PropagationMethod, finish_statistics,
                                  make_design, ok_mask, output_names, register_method)
+from uqflow.layout import INPUT_CORRELATION, SOLVER_RUNS
+from uqflow.methods.monte_carlo import RULE_WORDS
 from uqflow.methods.pce_fit import OVERSAMPLING, basis_size, select_expansion
+from uqflow.methods.sobol import sobol_indices
+from uqflow.report import Column, MethodReport
 from uqflow.sampling import unit_hypercube
 
 #: Highest total degree: Hermite polynomials of degree 20 reach 1e9 at |z| = 5, which the
@@ -207,6 +211,26 @@ class PCE(PropagationMethod):
                            samples_ok=int(ok.sum()))
         return stats
 
+    @classmethod
+    def report(cls, view):
+        """Each output's expansion (order, terms, leave-one-out error) in the table, and the
+        Sobol' indices its coefficients give as sensitivities. The runs are shown as draws:
+        the design's points are the rule's draws from the inputs' distribution, as Monte
+        Carlo's with the same rule."""
+        stats = view.stats
+        order = str(stats.attrs.get("order", "?"))
+        if order == "loo":
+            order = f"chosen by leave-one-out up to {stats.attrs.get('max_order', '?')}"
+        runs = int(stats.attrs.get(SOLVER_RUNS, 0))
+        rule = RULE_WORDS.get(str(stats.attrs.get("rule", "")))
+        return MethodReport(
+            description=f"Polynomial chaos expansion, order {order}, {runs} "
+                        f"run{'' if runs == 1 else 's'}" + (f" ({rule})" if rule else ""),
+            runs_are_draws=True,
+            columns=[Column("expansion (LOO error: relative to the variance)",
+                            lambda out, focus: expansion_cell(stats, out, focus))],
+            sensitivities=lambda out: expansion_indices(stats, out))
+
     @staticmethod
     def _output_block(out, out_dims, shape, fit, names, dims, orders):
         """The statistics variables of one output (NaN when ``fit`` is None)."""
@@ -252,6 +276,29 @@ class PCE(PropagationMethod):
                                    {"long_name": "degree of each input's standard variable "
                                                  "in each term"}),
         }
+
+
+def expansion_cell(stats, out: str, focus: dict) -> str:
+    """'order 3, 20 terms, LOO error 0.0012' ('-' for an output without a fit)."""
+    if f"{out}_loo_error" not in stats or f"{out}_order" not in stats:
+        return "-"
+    loo = float(stats[f"{out}_loo_error"].isel(focus))
+    return (f"order {int(stats[f'{out}_order'])}, {int(stats[f'{out}_terms'])} terms, "
+            f"LOO error {loo:.2g}")
+
+
+def expansion_indices(stats, out: str):
+    """The Sobol' indices of ``out`` from the expansion's coefficients (exact for the
+    expansion: no sampling error to show), None without them."""
+    if f"{out}_sobol" not in stats:
+        return None
+    rho = stats[INPUT_CORRELATION].values if INPUT_CORRELATION in stats else None
+    correlated = rho is not None and bool(np.any(rho != np.eye(rho.shape[0])))
+    note = ("correlated inputs: indices of the independent standard normal variables behind "
+            "the inputs (Gaussian copula, Cholesky order), not of the inputs themselves"
+            if correlated else "")
+    return sobol_indices(stats[f"{out}_sobol"], "Sobol' indices of the polynomial chaos "
+                         "expansion", note=note)
 
 
 def _germs(design, rows, dims):

@@ -19,12 +19,20 @@ from SALib.analyze import sobol as salib_analyze
 from SALib.sample import sobol as salib_sample
 
 from uqflow.errors import StudyError
+from uqflow.layout import CONFIDENCE, PARAMETER, SOLVER_RUNS
 from uqflow.methods.base import (MAX_BOOTSTRAP_DRAWS, MAX_REALIZATIONS, MethodOptions,
                                  PropagationMethod, failure_warning, finish_statistics,
                                  make_design, output_names, register_method)
+from uqflow.report import Column, MethodReport, Sensitivity
 
 FIRST_LABELS = ["S1", "S1_conf", "ST", "ST_conf"]
 SECOND_LABELS = ["S2", "S2_conf"]
+#: the first-order and total indices in words, for a legend
+INDEX_WORDS = {"S1": "first order S1", "ST": "total ST"}
+#: the dim of the indices in a statistics variable ``{out}_sobol`` (sobol and pce)
+SOBOL_INDEX = "sobol_index"
+#: inputs shown in a row of the summary table's S1/ST column, largest ST first
+SHOWN_INPUTS = 4
 
 
 class SobolOptions(MethodOptions):
@@ -183,6 +191,73 @@ class Sobol(PropagationMethod):
         stats.attrs.update(samples=n_base, samples_kept=kept, second_order=int(second),
                            confidence=opts.confidence, resamples=opts.resamples)
         return stats
+
+    @classmethod
+    def report(cls, view):
+        """The leading inputs' S1/ST in the table, the base samples kept beside the cost, and
+        the indices with their bootstrap half-widths as sensitivities.
+
+        The runs are not shown as draws: only Saltelli's A and B rows are independent draws
+        from the inputs' distribution (the moments in the table come from them alone); each
+        mixed row AB_i copies all but one column of A, so counting every run would weigh each
+        base sample d + 2 times over dependent copies and give a scatter that is not the
+        table's."""
+        stats = view.stats
+        kept = stats.attrs.get("samples_kept", "?")
+        samples, runs = stats.attrs.get("samples"), int(stats.attrs.get(SOLVER_RUNS, 0))
+        return MethodReport(
+            description=f"Sobol' indices (Saltelli's design), {samples} base samples, "
+                        f"{runs} runs",
+            columns=[Column("S1/ST per input (largest ST first)",
+                            lambda out, focus: leading_inputs(stats, out, focus))],
+            cost_details=[f"{samples} base samples, {kept} kept"] if samples is not None
+            else [],
+            sensitivities=lambda out: bootstrapped_indices(stats, out))
+
+
+def leading_inputs(stats, out: str, focus: dict) -> str:
+    """'x1 0.31/0.56, x2 0.44/0.44, ...': S1/ST of the inputs with the largest ST."""
+    var = f"{out}_sobol"
+    if var not in stats:
+        return "-"
+    si = stats[var].isel(focus)
+    params = [str(p) for p in si[PARAMETER].values]
+    s1 = si.sel({SOBOL_INDEX: "S1"}).values
+    st = si.sel({SOBOL_INDEX: "ST"}).values
+    order = sorted(range(len(params)), key=lambda k: -st[k] if np.isfinite(st[k]) else np.inf)
+    shown = [f"{params[k]} {s1[k]:.2f}/{st[k]:.2f}" for k in order[:SHOWN_INPUTS]]
+    if len(params) > SHOWN_INPUTS:
+        shown.append(f"+{len(params) - SHOWN_INPUTS} more")
+    return ", ".join(shown)
+
+
+def sobol_indices(si, title: str, errors=None, error_label: str = "",
+                  note: str = "") -> Sensitivity:
+    """S1 and ST of ``si`` (``sobol_index``, ``parameter``, *dims) as a ``Sensitivity``;
+    ``errors`` alike, with the ``S1_conf``, ``ST_conf`` half-widths."""
+    def words(a):
+        a = a.sel({SOBOL_INDEX: list(INDEX_WORDS)})
+        a = a.assign_coords({SOBOL_INDEX: list(INDEX_WORDS.values())})
+        return a.rename({SOBOL_INDEX: "index"}).transpose(PARAMETER, "index", ...)
+
+    return Sensitivity(title=title, values=words(si), quantity="fraction of the variance",
+                       errors=None if errors is None else words(errors),
+                       error_label=error_label, note=note)
+
+
+def bootstrapped_indices(stats, out: str) -> Sensitivity | None:
+    """The first-order and total indices of ``out``, their errors the bootstrap
+    half-widths."""
+    var = f"{out}_sobol"
+    if var not in stats:
+        return None
+    si = stats[var]
+    # SALib's half-widths are a percentile spread, |.| of it as the figure always drew
+    half = abs(si.sel({SOBOL_INDEX: ["S1_conf", "ST_conf"]})).assign_coords(
+        {SOBOL_INDEX: ["S1", "ST"]})
+    level = float(stats.attrs.get(CONFIDENCE, 0.95))
+    return sobol_indices(si, "Sobol' indices", errors=half,
+                         error_label=f"{100 * level:g} % bootstrap half-width")
 
 
 def _moments(y: np.ndarray) -> np.ndarray:

@@ -18,8 +18,10 @@ import xarray as xr
 from pydantic import Field, field_validator, model_validator
 
 from uqflow.errors import AccuracyWarning, StudyError
+from uqflow.layout import INPUT_CORRELATION, INPUT_STD, PARAMETER, SOLVER_RUNS
 from uqflow.methods.base import (MethodOptions, PropagationMethod, finish_statistics,
                                  make_design, ok_mask, output_names, register_method)
+from uqflow.report import Column, MethodReport, Sensitivity
 
 LABELS = ["mean", "variance", "std", "nominal"]
 # Relative rounding granted to every solver value when telling a derivative from noise:
@@ -252,6 +254,20 @@ class Taylor(PropagationMethod):
                            mixed_derivatives=len(st.pairs))
         return stats
 
+    @classmethod
+    def report(cls, view):
+        """The expansion's order and variance, and each input's contribution g_k² s_k² to
+        an output's variance; the runs are stencil points, not draws."""
+        attrs = view.stats.attrs
+        order, variance = attrs.get("order", "?"), attrs.get("variance", "")
+        text = f"Taylor order {order}" + (f", {variance} variance" if variance else "")
+        runs = int(attrs.get(SOLVER_RUNS, 0))
+        return MethodReport(
+            description=f"Taylor expansion, order {order}, {runs} run{'' if runs == 1 else 's'}"
+                        + (", second-order variance" if variance == "second-order" else ""),
+            columns=[Column("expansion", lambda out, focus: text)],
+            sensitivities=lambda out: contributions(view, out))
+
     # -------------------------------------------------------------- warnings
     def _stability_warnings(self, out, runs, dims, names, what, change, size, std):
         tol = self.options.step_tolerance
@@ -305,6 +321,32 @@ class Taylor(PropagationMethod):
             msgs.append("mixed derivatives were not computed: the second-order variance "
                         "omits the cross terms 1/2 H_kj^2 s_k^2 s_j^2")
         return msgs
+
+
+def contributions(view, out: str) -> Sensitivity | None:
+    """Each input's contribution g_k² s_k² to the variance of ``out`` (from the gradient at
+    the input means), None without a gradient."""
+    stats = view.stats
+    gradient = f"{out}_gradient"
+    if gradient not in stats or INPUT_STD not in stats:
+        return None
+    terms = ((stats[gradient] * stats[INPUT_STD]) ** 2).expand_dims(
+        {"index": ["contribution g_k² s_k²"]}, axis=1).transpose(PARAMETER, "index", ...)
+    units = view.units(out)
+    return Sensitivity(
+        title="Taylor: contribution of each input to the variance",
+        values=terms, quantity=f"variance [({units})²]" if units else "variance",
+        note=contribution_note(stats))
+
+
+def contribution_note(stats) -> str:
+    """What the per-input terms g_k² s_k² leave out of the variance, if anything."""
+    rho = stats[INPUT_CORRELATION].values if INPUT_CORRELATION in stats else None
+    if rho is not None and np.any(rho[~np.eye(rho.shape[0], dtype=bool)] != 0):
+        return "correlated inputs: cross terms 2 g_k g_j s_k s_j rho_kj apart"
+    if stats.attrs.get("variance") == "second-order":
+        return "second-order variance: the curvature terms apart"
+    return ""
 
 
 def cv_warnings(cv, active, names, limit) -> list[str]:

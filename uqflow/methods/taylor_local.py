@@ -22,8 +22,10 @@ from pydantic import Field
 from uqflow.errors import AccuracyWarning, StudyError
 from uqflow.methods.base import (MethodOptions, PropagationMethod, finish_statistics,
                                  is_diagnostic, make_design, output_names, register_method)
+from uqflow.layout import SOLVER_RUNS
 from uqflow.methods.taylor import (LABELS, _label, _per_param, _second_order_variance,
-                                   cv_warnings)
+                                   contributions, cv_warnings)
+from uqflow.report import MethodReport
 from uqflow.realization import SENSITIVITY_FLAG, sensitivity_arrays
 
 #: the realization of the design (its only one)
@@ -178,6 +180,19 @@ class TaylorLocal(PropagationMethod):
         stats = finish_statistics(stats, design, runs, self.name, warnings)
         stats.attrs.update(order=opts.order, variance=opts.variance, assumption=FROZEN_STATE)
         return stats
+
+    @classmethod
+    def report(cls, view):
+        """Each input's contribution g_k² s_k² to an output's variance, from the local
+        derivatives; the one run is at the input means, not a draw."""
+        attrs = view.stats.attrs
+        runs = int(attrs.get(SOLVER_RUNS, 0))
+        variance = attrs.get("variance", "")
+        return MethodReport(
+            description=f"Taylor expansion from the solver's local derivatives, order "
+                        f"{attrs.get('order', '?')}, {runs} run{'' if runs == 1 else 's'}"
+                        + (", second-order variance" if variance == "second-order" else ""),
+            sensitivities=lambda out: contributions(view, out))
 
 
 def _solver_label(solver) -> str:

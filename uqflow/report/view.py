@@ -10,6 +10,7 @@ import xarray as xr
 from uqflow.errors import StudyError
 from uqflow.layout import LONG_NAME, METHOD, STATISTIC, STATUS, STUDY_NAME, sample_mask
 from uqflow.report import tables
+from uqflow.registry import method_registry
 from uqflow.report.contributions import MethodReport
 
 
@@ -39,12 +40,10 @@ class ResultView:
     def method_report(self) -> MethodReport:
         """What the result's method adds (``PropagationMethod.report``); empty for a method
         that is not installed here or adds nothing."""
-        from uqflow.methods.base import get_method
-
         if self.stats is None:
             return MethodReport()
         try:
-            method = get_method(self.method)
+            method = method_registry.get(self.method)
         except StudyError:
             return MethodReport()
         return method.report(self) or MethodReport()
