@@ -38,10 +38,11 @@ def __dir__():
     return sorted(set(globals()) | set(_LAZY))
 
 
-def load_study(path):
-    """Read and validate a study file (see ``uqflow.study.load_study``)."""
+def load_study(path, overrides=None):
+    """Read and validate a study file, with ``overrides`` ({dotted key: value}, as
+    ``uqflow run --set`` gives them) set before validation (see ``uqflow.study.load_study``)."""
     from uqflow.study import load_study as _load
-    return _load(path)
+    return _load(path, overrides=overrides)
 
 
 def run_study(study, **kwargs):

@@ -167,3 +167,24 @@ def test_a_resume_with_other_overrides_is_refused(write_study):
     again = uqflow.run_study(load_study(path, overrides={"method.samples": 64}), resume=True,
                              show_progress=False)
     assert again.resumed == 64
+
+
+def test_the_overrides_section_of_the_study_file_page_is_what_uqflow_does():
+    """docs/study-files.md, Overrides: its validate command validates, and its error line is
+    the one uqflow prints."""
+    root = Path(__file__).resolve().parents[2]
+    page = (root / "docs" / "study-files.md").read_text(encoding="utf-8")
+    section = page.split("## Overrides", 1)[1].split("\n## ", 1)[0]
+    command = next(line.split() for line in section.splitlines()
+                   if line.strip().startswith("uqflow validate"))
+    done = subprocess.run([str(UQFLOW), *command[1:]], capture_output=True, text=True,
+                          timeout=300, cwd=root)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout == "studies/ishigami_mc.toml: ok (analytic, pce, 3 random inputs, " \
+                          "outputs y)\n"
+    error = next(line.strip() for line in section.splitlines()
+                 if line.strip().startswith("uqflow: error:"))
+    key_value = error.rsplit("--set ", 1)[1].rstrip(")")
+    done = subprocess.run([str(UQFLOW), "validate", "studies/ishigami_mc.toml", "--set",
+                           key_value], capture_output=True, text=True, timeout=300, cwd=root)
+    assert done.returncode == 2 and done.stderr == error + "\n"
