@@ -122,8 +122,9 @@ def draw(bar, realizations: list[FieldRealizations], title: str, note: str = "")
                            sharex=True, height_ratios=[1.0] + [1.6] * len(realizations))
     axes = axes[:, 0]
     _draw_bar(axes[0], bar, note)
+    where = ", at the nominal grid's points" if bar.cfg["grid"] == "stochastic" else ""
     for ax, field in zip(axes[1:], realizations):
-        _draw_field(ax, field)
+        _draw_field(ax, field, where)
     axes[-1].set_xlabel("position along the bar x [mm]")
     fig.suptitle(title, fontsize="medium")
     return fig
@@ -172,7 +173,7 @@ def _rectangle(length):
                      gid="bar")
 
 
-def _draw_field(ax, field: FieldRealizations):
+def _draw_field(ax, field: FieldRealizations, where: str):
     words, unit, scale = FIELD_LABELS.get(field.parameter, (field.parameter, "", 1.0))
     x = field.x * 1e3
     lo, hi = field.band()
@@ -189,4 +190,4 @@ def _draw_field(ax, field: FieldRealizations):
     ax.set_ylabel(axis_label(words, unit))
     ax.grid(alpha=0.3)
     ax.legend(loc="upper right", fontsize="x-small", ncols=2)
-    ax.set_title(f"{words} along the bar ({field.source})", fontsize="small")
+    ax.set_title(f"{words} along the bar ({field.source}{where})", fontsize="small")

@@ -44,6 +44,10 @@ from uqflow.report import FigureWarning, figure_path, new_figure, save_figure
 __all__ = ["report", "mean_curve", "comparison_tables", "identify", "seed_tables",
            "GamutResult", "Table", "STRAINS"]
 
+#: What "seed 002" is, said once wherever its Table 1 or figures are compared.
+SEED_LINE = ("seed 002: the stochastic nonlocal deformation-gamut bar, the published study "
+             "these results are compared with")
+
 #: Strains at which the mean monotonic curve is compared with the deterministic one.
 STRAINS = (0.005, 0.02, 0.05, 0.1)
 
@@ -457,7 +461,7 @@ def _table1(idx: _Index, seed: dict) -> Table | None:
                 notes.append(f"{case}, {grid} grid: means over the {r.n_ok} of {r.total} "
                              f"realizations that finished")
     notes.insert(0, "each cell: ours / seed 002 (ours/seed - 1); ours = mean over the ok "
-                    "realizations of the runs' n_prime and K_prime; deterministic = the "
+                    "realizations of n' and K' (fitted to each one's loops); deterministic = the "
                     "nominal run on the uniform grid; experimental: the seed's column only; "
                     "'–': no such result given")
     return Table("Table 1 (seed 002): mean cyclic strain hardening exponent n' and cyclic "
@@ -483,7 +487,7 @@ def _spread_table(idx: _Index) -> Table | None:
                      f"{K.min() / 1e6:.1f} .. {K.max() / 1e6:.1f}"])
     if not rows:
         return None
-    return Table("n' and K' over the realizations (seed Figs. 29-32)",
+    return Table("n' and K' over the realizations (seed 002, Figs. 29-32)",
                  ["case", "grid", "ok runs", "n' mean ± std", "n' min .. max",
                   "K' [MPa] mean ± std", "K' [MPa] min .. max"], rows)
 
@@ -573,7 +577,7 @@ def _curve_table(idx: _Index, strains) -> Table | None:
              "the case is given"]
     with_deterministic = any(idx.deterministic_for(case, "monotonic", grid)[0] is not None
                              for case, grid in idx.groups("monotonic"))
-    title = ("Monotonic curves (seed Figs. 21-24): mean stress of the realizations against "
+    title = ("Monotonic curves (seed 002, Figs. 21-24): mean stress of the realizations against "
              + ("the deterministic bar and " if with_deterministic else "") + "Ramberg-Osgood")
     if not with_deterministic:
         header, rows = _without(header, rows, DETERMINISTIC_CURVE_COLUMNS)
@@ -640,50 +644,56 @@ def _fig_monotonic(idx: _Index, case: str, grid: str):
             ends = []
             for n, i in enumerate(np.flatnonzero(sto.ok)):
                 e, s = _path(sto, i)
-                ax.plot(e, s / 1e6, color="#9ab7d3", lw=0.7, alpha=0.8,
+                ax.plot(100 * e, s / 1e6, color="#9ab7d3", lw=0.7, alpha=0.8,
                         label=f"{sto.n_ok} realizations" if n == 0 else None)
                 if e.size:
                     ends.append((e[-1], s[-1]))
             if ends:
                 ends = np.asarray(ends)
-                ax.plot(ends[:, 0], ends[:, 1] / 1e6, "x", color="#1f4e79", ms=4, mew=0.8,
+                ax.plot(100 * ends[:, 0], ends[:, 1] / 1e6, "x", color="#1f4e79", ms=4, mew=0.8,
                         label="failure of a realization", zorder=5)
             if sto.n_ok:
                 top = max(last_failure, 1e-9)
                 grid_e = np.linspace(0.0, top, 400)
                 mean, count = mean_curve(sto.runs, grid_e)
                 full = count == sto.n_ok
-                ax.plot(np.where(full, grid_e, np.nan), mean / 1e6, color="#1f4e79", lw=2,
+                ax.plot(np.where(full, 100 * grid_e, np.nan), mean / 1e6, color="#1f4e79", lw=2,
                         label=f"mean (all {sto.n_ok})")
                 part = (count > 0) & ~full
                 if part.any():
                     # continue the line one point back so the two pieces join
                     first = int(np.argmax(part))
                     part[max(first - 1, 0)] = True
-                    ax.plot(np.where(part, grid_e, np.nan), mean / 1e6, color="#1f4e79",
+                    ax.plot(np.where(part, 100 * grid_e, np.nan), mean / 1e6, color="#1f4e79",
                             lw=1.5, ls="--", label="mean of the survivors")
         if det is not None:
             e, s = _path(det, 0) if det.n_ok else (np.array([]), np.array([]))
-            ax.plot(e, s / 1e6, color="k", lw=1.5,
+            ax.plot(100 * e, s / 1e6, color="k", lw=1.5,
                     label="deterministic" + ("" if det_grid == grid else f" ({det_grid} grid)"))
-        ax.plot(ro_e, ro_s / 1e6, color="#c0392b", lw=1.2, ls=":",
+        ax.plot(100 * ro_e, ro_s / 1e6, color="#c0392b", lw=1.2, ls=":",
                 label="Ramberg-Osgood (calibration)")
-        ax.set_xlabel("strain")
+        ax.set_xlabel("strain [%]")
         ax.set_ylabel("stress [MPa]")
         ax.grid(alpha=0.3)
     axes[0][0].set_title("whole curves")
     if last_failure > 0:
         zoom = min(1.15 * last_failure, props["eps_f"] * 1.05)
-        axes[0][1].set_xlim(0, zoom)
-        axes[0][1].set_title(f"up to the last failure of a realization ({last_failure:.3g})")
+        axes[0][1].set_xlim(0, 100 * zoom)
+        axes[0][1].set_title(f"up to the last failure of a realization (strain "
+                             f"{100 * last_failure:.3g} %)")
     else:
-        axes[0][1].set_xlim(0, 0.1 * props["eps_f"])
+        axes[0][1].set_xlim(0, 10 * props["eps_f"])
         axes[0][1].set_title("first tenth of the failure strain")
     axes[0][0].legend(loc="lower right", fontsize="small")
     what = (f"{sto.n_ok} realizations, their mean" if sto is not None else "deterministic") \
         + ", deterministic and Ramberg-Osgood curves"
-    fig.suptitle(f"{case}, {grid} grid, monotonic loading: {what} (seed Figs. 21-24)")
+    fig.suptitle(f"{case}, {grid} grid, monotonic loading: {what} (seed 002, Figs. 21-24)")
+    _seed_footnote(fig)
     return fig
+
+
+def _seed_footnote(fig):
+    fig.supxlabel(SEED_LINE, fontsize="x-small", color="0.35")
 
 
 def _shown(idx: _Index, case: str, grid: str) -> GamutResult | None:
@@ -706,14 +716,15 @@ def _fig_loops(idx: _Index, case: str, grid: str):
     e, s = _path(res, i)
     fig, axes = _figure(7.0, 5.0)
     ax = axes[0][0]
-    ax.plot(e, s / 1e6, color="#1f4e79", lw=0.6)
+    ax.plot(100 * e, s / 1e6, color="#1f4e79", lw=0.6)
     ax.axhline(0, color="0.5", lw=0.5)
     ax.axvline(0, color="0.5", lw=0.5)
-    ax.set_xlabel("strain")
+    ax.set_xlabel("strain [%]")
     ax.set_ylabel("stress [MPa]")
     ax.grid(alpha=0.3)
     ax.set_title(f"{case}, {grid} grid, cyclic loading: hysteresis loops of "
-                 f"{_realization_label(res, i)} (seed Figs. 25-26)", fontsize="medium")
+                 f"{_realization_label(res, i)} (seed 002, Figs. 25-26)", fontsize="medium")
+    _seed_footnote(fig)
     return fig
 
 
@@ -738,13 +749,13 @@ def _fig_loglog(idx: _Index, case: str, grid: str):
             use &= ep > 1e-6 * ea
         if not use.any():
             return
-        ax.loglog(ep[use], sa[use] / 1e6, marker, color=color, label=f"{label}: loops")
+        ax.loglog(100 * ep[use], sa[use] / 1e6, marker, color=color, label=f"{label}: loops")
         if "n_prime" in r.runs and "K_prime" in r.runs:
             n = float(np.asarray(r.runs["n_prime"].values, float).ravel()[j])
             K = float(np.asarray(r.runs["K_prime"].values, float).ravel()[j])
             if np.isfinite(n) and np.isfinite(K):
                 x = np.geomspace(ep[use].min(), ep[use].max(), 50)
-                ax.loglog(x, K * x ** n / 1e6, "-", color=color, lw=1.2,
+                ax.loglog(100 * x, K * x ** n / 1e6, "-", color=color, lw=1.2,
                           label=f"{label}: fit n' = {n:.4g}, K' = {K / 1e6:.1f} MPa")
 
     draw(res, i, "#1f4e79", _realization_label(res, i), "o")
@@ -762,12 +773,14 @@ def _fig_loglog(idx: _Index, case: str, grid: str):
         in (2, 5) else ""))
     ax.yaxis.set_major_formatter(plain)
     ax.yaxis.set_minor_formatter(plain)
-    ax.set_xlabel("plastic strain amplitude")
+    ax.set_xlabel("plastic strain amplitude [%]")
     ax.set_ylabel("stress amplitude [MPa]")
     ax.grid(alpha=0.3, which="both")
     ax.legend(loc="lower right", fontsize="small")
-    ax.set_title(f"{case}, {grid} grid, cyclic loading: log-log fit σa = K' εpa^n'\n"
-                 f"{_realization_label(res, i)} (seed Figs. 27-28)", fontsize="medium")
+    ax.set_title(f"{case}, {grid} grid, cyclic loading: stress amplitude = K' × (plastic "
+                 f"strain amplitude)^n'\nfitted to the loops of {_realization_label(res, i)} "
+                 f"(seed 002, Figs. 27-28)", fontsize="medium")
+    _seed_footnote(fig)
     return fig
 
 
@@ -780,8 +793,9 @@ def _fig_constants(idx: _Index, case: str, grid: str, seed: dict):
     real = (sto.runs["realization"].values + 1) if "realization" in sto.runs.coords \
         else np.arange(1, sto.total + 1)
     fig, axes = _figure(7.0, 6.0, nrows=2, sharex=True)
-    for ax, out, name, scale, unit, k in ((axes[0][0], "n_prime", "n'", 1.0, "", 0),
-                                           (axes[1][0], "K_prime", "K'", 1e6, " [MPa]", 1)):
+    for ax, out, name, scale, unit, k in (
+            (axes[0][0], "n_prime", "cyclic strain hardening exponent n'", 1.0, " [-]", 0),
+            (axes[1][0], "K_prime", "cyclic strength coefficient K'", 1e6, " [MPa]", 1)):
         v = np.asarray(sto.runs[out].values, float).ravel()
         ok = sto.ok & np.isfinite(v)
         ax.plot(real[ok], v[ok] / scale, "o", color="#1f4e79", ms=4, label="realizations")
@@ -797,7 +811,7 @@ def _fig_constants(idx: _Index, case: str, grid: str, seed: dict):
         if key in ref:
             sv = ref[key][k]
             ax.axhline(sv / scale, color="#c0392b", lw=1.2, ls=":",
-                       label=f"seed Table 1 mean {sv / scale:.6g}")
+                       label=f"seed 002, Table 1: mean {sv / scale:.6g}")
         ax.set_ylabel(name + unit)
         ax.grid(alpha=0.3)
         ax.legend(loc="best", fontsize="small")
@@ -806,8 +820,9 @@ def _fig_constants(idx: _Index, case: str, grid: str, seed: dict):
     axes[1][0].xaxis.set_major_locator(MaxNLocator(integer=True))
     axes[1][0].set_xlabel("realization")
     fig.suptitle(f"{case}, {grid} grid, cyclic loading: n' and K' per realization\n"
-                 f"({sto.n_ok} of {sto.total} realizations ok; seed Figs. 29-32)",
+                 f"({sto.n_ok} of {sto.total} realizations ok; seed 002, Figs. 29-32)",
                  fontsize="medium")
+    _seed_footnote(fig)
     return fig
 
 
@@ -820,7 +835,7 @@ def _fig_bar_fields(res: GamutResult, solver_class):
     realizations = field_realizations(bar, res.field_tables, res.runs)
     kind = (f"{len(realizations[0].values)} realizations of its random fields" if realizations
             else "its nominal properties")
-    title = f"{res.name}: the bar ({res.describe()}) with {kind}"
+    title = f"{res.name}\nthe bar ({res.describe()}) with {kind}"
     return draw_bar(bar, realizations, title, note)
 
 
@@ -872,7 +887,7 @@ def report(trees, folder, figures: bool = True, *, solver_class) -> tuple[str, l
                 f"description names no case: left out" for r in found if not r.source]
     if not results:
         return "\n".join(left_out), []
-    text = "\n\n".join([t.text() for t in _tables(results)] + (["\n".join(left_out)]
-                                                                 if left_out else []))
+    text = "\n\n".join([SEED_LINE] + [t.text() for t in _tables(results)]
+                       + (["\n".join(left_out)] if left_out else []))
     pngs = _figures(results, Path(folder), solver_class) if figures else []
     return text, pngs

@@ -18,17 +18,37 @@ from solvers.gamut_bar.network import (bond_weights, build_network, effective_si
 from solvers.gamut_bar.report import report as _report
 from solvers.gamut_bar.scene import parse_scene
 from uqflow.errors import SolverError
-from uqflow.solver import DIAGNOSTIC_KIND, Solver, register_solver
+from uqflow.layout import DIAGNOSTIC_KIND, LONG_NAME, OUTPUT_KIND, UNITS
+from uqflow.solver import Solver, register_solver
 
 PARAMETERS = ("bar.E", "bar.R", "bar.w", "bar.rho", "bar.sigma_y", "bar.sigma_f", "bar.eps_f",
               "bar.n_ro", "bar.K_ro", "bar.area", "bar.length")
-UNITS = {"bar.E": "Pa", "bar.R": "", "bar.w": "", "bar.rho": "kg m-3", "bar.sigma_y": "Pa",
+PARAMETER_UNITS = {"bar.E": "Pa", "bar.R": "", "bar.w": "", "bar.rho": "kg m-3", "bar.sigma_y": "Pa",
          "bar.sigma_f": "Pa", "bar.eps_f": "", "bar.n_ro": "", "bar.K_ro": "",
          "bar.area": "m2", "bar.length": "m"}      # "" where dimensionless (Solver contract)
 FIELDS = ("bar.E", "bar.R", "bar.w", "bar.rho")   # bar.w at nonlocal-bond midpoints
 #: open range (lower, upper) of a field's values: the physical range of its parameter
 FIELD_RANGES = {"bar.E": (0.0, math.inf), "bar.R": (0.0, 1.0), "bar.rho": (0.0, math.inf),
                 "bar.w": (0.0, math.inf)}
+#: what each output is, in words (its ``long_name``; units are SI, "1" where dimensionless)
+OUTPUT_LONG_NAMES = {
+    "strain": "strain of the bar (end displacement / length)",
+    "stress": "stress in the bar (end force / cross-section)",
+    "failure_strain": "strain of the bar at failure",
+    "failure_stress": "stress in the bar at failure",
+    "sigma_stdev": "width of the nonlocal bond weights around each grid point",
+    "x": "position of each grid point along the bar",
+    "R": "modulus of softness of each local bond",
+    "bond_strain": "strain of each local bond in the last state (at failure)",
+    "mass": "mass of the bar",
+    "stress_amplitude": "stress amplitude of each cyclic loop",
+    "strain_amplitude": "strain amplitude of each cyclic loop",
+    "plastic_strain_amplitude": "plastic strain amplitude of each cyclic loop",
+    "n_prime": "cyclic strain hardening exponent n'",
+    "K_prime": "cyclic strength coefficient K'",
+}
+COORDINATE_LONG_NAMES = {"step": "load step", "point": "grid point", "bond": "local bond",
+                         "loop": "cyclic loop (amplitude level)"}
 DIAGNOSTIC_OUTPUTS = {"load_steps": "load steps the run followed (not counting the bisection "
                                     "of the failure load)",
                       "newton_iterations": "Newton iterations of those load steps",
@@ -93,7 +113,7 @@ class GamutBarSolver(Solver):
                 "bar.area": p["area"], "bar.length": p["length"]}
 
     def parameter_units(self) -> dict[str, str]:
-        return dict(UNITS)
+        return dict(PARAMETER_UNITS)
 
     def field_points(self, name: str) -> np.ndarray:
         """Points (m) of the nominal (uniform) grid where a field is evaluated: local-bond
@@ -141,11 +161,13 @@ class GamutBarSolver(Solver):
                 "K_prime": ((), nan, "Pa"),
             })
             coords["loop"] = np.arange(lv)
-        ds = xr.Dataset({k: xr.Variable(d, v, {"units": u}) for k, (d, v, u) in data.items()},
-                        coords=coords)
+        ds = xr.Dataset({k: xr.Variable(d, v, {UNITS: u, LONG_NAME: OUTPUT_LONG_NAMES[k]})
+                         for k, (d, v, u) in data.items()}, coords=coords)
+        for dim in coords:
+            ds[dim].attrs[LONG_NAME] = COORDINATE_LONG_NAMES[dim]
         for name, long in DIAGNOSTIC_OUTPUTS.items():
-            ds[name] = xr.Variable((), nan, {"units": "1", "long_name": long,
-                                             "output_kind": DIAGNOSTIC_KIND})
+            ds[name] = xr.Variable((), nan, {UNITS: "1", LONG_NAME: long,
+                                             OUTPUT_KIND: DIAGNOSTIC_KIND})
         return ds
 
     # -- one realization -------------------------------------------------------------------

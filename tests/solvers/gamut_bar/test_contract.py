@@ -61,6 +61,18 @@ def test_template_matches_the_run(loading):
     assert np.all(np.isnan(s.outputs()["strain"].values))
 
 
+@pytest.mark.parametrize("loading", ["monotonic", "cyclic"])
+def test_every_output_says_in_words_what_it_is_and_in_which_si_unit(loading):
+    t = solver(loading=loading, local_bonds=20, cycles=3).outputs()
+    for name, var in t.data_vars.items():
+        words = var.attrs.get("long_name", "")
+        assert len(words.split()) >= 2 and "_" not in words, (name, words)
+        assert var.attrs.get("units") in ("1", "Pa", "m", "kg"), name     # SI; "1": ratio
+    for dim in t.dims:
+        assert t[dim].attrs.get("long_name"), dim
+    assert t["stress"].attrs["long_name"] == "stress in the bar (end force / cross-section)"
+
+
 def test_curve_points_and_mass_and_sigma():
     ds = run(curve_points=50)
     assert ds.sizes["step"] == 50

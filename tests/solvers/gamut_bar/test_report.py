@@ -333,3 +333,51 @@ def test_cli_report_returns_0(results, tmp_path, capsys):
     assert main(["report", *map(str, results), "--no-figures"]) == 0
     out = capsys.readouterr().out
     assert all(f"== {p}" in out for p in results)
+
+
+# ----------------------------------------------------------------------------- for engineers
+
+def test_figures_speak_in_words_and_percent(trees):
+    idx = gb._Index([gb.identify(t) for t in trees])
+    mono = gb._fig_monotonic(idx, "M1", "uniform")
+    loglog = gb._fig_loglog(idx, "M1", "uniform")
+    constants = gb._fig_constants(idx, "M1", "uniform", gb.seed_tables())
+    labels = {(ax.get_xlabel(), ax.get_ylabel()) for fig in (mono, loglog, constants)
+              for ax in fig.axes}
+    assert labels == {("strain [%]", "stress [MPa]"),
+                      ("plastic strain amplitude [%]", "stress amplitude [MPa]"),
+                      ("", "cyclic strain hardening exponent n' [-]"),
+                      ("realization", "cyclic strength coefficient K' [MPa]")}
+    # strains drawn in percent: the deterministic curve ends at 100 × its failure strain
+    det = _by_name(trees, "m1-monotonic-deterministic-uniform")
+    failure = float(det["runs"]["failure_strain"].values[0])
+    (line,) = [ln for ln in mono.axes[0].lines if ln.get_label() == "deterministic"]
+    assert line.get_xdata()[-1] == pytest.approx(100 * failure, rel=1e-12)  # ×100, rounding
+    for fig in (mono, loglog, constants):        # the seed named, and said what it is
+        assert fig.get_supxlabel() == gb.SEED_LINE
+        assert "seed 002" in (fig.get_suptitle() + fig.axes[0].get_title())
+
+
+def test_the_text_says_once_what_seed_002_is(trees, tmp_path):
+    text, _ = GamutBarSolver.report(trees, tmp_path, figures=False)
+    assert text.startswith("seed 002: the stochastic nonlocal deformation-gamut bar")
+    assert text.count("deformation-gamut bar") == 1
+
+
+def test_the_report_uses_public_report_names_only():
+    """Only names uqflow.report exports, imported at module level from the package itself."""
+    import ast
+
+    import uqflow.report
+
+    for path in (ROOT / "solvers" / "gamut_bar").glob("*.py"):
+        tree = ast.parse(path.read_text())
+        top = set(map(id, tree.body))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("uqflow"):
+                assert id(node) in top, f"{path.name}:{node.lineno}: function-level import"
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith(
+                    "uqflow.report"):
+                assert node.module == "uqflow.report", f"{path.name}: {node.module}"
+                for alias in node.names:
+                    assert alias.name in uqflow.report.__all__, f"{path.name}: {alias.name}"
