@@ -232,23 +232,15 @@ def scene_table(attrs: dict) -> tuple[dict | None, str]:
         except tomllib.TOMLDecodeError:
             return None, f"the scene file {path} is not valid TOML"
         where = f"scene file {path}"
-    try:
-        overrides = tomllib.loads(str(attrs.get(STUDY_OVERRIDES) or ""))
-    except tomllib.TOMLDecodeError:
-        overrides = {}
-    for key, value in _dotted(overrides.get("scene", {})).items():
-        scene = scene_with(scene, key, value)
+    for line in str(attrs.get(STUDY_OVERRIDES) or "").splitlines():
+        key, _, value = line.partition(" = ")      # uqflow.study's ``key = value`` lines
+        if key.startswith("scene."):
+            try:
+                scene = scene_with(scene, key.removeprefix("scene."),
+                                   tomllib.loads(f"value = {value}")["value"])
+            except tomllib.TOMLDecodeError:
+                return None, f"the override {line!r} cannot be read"
     return scene, where
-
-
-def _dotted(table: dict, prefix: str = "") -> dict:
-    out = {}
-    for k, v in table.items():
-        if isinstance(v, dict):
-            out.update(_dotted(v, f"{prefix}{k}."))
-        else:
-            out[f"{prefix}{k}"] = v
-    return out
 
 
 def scene_map(tree: xr.DataTree, folder: Path) -> tuple[list[Path], list[str]]:

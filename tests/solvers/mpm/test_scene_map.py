@@ -223,3 +223,16 @@ def test_the_docs_state_the_probe_panels_rule():
     assert "(margin: half their spread, at least 4 cells)" in doc
     assert (scene_map.ZOOM_BELOW, scene_map.ZOOM_MARGIN, scene_map.ZOOM_MIN_CELLS) == \
         (0.2, 0.5, 4)
+
+
+def test_uqflow_run_writes_the_scene_map_with_the_result(tmp_path):
+    from uqflow.cli import main
+
+    (tmp_path / "scene.toml").write_text(TOML)
+    (tmp_path / "study.toml").write_text(
+        'name = "tiny"\nsolver = "mpm"\nscene = "scene.toml"\noutputs = ["pressure"]\n'
+        '[method]\nkind = "nominal"\n[execution]\nworkers = 0\n'
+        '[output]\npath = "tiny.nc"\n')
+    assert main(["run", str(tmp_path / "study.toml"), "--quiet"]) == 0
+    drawn = tmp_path / "tiny_figures" / "scene_map.png"
+    assert drawn.is_file() and drawn.stat().st_size > 0
