@@ -390,3 +390,52 @@ def test_the_report_layer_names_no_method_and_no_solver():
     found = [hit for path in sorted((ROOT / "uqflow" / "report").rglob("*.py"))
              for hit in names_in_source(path, names)]
     assert not found, "uqflow/report names methods or solvers:\n" + "\n".join(found)
+
+
+# ----------------------------------------------------------------------------- the result layout
+
+def layout_names() -> set[str]:
+    """The names of uqflow.layout that no other framework module should spell: every string
+    constant but the CF attributes every solver writes too (units, long_name) and the short
+    words that are also plain English (mean, sample, control, ...)."""
+    from uqflow import layout
+
+    words = {layout.UNITS, layout.LONG_NAME, layout.TITLE, layout.CONVENTIONS}
+    names = {value for name, value in vars(layout).items()
+             if name.isupper() and isinstance(value, str) and value not in words}
+    return {n for n in names if "_" in n.strip("_") or n.startswith("__") or
+            n in (layout.STATUS, layout.MESSAGE, layout.REALIZATION, layout.PARAMETER,
+                  layout.STATISTIC, layout.WITH_SENSITIVITIES)}
+
+
+def layout_spellings(path: Path, names: set[str]) -> list[str]:
+    """String literals of ``path`` (not docstrings, not ``__all__``) equal to one of
+    ``names``."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+    skipped = _docstrings(tree) | {  # the names a module exports are Python names
+        id(c) for node in ast.walk(tree) if isinstance(node, ast.Assign) and
+        any(isinstance(t, ast.Name) and t.id == "__all__" for t in node.targets)
+        for c in ast.walk(node.value)}
+    found = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Constant) and isinstance(node.value, str) and \
+                id(node) not in skipped and node.value in names:
+            found.add((node.lineno, f"{path.relative_to(ROOT)}:{node.lineno}: {node.value!r}"))
+    return [text for _, text in sorted(found)]
+
+
+def test_the_layout_check_finds_a_spelled_name(tmp_path, monkeypatch):
+    source = tmp_path / "example.py"
+    source.write_text('"""The status of a run."""\n__all__ = ["status"]\n'
+                      'ok = runs["status"] == "ok"\nfine = runs[STATUS]\n', encoding="utf-8")
+    with _tree_at(tmp_path, monkeypatch):
+        assert layout_spellings(source, layout_names()) == ["example.py:3: 'status'"]
+
+
+def test_only_the_layout_module_spells_the_result_layout():
+    names = layout_names()
+    assert {"status", "with_sensitivities", "__gradient", "solver_runs", "study_sha256"} <= names
+    found = [hit for path in sorted((ROOT / "uqflow").rglob("*.py"))
+             if path.name != "layout.py" for hit in layout_spellings(path, names)]
+    assert not found, "result-layout names spelled outside uqflow/layout.py:\n" + \
+        "\n".join(found)
