@@ -39,6 +39,7 @@ import numpy as np
 import xarray as xr
 
 from solvers.gamut_bar.bar_figure import draw as draw_bar, field_realizations
+from solvers.gamut_bar.materials import MATERIALS
 from uqflow.report import FigureWarning, figure_path, new_figure, save_figure
 
 __all__ = ["report", "mean_curve", "comparison_tables", "identify", "seed_tables",
@@ -63,25 +64,15 @@ SEED_KEYS = {"M1": "table1_material1", "M2": "table1_material2"}
 
 def seed_tables() -> dict:
     """The ``[gamut_bar]`` table of the seed numbers (package data ``data/seed_tables.toml``,
-    an exact copy of ``tests/data/seed_tables.toml``; that file if the copy is missing)."""
-    try:
-        text = (resources.files("solvers.gamut_bar") / "data" / "seed_tables.toml").read_text(
-            encoding="utf-8")
-    except (FileNotFoundError, OSError):
-        text = (Path(__file__).resolve().parents[2] / "tests" / "data"
-                / "seed_tables.toml").read_text(encoding="utf-8")
+    an exact copy of ``tests/data/seed_tables.toml``)."""
+    text = (resources.files("solvers.gamut_bar") / "data" / "seed_tables.toml").read_text(
+        encoding="utf-8")
     return tomllib.loads(text)["gamut_bar"]
 
 
 def material_properties(material: str, overrides: dict | None = None) -> dict:
-    """E, sigma_y, n_ro, K_ro, eps_f, ... of a material (the solver's table, else the seed's),
-    with the scene's overrides."""
-    try:
-        from solvers.gamut_bar.materials import MATERIALS
-        props = dict(MATERIALS[material])
-    except (ImportError, KeyError):
-        seed = seed_tables()
-        props = dict(seed[{"M1": "material1", "M2": "material2"}[material]])
+    """E, sigma_y, n_ro, K_ro, eps_f, ... of a material, with the scene's overrides."""
+    props = dict(MATERIALS[material])
     props.update({k: float(v) for k, v in (overrides or {}).items()})
     return props
 
