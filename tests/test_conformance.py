@@ -31,6 +31,11 @@ MPM_TINY = dict(domain=dict(x=[0.0, 0.1], y=[0.0, 0.1]), cell_size=0.01, particl
                              max=[0.08, 0.08], velocity=[1.0, 0.0])],
                 end_time=0.002, output_interval=0.0005,
                 probes=[dict(name="c", point=[0.05, 0.05], body="block")])
+# The same block of Johnson-Cook steel with a Mie-Grueneisen EOS pushed against a fixed wall:
+# it declares local sensitivities (stresses, pressure and flow stress wrt jc.* and eos.*).
+MPM_JC_TINY = dict(MPM_TINY, materials=dict(m=dict(model="steel_4340")),
+                   bodies=[dict(MPM_TINY["bodies"][0], velocity=[50.0, 0.0])],
+                   boundaries=dict(left="fixed"), end_time=2e-5, output_interval=5e-6)
 # A random layout of 3 inclusions, 3 load steps: runs take a seed (the layout's), and a
 # finite interface strength (the seed's Example 1 has an infinite one, refused by "nominal").
 SPH_TINY = dict(layout="random", width=100e-6, height=100e-6, spacing=5e-6,
@@ -47,6 +52,7 @@ SOLVERS = {
     "analytic-random-E-bar": (AnalyticSolver, dict(model="random_E_bar", points=8)),
     "tiny": (TinyModel, {}),
     "mpm": (MPMSolver, MPM_TINY),
+    "mpm-johnson-cook": (MPMSolver, MPM_JC_TINY),
     "sph": (SPHSolver, SPH_TINY),
     "gamut_bar": (GamutBarSolver, GAMUT_BAR_TINY),
 }
@@ -61,6 +67,9 @@ def test_built_in_solver_passes_check_solver(label):
     assert set(outcome) >= {"contract", "deterministic", "failure_capture", "pickle",
                             "bad_scene", "run_matches_template"}
     assert all(v == "ok" or v.startswith("not applicable") for v in outcome.values())
+    if label in ("mpm-johnson-cook", "tiny") or label.startswith("analytic-") and \
+            label != "analytic-random-E-bar":
+        assert outcome["local_sensitivities"] == "ok"
 
 
 #: kind -> (options, keyword arguments of check_method); a few realizations each
