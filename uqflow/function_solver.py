@@ -26,7 +26,7 @@ from uqflow.errors import SceneError, SolverError
 from uqflow.layout import LONG_NAME, UNITS
 from uqflow.solver import Solver
 
-__all__ = ["solver_from_function"]
+__all__ = ["FunctionSolver", "solver_from_function"]
 
 _DOTTED = re.compile(r"^[A-Za-z_]\w*(\.[A-Za-z_]\w*)*$")
 #: classes made so far, so that the same call gives the same class (and an unpickled
@@ -122,44 +122,58 @@ def solver_from_function(f: Callable, outputs: str | Sequence[str] | Mapping[str
                      name=name or f.__name__, long_names=dict(long_names or {}),
                      coords={d: tuple(v.tolist()) for d, v in coords.items()},
                      coord_units=dict(coord_units or {}),
-                     parameter_units=dict(parameter_units or {}))
+                     units_of_parameters=dict(parameter_units or {}))
     key = (f, repr(sorted(arguments.items())))
     if key not in _MADE:
         _MADE[key] = _make_class(f, arguments)
     return _MADE[key]
 
 
-def _make_class(f: Callable, arguments: dict) -> type[Solver]:
-    outputs, nominal = arguments["outputs"], arguments["parameters"]
-    coords = {d: xr.Variable(d, np.asarray(v), {UNITS: arguments["coord_units"].get(d, "")})
-              for d, v in arguments["coords"].items()}
-    template = xr.Dataset(
-        {o: xr.Variable(dims, np.full(tuple(len(coords[d]) for d in dims), np.nan),
-                        {UNITS: arguments["units"][o],
-                         LONG_NAME: arguments["long_names"].get(o, o.replace("_", " "))})
-         for o, dims in outputs.items()},
-        coords={d: c for d, c in coords.items() if any(d in dims for dims in outputs.values())})
+class FunctionSolver(Solver):
+    """Base of the classes ``solver_from_function`` makes: each sets ``function`` (the
+    Python function), ``arguments`` (what ``solver_from_function`` was given, normalised)
+    and ``template`` (the outputs' template)."""
 
-    def from_scene(cls, scene: Mapping):
+    function: Callable
+    arguments: dict
+    template: xr.Dataset
+
+    def __init__(self, values: Mapping[str, float] | None = None):
+        defaults = self.arguments["parameters"]
+        self._nominal = dict(defaults if values is None else values)
+
+    @classmethod
+    def from_scene(cls, scene: Mapping) -> "FunctionSolver":
+        defaults = cls.arguments["parameters"]
         if not isinstance(scene, Mapping):
             raise SceneError("must be a table of nominal parameter values", key="scene")
-        values = dict(nominal)
+        values = dict(defaults)
         for key, value in scene.items():
-            if key not in nominal:
+            if key not in defaults:
                 raise SceneError(f"unknown key (the scene sets nominal values of "
-                                 f"{', '.join(nominal) or 'no parameter'})", key=f"scene.{key}")
+                                 f"{', '.join(defaults) or 'no parameter'})", key=f"scene.{key}")
             if not _finite_number(value):
                 raise SceneError(f"must be a finite number, got {value!r}", key=f"scene.{key}")
             values[key] = float(value)
         return cls(values)
 
-    def __init__(self, values: Mapping[str, float] | None = None):
-        self._nominal = dict(nominal if values is None else values)
-
     def __reduce__(self):
-        return _instance, (f, arguments, self._nominal)
+        return _instance, (self.function, self.arguments, self._nominal)
 
-    def run(self, params, fields=None):
+    def nominal(self) -> dict[str, float]:
+        return dict(self._nominal)
+
+    def parameter_units(self) -> dict[str, str]:
+        return dict(self.arguments["units_of_parameters"])
+
+    def outputs(self) -> xr.Dataset:
+        return self.template.copy(deep=True)
+
+    def describe(self) -> str:
+        return f"{self.name} (function {self.function.__name__})"
+
+    def run(self, params, fields=None) -> xr.Dataset:
+        f = self.function
         if fields:
             raise SolverError(f"solver '{self.name}' takes no random fields")
         values = dict(self._nominal)
@@ -168,12 +182,13 @@ def _make_class(f: Callable, arguments: dict) -> type[Solver]:
                 raise SolverError(f"unknown parameter '{key}' (known: {', '.join(values)})")
             values[key] = float(value)
         result = f(**values)
+        outputs = self.arguments["outputs"]
         if not isinstance(result, Mapping):
             if len(outputs) != 1:
                 raise SolverError(f"{f.__name__} returned {type(result).__name__}, not a dict "
                                   f"of the outputs {', '.join(outputs)}")
             result = {next(iter(outputs)): result}
-        ds = template.copy(deep=True)
+        ds = self.outputs()
         for out in outputs:
             if out not in result:
                 raise SolverError(f"{f.__name__} returned no output '{out}'")
@@ -185,25 +200,28 @@ def _make_class(f: Callable, arguments: dict) -> type[Solver]:
             ds[out].values[...] = value
         return ds
 
-    namespace = {
+
+def _make_class(f: Callable, arguments: dict) -> type[Solver]:
+    outputs = arguments["outputs"]
+    coords = {d: xr.Variable(d, np.asarray(v), {UNITS: arguments["coord_units"].get(d, "")})
+              for d, v in arguments["coords"].items()}
+    template = xr.Dataset(
+        {o: xr.Variable(dims, np.full(tuple(len(coords[d]) for d in dims), np.nan),
+                        {UNITS: arguments["units"][o],
+                         LONG_NAME: arguments["long_names"].get(o, o.replace("_", " "))})
+         for o, dims in outputs.items()},
+        coords={d: c for d, c in coords.items() if any(d in dims for dims in outputs.values())})
+    cls = type(_class_name(arguments["name"]), (FunctionSolver,), {
         "__doc__": (f.__doc__ or f"{arguments['name']}: a function as a solver").strip(),
         "__module__": getattr(f, "__module__", __name__),
-        "name": arguments["name"],
-        "from_scene": classmethod(from_scene),
-        "__init__": __init__,
-        "__reduce__": __reduce__,
-        "nominal": lambda self: dict(self._nominal),
-        "parameter_units": lambda self: dict(arguments["parameter_units"]),
-        "outputs": lambda self: template.copy(deep=True),
-        "run": run,
-        "describe": lambda self: f"{self.name} (function {f.__name__})",
-    }
-    cls = type(_class_name(arguments["name"]), (Solver,), namespace)
+        "name": arguments["name"], "function": staticmethod(f), "arguments": arguments,
+        "template": template})
     cls.__qualname__ = cls.__name__
     return cls
 
 
 def _instance(f: Callable, arguments: dict, values: dict) -> Solver:
     """An instance of the class ``solver_from_function`` makes for ``f`` (for pickle)."""
-    made = solver_from_function(f, **arguments)
+    given = {k: v for k, v in arguments.items() if k != "units_of_parameters"}
+    made = solver_from_function(f, parameter_units=arguments["units_of_parameters"], **given)
     return made(values)

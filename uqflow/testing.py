@@ -36,10 +36,11 @@ import xarray as xr
 
 from uqflow.errors import SceneError, SolverError, StudyError, UqflowError
 from uqflow.execute import run_study
-from uqflow.layout import (FAILED_RUNS, INPUTS, LONG_NAME, MESSAGE, METHOD, PARAMETER,
-                           REALIZATION, RUN_COLUMNS, SENSITIVITY_DIM, SOLVER_RUNS,
-                           SOLVER_WALL_TIME, STATISTIC, STATUS, STATUS_FAILED, UNITS,
-                           gradient_variable, hessian_variable, is_diagnostic)
+from uqflow.layout import (FAILED_RUNS, GRADIENT_SUFFIX, HESSIAN_SUFFIX, INPUTS, LONG_NAME,
+                           MESSAGE, METHOD, PARAMETER, PARAMETER_J, REALIZATION, RUN_COLUMNS,
+                           SENSITIVITY_DIM, SOLVER_RUNS, SOLVER_WALL_TIME, STATISTIC, STATUS,
+                           STATUS_FAILED, UNITS, gradient_variable, hessian_variable,
+                           is_diagnostic)
 from uqflow.methods.base import (MethodOptions, PropagationMethod, get_method,
                                  method_registry)
 from uqflow.realization import run_batch, takes_seed
@@ -74,7 +75,7 @@ def _fail(check: str, what: str, fix: str) -> ConformanceError:
 
 _DOTTED = re.compile(r"^[\w\-]+(\.[\w\-]+)*$")
 #: dims and variable names the result layout gives a meaning of its own
-_RESERVED_DIMS = (REALIZATION, STATISTIC, PARAMETER, "parameter_j", SENSITIVITY_DIM)
+_RESERVED_DIMS = (REALIZATION, STATISTIC, PARAMETER, PARAMETER_J, SENSITIVITY_DIM)
 _RESERVED_NAMES = frozenset({INPUTS, *RUN_COLUMNS})
 
 
@@ -186,10 +187,10 @@ def check_solver_outputs_template(case: _SolverCase) -> None:
                     "return an xr.Dataset template with one variable per output")
     for out, var in template.data_vars.items():
         if not isinstance(out, str) or out in _RESERVED_NAMES or \
-                out.endswith(("__gradient", "__hessian")):
+                out.endswith((GRADIENT_SUFFIX, HESSIAN_SUFFIX)):
             raise _fail(name, f"output name {out!r} is one the result layout reserves",
                         f"rename it (reserved: {', '.join(sorted(_RESERVED_NAMES))} and "
-                        f"the __gradient/__hessian suffixes)")
+                        f"the {GRADIENT_SUFFIX}/{HESSIAN_SUFFIX} suffixes)")
         if not isinstance(var.attrs.get(UNITS), str):
             raise _fail(name, f"output '{out}' has no 'units' attribute",
                         f"set attrs['units'] (SI, '1' when dimensionless) on '{out}'")
@@ -280,7 +281,7 @@ def check_solver_failure_capture(case: _SolverCase) -> None:
     except BaseException as exc:  # what the runner lets through ends a study
         raise _fail(name, f"{type(exc).__name__} escaped uqflow's runner", "raise "
                     "SolverError (or any Exception) from run, never BaseException") from exc
-    status, message = batch["status"][0], batch["message"][0]
+    status, message = batch[STATUS][0], batch[MESSAGE][0]
     if status != STATUS_FAILED:
         raise _fail(name, f"a run with {params} ended '{status}' with finite outputs",
                     "raise SolverError on parameters the model cannot take (a NaN, a "
@@ -372,7 +373,7 @@ def check_solver_local_sensitivities(case: _SolverCase) -> None:
                         "return run(params)'s dataset plus the derivatives")
         dims = template[out].dims
         for var, extra in ((gradient_variable(out), (PARAMETER,)),
-                           (hessian_variable(out), (PARAMETER, "parameter_j"))):
+                           (hessian_variable(out), (PARAMETER, PARAMETER_J))):
             if var not in result.data_vars:
                 raise _fail(name, f"run_with_sensitivities returned no '{var}'",
                             "add the gradient and Hessian of every output asked for")
@@ -535,9 +536,9 @@ class TinyModel(Solver):
             gradient, hessian = grads[out]
             dims = ds[out].dims
             ds[gradient_variable(out)] = xr.Variable((*dims, PARAMETER), gradient[..., index])
-            ds[hessian_variable(out)] = xr.Variable((*dims, PARAMETER, "parameter_j"),
+            ds[hessian_variable(out)] = xr.Variable((*dims, PARAMETER, PARAMETER_J),
                                                     hessian[..., index, :][..., index])
-        return ds.assign_coords({PARAMETER: list(wrt), "parameter_j": list(wrt)})
+        return ds.assign_coords({PARAMETER: list(wrt), PARAMETER_J: list(wrt)})
 
 
 # ======================================================================================= methods
@@ -759,10 +760,10 @@ def check_method_analyze(case: _MethodCase) -> None:
                     "warnings)")
 
 
-def check_method_failed_runs(case: _MethodCase) -> None:
+def check_method_handles_failed_runs(case: _MethodCase) -> None:
     """analyze takes runs with a failed realization (NaN outputs, status failed): it gives
     statistics counting the failure, or a one-line StudyError saying it cannot."""
-    name = "failed_runs"
+    name = "handles_failed_runs"
     runs = case.runs.copy(deep=True)
     runs[STATUS].values[0] = STATUS_FAILED
     runs[MESSAGE].values[0] = "SolverError: diverged (a failure put in by check_method)"
@@ -827,7 +828,7 @@ METHOD_CHECKS: dict[str, Callable[[_MethodCase], None]] = {
     "plan_deterministic": check_method_plan_deterministic,
     "design_layout": check_method_design_layout,
     "analyze": check_method_analyze,
-    "failed_runs": check_method_failed_runs,
+    "handles_failed_runs": check_method_handles_failed_runs,
     "pickle": check_method_pickle,
     "report_hook": check_method_report_hook,
 }
