@@ -37,6 +37,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from benchmarks._record import FIGURES, command, machine, write_section  # noqa: E402
+from solvers.gamut_bar import GamutBarSolver  # noqa: E402
 from solvers.gamut_bar.report import (STRAINS, comparison_tables, identify,  # noqa: E402
                                       mean_curve, report)
 from uqflow.errors import UqflowError  # noqa: E402
@@ -256,7 +257,9 @@ def main(argv=None) -> int:
         used = (row["rerun"] or {}).get("result") or row["result"]
         if used in trees:
             tree_list.append(trees[used])
-    text, pngs = report(tree_list, FIGURES, figures=not args.no_write)
+    # the seed's figures only: the bar with its field realizations is each result's own
+    text, pngs = report(tree_list, FIGURES, figures=not args.no_write,
+                        solver_class=GamutBarSolver, bar_fields=False)
     print(text)
     for png in pngs:
         print(f"figure: {png.relative_to(ROOT)}")

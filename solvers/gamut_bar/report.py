@@ -834,7 +834,8 @@ def _figures(results: list[GamutResult], folder: Path, solver_class) -> list[Pat
     idx = _Index(results)
     seed = seed_tables()
     jobs = [("bar_fields" + ("" if len(results) == 1 else f"_{r.name}"),
-             lambda r=r: _fig_bar_fields(r, solver_class)) for r in results]
+             lambda r=r: _fig_bar_fields(r, solver_class))
+            for r in (results if solver_class is not None else [])]
     for case, grid in idx.groups("monotonic"):
         slug = (idx.get(case, "monotonic", grid, True)
                 or idx.get(case, "monotonic", grid, False)).slug
@@ -865,13 +866,15 @@ def _figures(results: list[GamutResult], folder: Path, solver_class) -> list[Pat
 
 # ------------------------------------------------------------------------------ the hook
 
-def report(trees, folder, figures: bool = True, *, solver_class) -> tuple[str, list[Path]]:
+def report(trees, folder, figures: bool = True, *, solver_class,
+           bar_fields: bool = True) -> tuple[str, list[Path]]:
     """Seed 002's comparisons for any set of gamut-bar results: the text (Table 1 with ours
     beside the seed's numbers, n'/K' spread, failure, mean monotonic curves) and the PNG
     figures written into ``folder`` (none with ``figures=False``): the bar with its field
     realizations (``bar_fields.png``; ``bar_fields_<study>.png`` for several results), and
     the seed's figures. ``solver_class``: the gamut-bar solver (``GamutBarSolver.report``
-    passes itself), which builds each result's bar from its scene."""
+    passes itself), which builds each result's bar from its scene; ``bar_fields=False``: the
+    seed's figures only (``benchmarks/gamut_bar_table1.py``)."""
     found = [r for r in map(identify, trees) if r is not None]
     results = [r for r in found if r.source]
     left_out = [f"note: {r.name}: {_without_study_text(dict(r.tree.attrs))}, and the solver's "
@@ -880,5 +883,6 @@ def report(trees, folder, figures: bool = True, *, solver_class) -> tuple[str, l
         return "\n".join(left_out), []
     text = "\n\n".join([SEED_LINE] + [t.text() for t in _tables(results)]
                        + (["\n".join(left_out)] if left_out else []))
-    pngs = _figures(results, Path(folder), solver_class) if figures else []
+    pngs = _figures(results, Path(folder), solver_class if bar_fields else None) \
+        if figures else []
     return text, pngs

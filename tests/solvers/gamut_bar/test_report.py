@@ -321,6 +321,9 @@ def test_only_what_the_results_allow(trees, tmp_path):
         "gamut_bar_m1_uniform_monotonic.png"]
     assert "n' and K' over the realizations" not in text
     assert "0.06244 (" in text                         # the deterministic column
+    _, seed_only = gb.report(det, tmp_path / "seed", solver_class=GamutBarSolver,
+                             bar_fields=False)          # benchmarks/gamut_bar_table1.py
+    assert sorted(p.name for p in seed_only) == sorted(p.name for p in pngs)[2:]
     mono = [_by_name(trees, "m1-monotonic-deterministic-uniform")]
     text, pngs = GamutBarSolver.report(mono, tmp_path / "none", figures=False)
     assert pngs == [] and not (tmp_path / "none").exists()
