@@ -1,24 +1,35 @@
-"""`uqflow report` on sph results (docs/sph.md § 10): per realization, the apparent modulus
-against its own Voigt–Reuss bounds; the ensemble's mean modulus, with its Monte Carlo standard
-error, against the Hashin–Shtrikman bounds; the macroscopic stress–strain envelope; and the
-proportion of realizations with a fully debonded inclusion by each strain, with its exact
-(Clopper–Pearson) interval. A multilevel or multifidelity result is reported level by level:
-its levels are different discretisations, not one sample."""
+"""What SPH results add to their report (``SPHSolver.report``; docs/sph.md § 10): a map of the
+scene (``scene_map.png``) with every result; and for a tension result, per realization, the
+apparent modulus against its own Voigt–Reuss bounds; the ensemble's mean modulus, with its
+Monte Carlo standard error, against the Hashin–Shtrikman bounds; the macroscopic stress–strain
+envelope; and the proportion of realizations with a fully debonded inclusion by each strain,
+with its exact (Clopper–Pearson) interval. A multilevel or multifidelity result is reported
+level by level: its levels are different discretisations, not one sample."""
 
 from __future__ import annotations
 
+import hashlib
+import json
+import tomllib
+import warnings
 from pathlib import Path
 
 import numpy as np
 from scipy import stats
 
-from uqflow.methods.base import sample_mask
-from uqflow.report import figure_path
+from solvers.sph.scene import parse
+from solvers.sph.scene_layout import scene_layout
+from solvers.sph.scene_map import FILE_NAME, pairs_visible, write_scene_map
+from uqflow.errors import StudyError
+from uqflow.layout import (LEVEL, STATUS, STUDY_NAME, STUDY_OVERRIDES, STUDY_READ_FILES,
+                           STUDY_TEXT, sample_mask)
+from uqflow.levels import scene_with
+from uqflow.report import (FigureWarning, axis_label, display_units, figure_path, new_figure,
+                           save_figure)
 
-#: confidence of the interval of a proportion
+#: confidence of the interval of a proportion; the stress–strain band holds this share of
+#: the realizations (the 2.5 % and 97.5 % quantiles)
 CONFIDENCE = 0.95
-#: the runs' variable naming the level of a multilevel/multifidelity result (uqflow.levels)
-LEVEL = "level"
 #: |mean - bound| within this many standard errors counts as consistent with the bound
 HS_STANDARD_ERRORS = 2.0
 
@@ -28,7 +39,7 @@ def _runs(tree):
         runs = tree["runs"].to_dataset()
     except KeyError:
         return None
-    if "effective_modulus" not in runs or "status" not in runs:
+    if "effective_modulus" not in runs or STATUS not in runs:
         return None
     return runs.isel(realization=np.flatnonzero(sample_mask(runs)))
 
@@ -64,8 +75,10 @@ def _modulus_lines(runs) -> list[str]:
     n = E.size
     sd = E.std(ddof=1) if n > 1 else np.nan
     se = sd / np.sqrt(n)
-    lines = [f"  effective modulus  mean {E.mean():.6g} Pa, std {sd:.4g} Pa, "
-             f"stderr of the mean {se:.3g} Pa"]
+    scale, units = display_units(E, "Pa")
+    lines = [f"  apparent Young's modulus: mean {E.mean() * scale:.6g} {units}, standard "
+             f"deviation {sd * scale:.4g} {units}, standard error of the mean "
+             f"{se * scale:.3g} {units}"]
     if "modulus_reuss_bound" in runs:
         reuss, voigt = runs.modulus_reuss_bound.values, runs.modulus_voigt_bound.values
         inside = np.count_nonzero((E >= reuss) & (E <= voigt))
@@ -79,27 +92,36 @@ def _modulus_lines(runs) -> list[str]:
             verdict = ("within" if gap >= 0 else
                        "consistent with (within 2 standard errors of)"
                        if gap >= -HS_STANDARD_ERRORS else "outside")
-            lines.append(f"  ensemble mean {verdict} the Hashin-Shtrikman bounds [{lo:.6g}, "
-                         f"{hi:.6g}] Pa of the volume fraction (mean/lower "
-                         f"{E.mean() / lo:.4f} ± {se / lo:.4f}); HS bounds the effective "
-                         f"modulus, not each window")
+            lines.append(f"  ensemble mean {verdict} the Hashin-Shtrikman bounds "
+                         f"[{lo * scale:.6g}, {hi * scale:.6g}] {units} of the volume fraction "
+                         f"(mean/lower {E.mean() / lo:.4f} ± {se / lo:.4f}); HS bounds the "
+                         f"effective modulus, not each window")
     return lines
 
 
 def _debond_line(runs) -> str:
     k, n = detach_counts(runs)
     lo, hi = clopper_pearson(k[-1], n)
-    return (f"  P(an inclusion fully debonded by strain {runs.strain.values[0, -1]:.4g}): "
-            f"{int(k[-1])} of {n}, {CONFIDENCE:.0%} CI [{lo:.3g}, {hi:.3g}] (Clopper-Pearson)")
+    return (f"  P(an inclusion fully debonded by {100 * runs.strain.values[0, -1]:.4g} % "
+            f"strain): {int(k[-1])} of {n}, {CONFIDENCE:.0%} CI [{lo:.3g}, {hi:.3g}] "
+            f"(Clopper-Pearson)")
 
 
 def report(trees, folder, figures: bool = True) -> tuple[str, list[Path]]:
+    """The text and the figures SPH results add: a scene map of each, and for tension
+    results their moduli, bounds, stress–strain envelope and debonding."""
     parts, pngs = [], []
+    folder = Path(folder)
     for k, tree in enumerate(trees):
+        name = tree.attrs.get(STUDY_NAME, f"result {k}")
+        if figures:
+            path, note = scene_map(tree, folder, FILE_NAME if len(trees) == 1
+                                   else f"{FILE_NAME}_{k}")
+            pngs += [path] if path is not None else []
+            parts.append(f"{name}: {note}")
         runs = _runs(tree)
         if runs is None or runs.sizes.get("realization", 0) == 0:
             continue
-        name = tree.attrs.get("study_name", f"result {k}")
         groups = _level_groups(runs)
         if len(groups) > 1 or groups[0][0]:
             parts.append(f"{name}: {runs.sizes['realization']} runs over {len(groups)} levels, "
@@ -110,49 +132,130 @@ def report(trees, folder, figures: bool = True) -> tuple[str, list[Path]]:
                                     *_modulus_lines(group), _debond_line(group)]))
             if figures:
                 stem = f"sph_{k}" + (f"_{label.replace(' ', '')}" if label else "")
-                pngs += _figures(group, Path(folder), stem)
+                pngs += _figures(group, folder, stem)
     return "\n\n".join(parts), pngs
 
 
-def _figures(runs, folder, stem):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+def scene_table(attrs) -> tuple[dict | None, str]:
+    """The scene a result ran, and where it comes from; (None, why) when it cannot be had.
 
+    The study's inline scene table, else the scene file it read if that still holds the text
+    the study read (its sha256 in ``study_read_files``); command-line overrides of scene keys
+    (``study_overrides``) on top."""
+    try:
+        study = tomllib.loads(str(attrs.get(STUDY_TEXT, "")))
+    except tomllib.TOMLDecodeError:
+        study = {}
+    scene, where = study.get("scene"), "the study's inline scene table"
+    if not isinstance(scene, dict):
+        read = json.loads(str(attrs.get(STUDY_READ_FILES) or "{}"))
+        if "scene" not in read:
+            return None, "the result names no scene file and holds no scene table"
+        path, sha = read["scene"]
+        try:
+            text = Path(path).read_text(encoding="utf-8-sig")
+        except (OSError, UnicodeDecodeError):
+            return None, f"the scene file {path} cannot be read from here"
+        if hashlib.sha256(text.encode()).hexdigest() != sha:
+            return None, f"the scene file {path} changed after the run"
+        try:
+            scene = tomllib.loads(text)
+        except tomllib.TOMLDecodeError:
+            return None, f"the scene file {path} is not valid TOML"
+        where = f"the scene file {path}"
+    try:
+        overrides = tomllib.loads(str(attrs.get(STUDY_OVERRIDES) or "")).get("scene", {})
+    except tomllib.TOMLDecodeError:
+        overrides = {}
+    for key, value in _dotted(overrides):
+        scene = scene_with(scene, key, value)
+    return scene, where
+
+
+def _dotted(table: dict, prefix: str = ""):
+    for key, value in table.items():
+        if isinstance(value, dict):
+            yield from _dotted(value, f"{prefix}{key}.")
+        else:
+            yield f"{prefix}{key}", value
+
+
+def scene_map(tree, folder: Path, name: str = FILE_NAME) -> tuple[Path | None, str]:
+    """The map of the scene ``tree`` ran (``scene_map.png``) and a line saying what it shows;
+    (None, why not) when the scene cannot be had or drawn: the rest of the report goes on."""
+    scene, where = scene_table(tree.attrs)
+    if scene is None:
+        return None, f"no scene map: {where}"
+    try:
+        cfg = parse(scene)
+        layout = scene_layout(cfg)
+    except StudyError as exc:
+        return None, f"no scene map: {where}: {exc}"
+    drawn = f"the ellipses of layout_seed = {cfg.random.layout_seed}; each realization " \
+            f"draws its own" if cfg.layout == "random" else ""
+    try:
+        path = write_scene_map(cfg, layout, folder, title="; ".join(filter(None, (where, drawn))),
+                               name=name)
+    except (ValueError, RuntimeError) as exc:   # a map that cannot be drawn costs no report
+        warnings.warn(f"figure {name}.png not written: {exc}", FigureWarning, stacklevel=2)
+        return None, f"no scene map: {exc}"
+    pairs = "" if pairs_visible(layout) else " (the interface pairs are too dense to show)"
+    return path, f"scene map of {where}{' (' + drawn + ')' if drawn else ''}{pairs}"
+
+
+def _figures(runs, folder, stem):
     folder.mkdir(parents=True, exist_ok=True)
-    strain = runs.strain.values[0]
-    stress = runs.macro_stress.values / 1e3
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
-    q = np.quantile(stress, [0.05, 0.5, 0.95], axis=0)
-    axes[0].fill_between(strain, q[0], q[2], alpha=0.3, label="5-95 %")
-    axes[0].plot(strain, stress.mean(axis=0), label="mean")
+    return [save_figure(composite_figure(runs), figure_path(folder, stem, "composite"))]
+
+
+def composite_figure(runs):
+    """Three panels: the stress–strain envelope, each window's apparent modulus against its
+    bounds, and the probability of full debonding by each strain."""
+    strain = 100.0 * runs.strain.values[0]                   # %
+    stress = runs.macro_stress.values
+    scale, stress_units = display_units(stress, "Pa")
+    fig, axes = new_figure(14.0, 4.4, 1, 3)
+    q = np.quantile(stress * scale, [(1 - CONFIDENCE) / 2, 0.5, (1 + CONFIDENCE) / 2], axis=0)
+    axes[0].fill_between(strain, q[0], q[2], alpha=0.3,
+                         label=f"{CONFIDENCE:.0%} of the realizations (2.5–97.5 % quantiles)")
+    axes[0].plot(strain, (stress * scale).mean(axis=0), label="mean")
     axes[0].plot(strain, q[1], "--", label="median")
-    axes[0].set(xlabel="applied strain", ylabel="mean σ_yy (kPa)", title="stress–strain")
-    axes[0].legend()
+    axes[0].set(xlabel=axis_label("applied strain", "%"),
+                ylabel=axis_label("mean tensile stress σ_yy of the plate", stress_units),
+                title="stress–strain curve")
+    axes[0].legend(fontsize="small")
     vf = runs.volume_fraction.values
+    E = runs.effective_modulus.values
+    E_scale, E_units = display_units(E, "Pa")
     if "modulus_reuss_bound" in runs:
-        axes[1].vlines(vf, runs.modulus_reuss_bound.values / 1e6,
-                       runs.modulus_voigt_bound.values / 1e6, color="0.7",
-                       label="Voigt–Reuss (each window)")
+        axes[1].vlines(vf, runs.modulus_reuss_bound.values * E_scale,
+                       runs.modulus_voigt_bound.values * E_scale, color="0.7",
+                       label="Voigt–Reuss bounds of each window")
     if "modulus_hs_lower" in runs:
         # each window's own: its volume fraction and (with random moduli) its phases
         for var in ("modulus_hs_lower", "modulus_hs_upper"):
-            axes[1].plot(vf, runs[var].values / 1e6, "_", color="C1", ms=12,
-                         label="Hashin–Shtrikman (effective)" if var.endswith("lower")
-                         else None)
-    axes[1].plot(vf, runs.effective_modulus.values / 1e6, "o", label="apparent modulus")
-    axes[1].set(xlabel="volume fraction", ylabel="modulus (MPa)", yscale="log",
-                title="apparent modulus")
-    axes[1].xaxis.set_major_locator(plt.MaxNLocator(4))
-    axes[1].legend(fontsize=8)
+            axes[1].plot(vf, runs[var].values * E_scale, "_", color="C1", ms=12,
+                         label="Hashin–Shtrikman bounds (of the effective modulus)"
+                         if var.endswith("lower") else None)
+    axes[1].plot(vf, E * E_scale, "o", label="apparent Young's modulus of each window")
+    axes[1].set(xlabel=axis_label("inclusion volume fraction", "-"),
+                ylabel=axis_label("apparent Young's modulus", E_units), yscale="log",
+                title="apparent Young's modulus")
+    axes[1].xaxis.set_major_locator(_few_ticks())
+    axes[1].legend(fontsize="small")
     k, n = detach_counts(runs)
     lo, hi = clopper_pearson(k, n)
     p = k / n
-    axes[2].errorbar(strain, p, yerr=[p - lo, hi - p], fmt="-o", ms=3)
-    axes[2].set(xlabel="applied strain", ylabel="P(an inclusion fully debonded)",
-                ylim=(-0.05, 1.05), title=f"full debonding ({CONFIDENCE:.0%} Clopper–Pearson)")
-    fig.tight_layout()
-    path = figure_path(folder, stem, "composite")
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return [path]
+    axes[2].errorbar(strain, p, yerr=[p - lo, hi - p], fmt="-o", ms=3,
+                     label=f"share of realizations, {CONFIDENCE:.0%} Clopper–Pearson interval")
+    axes[2].set(xlabel=axis_label("applied strain", "%"),
+                ylabel=axis_label("probability that an inclusion has fully debonded", "-"),
+                ylim=(-0.05, 1.05), title="full debonding")
+    axes[2].legend(fontsize="small")
+    return fig
+
+
+def _few_ticks():
+    from matplotlib.ticker import MaxNLocator
+
+    return MaxNLocator(4)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 
 import numpy as np
@@ -11,13 +10,12 @@ import xarray as xr
 from solvers.sph import exact
 from solvers.sph.constraints import ConstraintError
 from solvers.sph.interpolation import InterpolationError
-from solvers.sph.layouts import (Box, Ellipse, LayoutError, polar_layout, random_layout,
-                                 regular_layout)
 from solvers.sph.linear import LinearSolveError
 from solvers.sph.loading import run_tension
 from solvers.sph.problem import ElasticProblem
-from solvers.sph.report import report as _report
+from solvers.sph.report import report as composite_report
 from solvers.sph.scene import MAX_STIFFNESS, Config, parse, stiffness_scale
+from solvers.sph.scene_layout import scene_layout, support_diameter
 from solvers.sph.stiffness import Discretisation
 from uqflow.errors import SceneError, SolverError
 from uqflow import layout as result_layout
@@ -58,13 +56,6 @@ OUTPUTS = {
                                "modulus"),
     "inclusion_detach_step": ("1", "load step at which the inclusion fully debonds (0: never)"),
 }
-#: random sequential addition: placements tried per inclusion before giving up
-ATTEMPTS_PER_INCLUSION = 2_000
-
-
-def _ellipse(spec) -> Ellipse:
-    return Ellipse(spec.centre[0], spec.centre[1], spec.semi_axes[0], spec.semi_axes[1],
-                   math.radians(spec.angle_deg))
 
 
 @register_solver("sph")
@@ -84,53 +75,15 @@ class SPHSolver(Solver):
         cfg = parse(scene)
         gap = cfg.random.min_gap if cfg.random is not None else None
         if gap is not None:
-            support = 2.0 * cfg.smoothing_ratio * cfg.spacing / math.sqrt(math.pi)
+            support = support_diameter(cfg)
             if gap < support:
                 raise SceneError(f"{gap:.4g} m is below one support diameter ({support:.4g} m "
                                  f"at spacing {cfg.spacing:.4g} m): supports of two inclusions "
                                  f"would meet", key="scene.random.min_gap")
         return cls(cfg)
 
-    def _support_diameter(self) -> float:
-        # the solver's support radius 2h, h = ratio * sqrt(spacing^2 / pi), before the layout
-        return 2.0 * self.cfg.smoothing_ratio * self.cfg.spacing / math.sqrt(math.pi)
-
     def _layout(self, seed):
-        c = self.cfg
-        try:
-            if c.layout == "polar":
-                return polar_layout(c.inclusions[0].semi_axes[0], c.outer_radius, c.spacing)
-            box = Box(-0.5 * c.width, -0.5 * c.height, 0.5 * c.width, 0.5 * c.height)
-            if c.layout == "random":
-                r = c.random
-                rng = np.random.default_rng(r.layout_seed if seed is None else seed)
-                return random_layout(box, c.spacing, r.count,
-                                     (r.semi_axes_min, r.semi_axes_max), rng,
-                                     # a gap in metres draws the same ellipses at every
-                                     # resolution (levels of a study stay coupled)
-                                     min_gap=r.min_gap or self._support_diameter(),
-                                     max_attempts=ATTEMPTS_PER_INCLUSION * r.count)
-            layout = regular_layout(box, c.spacing, tuple(_ellipse(s) for s in c.inclusions),
-                                    gap=c.gap)
-            self._check_clearance(layout)
-            return layout
-        except LayoutError as e:
-            # a random layout's ellipses come from [random], not from inclusions[k]
-            key = "random" if c.layout == "random" and e.key.startswith("inclusions") else e.key
-            raise SceneError(str(e), key=f"scene.{key}") from None
-
-    def _check_clearance(self, layout):
-        """Inclusions one support apart from each other and from the edge: the seed's
-        assumption (its eq. 20) that boundary and interface relations do not couple."""
-        gap = self._support_diameter()
-        for k, e in enumerate(layout.inclusions):
-            if e.distance_lower_bound(layout.domain) < gap:
-                raise SceneError(f"closer than one support ({gap:.4g} m) to the plate's edge",
-                                 key=f"scene.inclusions[{k}]")
-            for j in range(k):
-                if e.distance_lower_bound(layout.inclusions[j]) < gap:
-                    raise SceneError(f"closer than one support ({gap:.4g} m) to inclusions[{j}]",
-                                     key=f"scene.inclusions[{k}]")
+        return scene_layout(self.cfg, seed)
 
     def _discretise(self, layout):
         try:
@@ -138,8 +91,12 @@ class SPHSolver(Solver):
         except InterpolationError as e:
             raise SceneError(str(e), key="scene.smoothing_ratio") from None
 
-    #: ``uqflow report`` on sph results: HS bounds, stress–strain envelope, P(full debond)
-    report = staticmethod(_report)
+    @classmethod
+    def report(cls, trees: list, folder, figures: bool = True) -> tuple[str, list]:
+        """A map of each result's scene (``scene_map.png``); for tension results the moduli
+        against their bounds, the stress–strain envelope and full debonding
+        (solvers/sph/report.py, docs/sph.md § 10)."""
+        return composite_report(trees, folder, figures)
 
     def describe(self) -> str:
         c = self.cfg

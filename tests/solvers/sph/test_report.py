@@ -1,10 +1,13 @@
 """`uqflow report` on sph results (solvers/sph/report.py)."""
 
+import ast
+from pathlib import Path
+
 import numpy as np
 import pytest
 import xarray as xr
 
-from solvers.sph.report import clopper_pearson, detach_counts, report
+from solvers.sph.report import clopper_pearson, composite_figure, detach_counts, report
 
 EPS = np.finfo(float).eps
 
@@ -60,7 +63,7 @@ def test_clopper_pearson_meets_its_closed_forms_and_the_beta_quantiles():
 
 def test_report_states_a_proportion_with_its_exact_interval(tmp_path):
     text, pngs = report([fake_tree(np.zeros((6, 3)))], tmp_path)
-    assert "P(an inclusion fully debonded by strain 0.003): 0 of 6, 95% CI [0, 0.459] " \
+    assert "P(an inclusion fully debonded by 0.3 % strain): 0 of 6, 95% CI [0, 0.459] " \
            "(Clopper-Pearson)" in text
     assert "±" not in text.split("P(an inclusion")[1]
     assert len(pngs) == 1 and pngs[0].exists()
@@ -94,3 +97,33 @@ def test_a_multilevel_result_is_reported_level_by_level(tmp_path):
     assert "2 of 2, 95% CI" in text and "0 of 4, 95% CI" in text
     assert "of 6" not in text                               # never pooled
     assert len(pngs) == 2
+
+
+def test_the_figures_speak_in_words_with_readable_units():
+    fig = composite_figure(fake_runs(np.zeros((4, 3))))
+    stress, modulus, debonding = fig.axes[:3]
+    # macro_stress 1e3 .. 3e3 Pa, moduli 1.3e6 .. 1.5e6 Pa, strain 0.1 .. 0.3 %
+    assert stress.get_xlabel() == "applied strain [%]"
+    assert stress.get_ylabel() == "mean tensile stress σ_yy of the plate [kPa]"
+    assert stress.get_lines()[0].get_xdata() == pytest.approx([0.1, 0.2, 0.3])
+    assert modulus.get_ylabel() == "apparent Young's modulus [MPa]"
+    assert debonding.get_xlabel() == "applied strain [%]"
+    band = stress.collections[0].get_label()
+    assert band == "95% of the realizations (2.5–97.5 % quantiles)"
+
+
+def test_the_text_gives_the_modulus_in_readable_units(tmp_path):
+    text, _ = report([fake_tree(np.zeros((5, 3)))], tmp_path, figures=False)
+    assert "apparent Young's modulus: mean 1.4 MPa, standard deviation 0.07906 MPa, " \
+           "standard error of the mean 0.0354 MPa" in text
+
+
+SPH = Path(__file__).resolve().parents[3] / "solvers" / "sph"
+
+
+def test_the_sph_package_imports_only_public_uqflow_names():
+    for module in SPH.glob("*.py"):
+        for node in ast.walk(ast.parse(module.read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("uqflow"):
+                assert not node.module.startswith("uqflow.report."), (module.name, node.module)
+                assert all(not a.name.startswith("_") for a in node.names), module.name
