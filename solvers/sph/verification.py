@@ -125,9 +125,11 @@ def window_refinement(scene: dict, layout_seed: int, resolutions=(1, 2, 3, 4),
     rows (method, resolution, particles, E, E/HS lower, E/Reuss, E/Voigt)."""
     import math
 
+    from solvers.sph.scene import parse
+    from solvers.sph.scene_layout import scene_layout
     from solvers.sph.solver import SPHSolver
     base = dict(scene, steps=1)
-    layout = SPHSolver.from_scene(base)._layout(layout_seed)
+    layout = scene_layout(parse(base), layout_seed)
     fixed = dict(base, layout="regular",
                  inclusions=[dict(centre=[e.cx, e.cy], semi_axes=[e.a, e.b],
                                   angle_deg=math.degrees(e.angle)) for e in layout.inclusions])
