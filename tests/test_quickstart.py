@@ -50,6 +50,6 @@ def test_the_table_says_what_the_answer_cost_and_how_sure_it_is(quickstart):
     assert "control variate taylor-local" in text and "equivalent to" in text
     assert "cost: 9 solver runs, 0 failed" in text
     comparison, _ = report.solver_report([quickstart], Path("."), figures=False)
-    assert "seed Table 6 layout" in comparison and "speed-up" in comparison
+    assert "rows 'seed': seed 000's Table 6" in comparison and "speed-up" in comparison
     # the one-run answer beside the corrected one, for every probe of every output
     assert comparison.count("its control: taylor-local surrogate") == 3 * 4
