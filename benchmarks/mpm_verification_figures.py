@@ -204,7 +204,7 @@ def _wall_rate(profile):
 def detonation(refine=False, perturbations=False):
     """The checks the physics decides (CJ state, Taylor wave, γ = 3 wall impulse), the
     refinement numbers their tolerances come from, and the figure."""
-    from tests.solvers.mpm.detonation_exact import (gamma3_wall_momentum, polytropic_gamma,
+    from solvers.mpm.detonation_exact import (gamma3_wall_momentum, polytropic_gamma,
                                                      polytropic_taylor_pressure)
     r = V.tnt_checks()
     wave = r["fine"]["wave"]
@@ -230,12 +230,13 @@ def detonation(refine=False, perturbations=False):
     print(f"gamma3 wall impulse: largest error t_d..3 t_d {100 * g3['error']:.2f} %, at 3 t_d "
           f"{100 * (g3['measured'][-1] / g3['exact'][-1] - 1):+.2f} %")
     if perturbations:
-        from solvers.mpm.materials import library
+        from solvers.mpm.materials.library import MATERIALS
+        TNT = MATERIALS["tnt"][1]
         from uqflow.errors import SolverError
         for name in V.PERTURBED_CONSTANTS:
             for factor in (0.9, 1.1):
                 try:
-                    e = V.tnt_checks({name: factor * library.TNT[name]})["errors"]
+                    e = V.tnt_checks({name: factor * TNT[name]})["errors"]
                     shown = {k: v for k, v in e.items() if "ratio" not in k}
                     print(f"  {name} x {factor}: fails {V.failed_checks(e) or 'nothing'}; "
                           f"{_percent(shown)}")
@@ -292,13 +293,14 @@ def free_end(refine=False, perturbations=False):
     """The free-end slab: the products against the CJ isentrope in two bands of V, the
     refinement pairs (10/20 µs, and 20/40 µs with --refine), R2 ± 10 % in the exact fan, the
     perturbation column of the doc's table, and the figure."""
-    from solvers.mpm.materials import library
-    from tests.solvers.mpm.detonation_exact import JWL, free_end_fan
+    from solvers.mpm.materials.library import MATERIALS
+    TNT = MATERIALS["tnt"][1]
+    from solvers.mpm.detonation_exact import JWL, free_end_fan
     from uqflow.errors import SolverError
     fan = V.TNT_FREE_END
     shifted = {}
     for factor in (0.9, 1.1):
-        prm = dict(library.TNT, **{"eos.R2": factor * library.TNT["eos.R2"]})
+        prm = dict(TNT, **{"eos.R2": factor * TNT["eos.R2"]})
         shifted[factor] = free_end_fan(JWL.from_parameters(prm))
     for v in (1.5, 2.0, 3.0, 4.0):
         print(f"free end: V {v}: p {fan.isentrope_pressure(v) / 1e9:.3f} GPa "
@@ -340,7 +342,7 @@ def free_end(refine=False, perturbations=False):
         for name in V.PERTURBED_CONSTANTS:
             for factor in (0.9, 1.1):
                 try:
-                    p = V.free_end_checks({name: factor * library.TNT[name]})
+                    p = V.free_end_checks({name: factor * TNT[name]})
                     values = ", ".join(f"{band} {100 * value:+.2f} %"
                                        for band, (value, _) in p["pairs"][0].items())
                     print(f"  free end {name} x {factor}: fails "

@@ -46,10 +46,15 @@ import scipy.stats as sps
 import xarray as xr
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _record import FIGURES, ROOT, write_section  # noqa: E402
+from _record import FIGURES, write_section  # noqa: E402
 from _studies import write_normal_study, write_scene_variant  # noqa: E402
 
-JC = {"A": 792.0e6, "B": 510.0e6, "C": 0.014, "n": 0.26, "m": 1.03}
+from solvers.mpm import reductions  # noqa: E402
+from solvers.mpm.materials import johnson_cook  # noqa: E402
+
+# the study means: the 4340 defaults of the flow-stress parameters (seed Table 5)
+JC = {name.removeprefix("jc."): johnson_cook.PARAMETERS[name]
+      for name in johnson_cook.DIFFERENTIABLE_PARAMETERS}
 OUTPUTS = ["flow_stress", "S11", "S22"]
 #: The seed's 10,000-sample Monte Carlo (its Tables 3 and 9), against which speed-ups count.
 SEED_MC_RUNS = 10_000
@@ -143,32 +148,12 @@ def method_for(kind: str, **options):
 
 def at_time(runs: xr.Dataset, time_us: float) -> xr.Dataset:
     """Every output (and its derivatives) at the output time nearest ``time_us``."""
-    k = int(np.argmin(np.abs(runs["time"].values * 1e6 - time_us)))
-    return runs.isel(time=k)
+    return reductions.at_time(runs, time_us * 1e-6)
 
 
 def peak(runs: xr.Dataset) -> xr.Dataset:
-    """Each realization's max |y| over time per probe; the derivatives of a sensitivity run
-    are taken at its own argmax time with the sign of y there (d|y|/dθ = sign(y) dy/dθ)."""
-    from uqflow.realization import SENSITIVITY_COORD, gradient_variable, hessian_variable
-    reduced = runs.drop_dims("time")
-    for out in OUTPUTS:
-        y = np.asarray(runs[out].values, float)                 # (realization, time, probe)
-        k = np.argmax(np.nan_to_num(np.abs(y), nan=-1.0), axis=1)
-        at = np.take_along_axis(y, k[:, None, :], axis=1)[:, 0, :]
-        reduced[out] = (("realization", "probe"), np.abs(at), runs[out].attrs)
-        if gradient_variable(out) not in runs:
-            continue
-        rows = np.asarray(runs[SENSITIVITY_COORD].values, int)
-        sign = np.sign(at[rows])                                  # (sensitivity_run, probe)
-        for name, extra in ((gradient_variable(out), 1), (hessian_variable(out), 2)):
-            d = np.asarray(runs[name].values, float)          # (s, time, probe, param[, param])
-            idx = k[rows].reshape(k[rows].shape[0], 1, -1, *([1] * extra))
-            picked = np.take_along_axis(d, idx, axis=1)[:, 0]
-            picked = picked * sign.reshape(*sign.shape, *([1] * extra))
-            dims = tuple(dim for dim in runs[name].dims if dim != "time")
-            reduced[name] = (dims, picked, runs[name].attrs)
-    return reduced
+    """Each realization's max |y| over time per probe (``reductions.peak_over_time``)."""
+    return reductions.peak_over_time(runs, OUTPUTS)
 
 
 def quantities(cfg: Config) -> dict[str, callable]:
@@ -178,24 +163,7 @@ def quantities(cfg: Config) -> dict[str, callable]:
 
 # ------------------------------------------------------------------------------ subsets
 
-def plain_part(design: xr.Dataset, runs: xr.Dataset, n: int | None = None):
-    """The Monte Carlo samples of a (control-variate) design and its runs, without the
-    control rows or sensitivity variables, renumbered from 0: the first ``n`` of them."""
-    from uqflow.methods import control_variate as cv
-    from uqflow.realization import SENSITIVITY_DIM, SENSITIVITY_FLAG
-    m = cv.control_count(design)
-    stop = None if n is None else m + n
-    d = design.isel(realization=slice(m, stop))
-    r = runs.isel(realization=slice(m, stop))
-    if SENSITIVITY_DIM in r.dims:
-        r = r.drop_dims(SENSITIVITY_DIM)
-    d = d.drop_vars([v for v in ("role", "offset", "stencil", SENSITIVITY_FLAG) if v in d.variables])
-    r = r.drop_vars([v for v in ("role", "offset", "stencil", SENSITIVITY_FLAG) if v in r.variables])
-    index = np.arange(d.sizes["realization"])
-    d, r = d.assign_coords(realization=index), r.assign_coords(realization=index)
-    d.attrs = {k: v for k, v in design.attrs.items()
-               if k not in ("control", "control_runs", "normal_inputs", "control_step")}
-    return d, r
+plain_part = reductions.monte_carlo_part     # the Monte Carlo rows of a control-variate run
 
 
 def pce_design(samples: xr.Dataset, order) -> xr.Dataset:

@@ -159,17 +159,6 @@ def von_mises(sxx, syy, sxy, szz):
 
 
 @njit(cache=True, fastmath=False)
-def radial_return(sxx, syy, sxy, szz, sigma_y):
-    """Scale a trial deviator onto σeq = σy when outside (seed eq. 15–16); returns the
-    deviator and m (m = 1 inside)."""
-    seq = von_mises(sxx, syy, sxy, szz)
-    if seq <= sigma_y:
-        return sxx, syy, sxy, szz, 1.0
-    m = sigma_y / seq
-    return sxx * m, syy * m, sxy * m, szz * m, m
-
-
-@njit(cache=True, fastmath=False)
 def _jc_return_start(seq, A, B, n, eps_p, th, hi):
     """Start of the return iteration: min(hi, Δεp_h) with Δεp_h the strain increment at which
     th (A + B (εp_n + Δεp)^n) = σeq* (rate factor 1). Both bound the root from above (σy ≥ the

@@ -20,7 +20,7 @@ from solvers.mpm import MPMSolver
 from solvers.mpm.materials import elastic, library, state
 from uqflow.errors import SolverError
 
-from .detonation_exact import (JWL, cj_point, free_end_fan, gamma3_wall_momentum,
+from solvers.mpm.detonation_exact import (JWL, cj_point, free_end_fan, gamma3_wall_momentum,
                                polytropic_gamma, polytropic_taylor_pressure, taylor_wave)
 
 SCENES = Path(__file__).resolve().parents[3] / "studies" / "scenes"
@@ -380,7 +380,8 @@ def test_guard_bad_parameter_is_solver_error():
 # verify_tnt_slab.toml)
 # ------------------------------------------------------------------------------------------
 D_TNT, P_CJ_PUBLISHED = 6930.0, 21e9        # Dobratz & Crawford 1985, to 3 and 2 digits
-TNT_EOS = JWL.from_parameters(library.TNT)
+TNT = library.MATERIALS["tnt"][1]      # the TNT data: jwl.py's defaults
+TNT_EOS = JWL.from_parameters(TNT)
 # the CJ state is extrapolated to the front (ξ = D) from a quadratic fit of the fan between
 # ξ = D − CJ_FIT_SPAN and SMEARED_CELLS cells behind the front (the burn ramp of 1.5 cells
 # and the bulk viscosity smear ≈ 6 cells at dx = 0.5 mm: docs/mpm_verification.md)
@@ -478,7 +479,7 @@ def gamma3_wall_checks(dx=None, over=None):
     s["materials"]["gas"].update(over or {})
     ds = MPMSolver.from_scene(s).run({})
     gas = s["materials"]["gas"]
-    rho0, length = library.TNT["rho0"], s["bodies"][0]["max"][0]
+    rho0, length = TNT["rho0"], s["bodies"][0]["max"][0]
     D = math.sqrt(16 * gas["eos.E0"] / rho0)         # the scene's CJ speed, = 6930 m/s
     assert D == pytest.approx(D_TNT, rel=1e-12) or over   # E0 = ρ0 D²/16 to round-off
     # from t_d on: the rarefaction from the free end at work; earlier the wall's momentum is
@@ -635,7 +636,7 @@ def test_free_end_fan_isentrope_and_riemann_invariant():
     tolerances (the premise of the free-end check), and along the fan ξ = u + c falls from D
     and u below zero (the products stream backwards)."""
     for factor in (0.9, 1.1):
-        prm = dict(library.TNT, **{"eos.R2": factor * library.TNT["eos.R2"]})
+        prm = dict(TNT, **{"eos.R2": factor * TNT["eos.R2"]})
         other = free_end_fan(JWL.from_parameters(prm))
         for band, (lo, hi) in FREE_END_BANDS.items():
             V = np.linspace(lo, hi, 400)
@@ -695,7 +696,7 @@ EXPECTED_FAILURES = {
 def perturbed_failures(name, factor, problems=("cj", "free")):
     """The checks of ``problems`` (the wall case's CJ state, the free end) that a run with
     ``name`` × ``factor`` fails (a run that cannot finish fails its checks too: "run")."""
-    over = {name: factor * library.TNT[name]}
+    over = {name: factor * TNT[name]}
     runs = {"cj": lambda: failed_checks(tnt_profile(FINE_DX, over)["errors"], parts=()),
             "free": lambda: failed_free_end_checks(free_end_checks(over))}
     failed = set()
@@ -732,7 +733,7 @@ def test_r2_matters_only_where_the_products_have_expanded():
     more than 3 × its tolerances (test_free_end_fan_isentrope_and_riemann_invariant)."""
     base = taylor_wave(TNT_EOS)
     for factor in (0.9, 1.1):
-        prm = dict(library.TNT, **{"eos.R2": factor * library.TNT["eos.R2"]})
+        prm = dict(TNT, **{"eos.R2": factor * TNT["eos.R2"]})
         w = taylor_wave(JWL.from_parameters(prm))
         assert abs(w.cj.p / base.cj.p - 1) < 0.004          # 0.20 %, 0.29 %
         assert abs(w.wall_pressure / base.wall_pressure - 1) < 0.007   # 0.54 %, 0.62 %
