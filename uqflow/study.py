@@ -402,8 +402,9 @@ def toml_value(value) -> str:
         text = repr(float(value)) if isinstance(value, float) else str(value)
         return {"nan": "nan", "inf": "inf", "-inf": "-inf"}.get(text, text)
     if isinstance(value, str):
-        # JSON's escapes (\", \\, \n, \uXXXX) are TOML's; non-ASCII stays as it is
-        return json.dumps(value, ensure_ascii=False)
+        # JSON's escapes (\", \\, \n, \uXXXX) are TOML's; non-ASCII stays as it is, but
+        # DEL, which JSON leaves and TOML refuses
+        return json.dumps(value, ensure_ascii=False).replace("\x7f", "\\u007f")
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(toml_value(v) for v in value) + "]"
     if isinstance(value, Mapping):

@@ -34,6 +34,7 @@ def cli(*args):
     ("scene={ model = \"ishigami\" }", ("scene", {"model": "ishigami"})),
     ("name=a=b", ("name", "a=b")),
     ("method.samples=1e", ("method.samples", "1e")),  # not a TOML number: a string
+    ('description="tab\\t, DEL \\u007f, \\u00fc"', ("description", "tab\t, DEL \x7f, \u00fc")),
 ])
 def test_a_set_value_is_read_as_a_toml_value(text, expected):
     assert parse_override(text) == expected
