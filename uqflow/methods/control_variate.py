@@ -21,6 +21,9 @@ import numpy as np
 import xarray as xr
 
 from uqflow.errors import StudyError
+from uqflow.layout import (INPUTS, INPUT_CORRELATION, INPUT_KURTOSIS, INPUT_SKEWNESS, INPUT_STD,
+                           MESSAGE, PARAMETER, REALIZATION, ROLE, STATUS, STATUS_FAILED, STATUS_OK,
+                           STATUS_PENDING, UNITS)
 from uqflow.methods.base import make_design, ok_mask, output_names
 from uqflow.methods.taylor import Taylor, _second_order_variance, _Stencil
 from uqflow.methods.taylor_local import ALTERNATIVE, TaylorLocal
@@ -31,7 +34,6 @@ CONTROLS = ("none", "taylor-local", "taylor")
 #: fold comes from the other seven, so it is independent of that fold and its correction
 #: has mean 0 exactly. Randomized QMC uses its replicates as the folds.
 CROSS_FIT_FOLDS = 8
-ROLE = "role"
 CONTROL_ALTERNATIVE = "use control = \"taylor\" (2n+1 finite-difference runs around the means)"
 
 
@@ -80,9 +82,9 @@ def control_design(control: str, step: float, space) -> xr.Dataset:
             raise StudyError(err.reason.replace("a larger step", "a larger control_step"),
                              key="method.control_step") from None
     design = make_design(space, space.means[None, :])
-    return design.assign_coords(offset=(("realization", "parameter"),
+    return design.assign_coords(offset=((REALIZATION, PARAMETER),
                                         np.zeros((1, len(space)))),
-                                stencil=("realization", np.array(["mean"], dtype=object)))
+                                stencil=(REALIZATION, np.array(["mean"], dtype=object)))
 
 
 def with_control(control: str, step: float, space, samples: xr.Dataset) -> xr.Dataset:
@@ -93,15 +95,15 @@ def with_control(control: str, step: float, space, samples: xr.Dataset) -> xr.Da
     come first.
     """
     head = control_design(control, step, space)
-    m, n = head.sizes["realization"], samples.sizes["realization"]
-    values = np.vstack([head["inputs"].values, samples["inputs"].values])
+    m, n = head.sizes[REALIZATION], samples.sizes[REALIZATION]
+    values = np.vstack([head[INPUTS].values, samples[INPUTS].values])
     variables = {}
     if "step" in head:
         variables["step"] = head["step"]
     if control == "taylor-local":
         flags = np.zeros(m + n, dtype=bool)
         flags[:m] = True
-        variables[SENSITIVITY_FLAG] = ("realization", flags)
+        variables[SENSITIVITY_FLAG] = (REALIZATION, flags)
     design = make_design(space, values, **variables)
     offset = np.vstack([head["offset"].values, np.full((n, len(space)), np.nan)])
     stencil = np.concatenate([head["stencil"].values, np.full(n, "", dtype=object)])
@@ -109,10 +111,10 @@ def with_control(control: str, step: float, space, samples: xr.Dataset) -> xr.Da
     # Coordinates, not data variables: everything in runs with a realization dim is taken
     # for a solver output (base.output_names).
     design = design.assign_coords(
-        offset=(("realization", "parameter"), offset,
+        offset=((REALIZATION, PARAMETER), offset,
                 {"long_name": "control stencil offset from the input means (NaN: a sample)"}),
-        stencil=("realization", stencil, {"long_name": "control stencil point ('': a sample)"}),
-        **{ROLE: ("realization", role, {"long_name": "control (builds the surrogate) or "
+        stencil=(REALIZATION, stencil, {"long_name": "control stencil point ('': a sample)"}),
+        **{ROLE: (REALIZATION, role, {"long_name": "control (builds the surrogate) or "
                                                      "sample (Monte Carlo)"})})
     design.attrs.update(samples.attrs)
     active = np.flatnonzero(space.stds > 0)
@@ -155,19 +157,19 @@ def build_surrogates(design, runs) -> dict[str, Surrogate]:
     them failed or left a derivative that is not a number."""
     control = design.attrs["control"]
     m = control_count(design)
-    status = runs["status"].values[:m]
-    bad = np.flatnonzero(status != "ok")
+    status = runs[STATUS].values[:m]
+    bad = np.flatnonzero(status != STATUS_OK)
     if bad.size:
         r = int(bad[0])
-        why = "did not run" if status[r] == "pending" else \
-            (str(runs["message"].values[r]) or "no message")
+        why = "did not run" if status[r] == STATUS_PENDING else \
+            (str(runs[MESSAGE].values[r]) or "no message")
         raise ControlFailed(f"control realization {r} (stencil point "
                             f"{design['stencil'].values[r]}) failed: {why}")
-    s = design["input_std"].values
-    covariance = np.outer(s, s) * design["input_correlation"].values
+    s = design[INPUT_STD].values
+    covariance = np.outer(s, s) * design[INPUT_CORRELATION].values
     active = s > 0
     normal = bool(design.attrs.get("normal_inputs", 0))
-    mu = design["inputs"].values[0]  # the centre row: the input means
+    mu = design[INPUTS].values[0]  # the centre row: the input means
     surrogates = {}
     for out in output_names(runs):
         f0 = np.asarray(runs[out].values[0], dtype=float).reshape(-1)
@@ -195,7 +197,7 @@ def _stencil_derivatives(design, runs, out, m):
     """Central-difference gradient and diagonal Hessian from ``taylor``'s stencil."""
     head = design.isel(realization=slice(0, m))
     stencil = _Stencil(head)
-    x = head["inputs"].values
+    x = head[INPUTS].values
     x = np.vstack([x - x[stencil.centre], np.full((1, x.shape[1]), np.nan)])
     y = np.asarray(runs[out].values[:m], dtype=float).reshape(m, -1)
     y = np.concatenate([y, np.full((1, y.shape[1]), np.nan)])  # row -1: a missing point
@@ -212,9 +214,9 @@ def _surrogate_variance(g, hess, covariance, design, normal):
         hc = np.einsum("kip,ij->kjp", hess, covariance)
         return (np.einsum("kp,kj,jp->p", g, covariance, g)
                 + 0.5 * np.einsum("kjp,jkp->p", hc, hc))
-    s = design["input_std"].values
-    mu3 = np.where(s > 0, design["input_skewness"].values * s**3, 0.0)
-    mu4 = np.where(s > 0, np.nan_to_num(design["input_kurtosis"].values) * s**4, 0.0)
+    s = design[INPUT_STD].values
+    mu3 = np.where(s > 0, design[INPUT_SKEWNESS].values * s**3, 0.0)
+    mu4 = np.where(s > 0, np.nan_to_num(design[INPUT_KURTOSIS].values) * s**4, 0.0)
     computed = np.ones((s.size, s.size), dtype=bool)
     return _second_order_variance(g, hess, computed, s, mu3, mu4, ("point",))
 
@@ -330,7 +332,7 @@ def sample_estimates(surrogate: Surrogate, design, runs, out, folds: int, rqmc: 
     at every sample, if already evaluated."""
     m = control_count(design)
     if g is None:
-        g = surrogate(design["inputs"].values[m:])
+        g = surrogate(design[INPUTS].values[m:])
     values = np.asarray(runs[out].values[m:], dtype=float)
     ok = ok_mask(runs)[m:]
     if count is not None:
@@ -343,13 +345,13 @@ def sample_estimates(surrogate: Surrogate, design, runs, out, folds: int, rqmc: 
 
 def control_variables(out, runs, dims, est: Estimates, n, shape, plain, surrogate):
     """The statistics' variables that say what the control bought, for output ``out``."""
-    units = runs[out].attrs.get("units", "")
+    units = runs[out].attrs.get(UNITS, "")
     rho2 = est.correlation**2
     with np.errstate(divide="ignore"):
         reduction = 1.0 / (1.0 - rho2)
 
     def field(values, long_name, unit="1"):
-        return (dims, np.reshape(values, shape), {"long_name": long_name, "units": unit})
+        return (dims, np.reshape(values, shape), {"long_name": long_name, UNITS: unit})
 
     variables = {
         f"{out}_correlation": field(
@@ -365,12 +367,12 @@ def control_variables(out, runs, dims, est: Estimates, n, shape, plain, surrogat
                       f"leave-one-fold-out slopes)"),
         f"{out}_plain": (("plain_statistic", *dims), np.stack(plain), {
             "long_name": f"plain Monte Carlo mean, variance and stderr of the mean of {out} "
-                         f"over the same samples", "units": units}),
+                         f"over the same samples", UNITS: units}),
         f"{out}_surrogate": (("surrogate_statistic", *dims),
                              np.stack([surrogate.mean, surrogate.variance]).reshape(
                                  (2, *shape)), {
             "long_name": f"exact mean and variance of the surrogate of {out} under the inputs",
-            "units": units}),
+            UNITS: units}),
     }
     # Without a standard error of the variance (randomized QMC with replicates of one
     # sample) none is written, rather than a variable of NaN (or of zeros where y is constant).
@@ -385,7 +387,7 @@ def control_trace(surrogate, design, runs, out, dims, replicates, points):
     """Running control-variate mean, std and stderr after the first n samples (log-spaced;
     randomized QMC: whole replicate prefixes R 2^k)."""
     m = control_count(design)
-    total = runs.sizes["realization"] - m
+    total = runs.sizes[REALIZATION] - m
     if replicates is None:
         counts = np.unique(np.round(np.geomspace(2, max(total, 2), points)).astype(int))
     else:
@@ -394,7 +396,7 @@ def control_trace(surrogate, design, runs, out, dims, replicates, points):
     counts = counts[(counts > 0) & (counts <= total)]
     if counts.size == 0:
         counts = np.array([max(total, 1)])
-    g = surrogate(design["inputs"].values[m:])
+    g = surrogate(design[INPUTS].values[m:])
     shape = runs[out].shape[1:]
     rows = []
     for c in counts:
@@ -408,7 +410,7 @@ def control_trace(surrogate, design, runs, out, dims, replicates, points):
 
 def control_attrs(design, samples, used: bool) -> dict:
     """Attributes saying which control ran, what it cost and how failures were treated."""
-    failed = int(np.sum(samples["status"].values == "failed"))
+    failed = int(np.sum(samples[STATUS].values == STATUS_FAILED))
     return {
         "control": design.attrs["control"],
         "control_runs": control_count(design),

@@ -21,6 +21,7 @@ import xarray as xr
 from pydantic import Field, field_validator, model_validator
 
 from uqflow.errors import StudyError
+from uqflow.layout import COMPILE_TIME, REALIZATION, ROUND, STATUS, STATUS_OK, UNITS, WALL_TIME
 from uqflow.levels import LEVEL_VARIABLE, MAX_LEVELS, SEED_KEY_VARIABLE
 from uqflow.methods.base import (MAX_REALIZATIONS, MethodOptions, PropagationMethod,
                                  make_design, output_names)
@@ -149,11 +150,11 @@ class FidelitySampling(PropagationMethod):
             keys.append(stream * STREAM_STRIDE + k)
         cat = (lambda parts: np.concatenate(parts).astype(np.int64))
         return make_design(self._space, np.vstack(values), **{
-            LEVEL_VARIABLE: ("realization", cat(level)),
-            "group": ("realization", cat(group)),
-            "sample": ("realization", cat(sample)),
-            SEED_KEY_VARIABLE: ("realization", cat(keys)),
-            "round": ("realization", np.full(sum(p.size for p in level), round_,
+            LEVEL_VARIABLE: (REALIZATION, cat(level)),
+            "group": (REALIZATION, cat(group)),
+            "sample": (REALIZATION, cat(sample)),
+            SEED_KEY_VARIABLE: (REALIZATION, cat(keys)),
+            ROUND: (REALIZATION, np.full(sum(p.size for p in level), round_,
                                              dtype=np.int64))})
 
     # --- costs and targets ------------------------------------------------------------------
@@ -165,11 +166,11 @@ class FidelitySampling(PropagationMethod):
         if isinstance(self.options.costs, list):
             return np.asarray(self.options.costs, dtype=float)
         level = runs[LEVEL_VARIABLE].values
-        pilot = (runs["round"].values == 0) & (runs["status"].values == "ok")
-        seconds = np.asarray(runs["wall_time"].values, dtype=float)
-        if "compile_time" in runs:
+        pilot = (runs[ROUND].values == 0) & (runs[STATUS].values == STATUS_OK)
+        seconds = np.asarray(runs[WALL_TIME].values, dtype=float)
+        if COMPILE_TIME in runs:
             # NaN: a run that did not measure it (an older result); nothing to take off
-            seconds = seconds - np.nan_to_num(np.asarray(runs["compile_time"].values,
+            seconds = seconds - np.nan_to_num(np.asarray(runs[COMPILE_TIME].values,
                                                          dtype=float), nan=0.0)
         costs = np.array([np.median(seconds[pilot & (level == lv)])
                           if np.any(pilot & (level == lv)) else np.nan
@@ -230,7 +231,7 @@ class FidelitySampling(PropagationMethod):
 
     def stop_reason(self, runs: xr.Dataset, drawn: np.ndarray) -> str:
         """Why the rounds stopped short of the target."""
-        if int(runs["round"].values.max()) >= self.options.max_rounds:
+        if int(runs[ROUND].values.max()) >= self.options.max_rounds:
             return f"max_rounds = {self.options.max_rounds} reached"
         if np.any(np.asarray(drawn) >= self.options.max_samples):
             return f"max_samples = {self.options.max_samples} reached"
@@ -298,7 +299,7 @@ def _check_allocate_at(template: xr.Dataset, chosen: list[str], dim: str, wanted
 
 def _span(coord: xr.DataArray) -> str:
     values = np.asarray(coord.values)
-    units = f" {coord.attrs['units']}" if coord.attrs.get("units") else ""
+    units = f" {coord.attrs['units']}" if coord.attrs.get(UNITS) else ""
     return (f"{values.size} values from {values.min():g} to {values.max():g}{units}"
             if values.size > 1 else f"{values[0]:g}{units}")
 
@@ -313,7 +314,7 @@ def point_label(runs: xr.Dataset, name: str, flat_index: int) -> str:
     for dim, i in zip(dims, np.unravel_index(int(flat_index), shape)):
         if dim in runs.coords:
             value = runs[dim].values[i]
-            units = str(runs[dim].attrs.get("units", ""))
+            units = str(runs[dim].attrs.get(UNITS, ""))
             shown = f"{value:g}" if isinstance(value, (int, float, np.number)) else str(value)
             parts.append(f"{dim} = {shown}" + (f" {units}" if units else ""))
         else:
@@ -331,5 +332,5 @@ def flat(runs: xr.Dataset, name: str, rows: np.ndarray) -> np.ndarray:
 def output_shape(runs: xr.Dataset, name: str) -> tuple[tuple, tuple]:
     """(dims, shape) of one realization of output ``name``."""
     var = runs[name]
-    dims = tuple(d for d in var.dims if d != "realization")
+    dims = tuple(d for d in var.dims if d != REALIZATION)
     return dims, tuple(var.sizes[d] for d in dims)

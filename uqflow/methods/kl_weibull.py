@@ -18,7 +18,7 @@ from pydantic import Field
 from uqflow.errors import StudyError
 from uqflow.fields import germ_seed, germ_variable
 from uqflow.methods.base import make_design, register_method
-from uqflow.layout import SOLVER_RUNS
+from uqflow.layout import REALIZATION, SOLVER_RUNS, WARNINGS
 from uqflow.methods.monte_carlo import (MonteCarlo, SampleStatisticsOptions,
                                         convergence_figure, sample_notes)
 from uqflow.report import FigureSpec, MethodReport
@@ -86,7 +86,7 @@ class KLWeibull(MonteCarlo):
                     field.n_modes, np.random.default_rng(germ_seed(seed, i, k)))
             var = germ_variable(field.name)
             mapping[field.name] = var
-            variables[var] = ((("realization", f"mode_{safe}"), germs,
+            variables[var] = (((REALIZATION, f"mode_{safe}"), germs,
                                {"field": field.name, "germ": field.spec.germ.kind,
                                 "long_name": f"KL germs of random field '{field.name}'"}))
             attrs.update(field_attrs(field))
@@ -103,8 +103,8 @@ class KLWeibull(MonteCarlo):
         stats.attrs.update(described)
         warnings = [v for k, v in described.items() if k.endswith("_warning") and v]
         if warnings:
-            old = stats.attrs.get("warnings", "")
-            stats.attrs["warnings"] = "\n".join([w for w in [old, *warnings] if w])
+            old = stats.attrs.get(WARNINGS, "")
+            stats.attrs[WARNINGS] = "\n".join([w for w in [old, *warnings] if w])
         return stats
 
     @classmethod

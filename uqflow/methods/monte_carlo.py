@@ -33,8 +33,9 @@ from scipy import stats as sps
 from uqflow.errors import AccuracyWarning
 
 from uqflow.methods import control_variate as cv
-from uqflow.layout import (CONFIDENCE, SOLVER_RUNS, STATISTIC, STATISTIC_CI_HIGH,
-                           STATISTIC_CI_LOW)
+from uqflow.layout import (CONFIDENCE, REALIZATION, SOLVER_RUNS, STATISTIC, STATISTIC_CI_HIGH,
+                           STATISTIC_CI_LOW, STATISTIC_MEAN, STATISTIC_STD, STATISTIC_STDERR,
+                           STATISTIC_VARIANCE, STATUS, STATUS_PENDING)
 from uqflow.methods.base import (MethodOptions, PropagationMethod, failure_warning,
                                  finish_statistics, make_design, ok_mask, output_names,
                                  register_method)
@@ -190,10 +191,10 @@ class MonteCarlo(PropagationMethod):
             return False
         r = self._replicates(design)
         _, samples = cv.sample_part(design, runs)
-        count = samples.sizes["realization"]
+        count = samples.sizes[REALIZATION]
         if r is not None:
             # Judge the longest prefix of whole replicate prefixes with nothing pending.
-            pending = np.flatnonzero(samples["status"].values == "pending")
+            pending = np.flatnonzero(samples[STATUS].values == STATUS_PENDING)
             finished = int(pending[0]) if pending.size else count
             count = finished // r * r
         ok = ok_mask(samples)[:count]
@@ -241,7 +242,8 @@ class MonteCarlo(PropagationMethod):
         ok = ok_mask(samples)
         n = int(ok.sum())
         q_labels = [f"q{100 * q:g}" for q in opts.quantiles]
-        labels = ["mean", "variance", "std", "stderr", "ci_low", "ci_high", *q_labels]
+        labels = [STATISTIC_MEAN, STATISTIC_VARIANCE, STATISTIC_STD, STATISTIC_STDERR,
+                  STATISTIC_CI_LOW, STATISTIC_CI_HIGH, *q_labels]
         data, dof = {}, n - 1
         for out in output_names(runs):
             y = samples[out].values[ok]
@@ -276,7 +278,7 @@ class MonteCarlo(PropagationMethod):
                         ("replicate", *dims), replicate_means,
                         {"long_name": what.format(out=out) + " (NaN: no successful "
                                                              "realization in it)"})
-            data[out] = (("statistic", *dims), block)
+            data[out] = ((STATISTIC, *dims), block)
             if surrogates:
                 data[f"{out}_trace"], counts = cv.control_trace(
                     surrogates[out], design, runs, out, dims, r, opts.trace_points)
@@ -284,7 +286,7 @@ class MonteCarlo(PropagationMethod):
                 data[f"{out}_trace"], counts = self._trace(y, dims)
             else:
                 data[f"{out}_trace"], counts = _rqmc_trace(samples[out].values, ok, r, dims)
-        coords = {"statistic": labels, "trace_statistic": ["mean", "std", "stderr"]}
+        coords = {STATISTIC: labels, "trace_statistic": ["mean", "std", "stderr"]}
         if data:
             coords["trace_samples"] = counts
         if surrogates:
@@ -292,7 +294,7 @@ class MonteCarlo(PropagationMethod):
                           surrogate_statistic=["mean", "variance"])
         stats = xr.Dataset(data, coords=coords)
         stats = stats.assign_coords({d: runs[d] for d in runs.coords
-                                     if d not in ("realization",) and d in stats.dims})
+                                     if d not in (REALIZATION,) and d in stats.dims})
         if n < 2:
             warnings.append(f"only {n} realization(s) succeeded: no variance can be estimated")
         stats = finish_statistics(stats, design, runs, self.name, warnings)

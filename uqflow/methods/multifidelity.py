@@ -32,7 +32,9 @@ from scipy import stats as sps
 from uqflow.errors import StudyError
 from uqflow.levels import LEVEL_VARIABLE
 from uqflow.methods import control_variate as cv
-from uqflow.layout import SOLVER_RUNS
+from uqflow.layout import (INPUTS, REALIZATION, ROUND, SOLVER_RUNS, STATISTIC, STATISTIC_CI_HIGH,
+                           STATISTIC_CI_LOW, STATISTIC_MEAN, STATISTIC_STD, STATISTIC_STDERR,
+                           STATISTIC_VARIANCE, STATUS, STATUS_OK, UNITS)
 from uqflow.methods import level_report
 from uqflow.methods.base import finish_statistics, output_names, register_method
 from uqflow.methods.fidelity_sampling import (FidelityOptions, FidelitySampling, flat,
@@ -107,11 +109,11 @@ class Multifidelity(FidelitySampling):
         # the surrogate's one run at the input means, first (control_variate's layout), at
         # the finest level
         head = self.rows([(self.n_levels - 1, -1, SURROGATE_STREAM, 0, 1)], 0)
-        head["inputs"].values[:] = self._space.means
+        head[INPUTS].values[:] = self._space.means
         head[SENSITIVITY_FLAG].values[:] = True
-        head = head.assign_coords({cv.ROLE: ("realization", np.array(["control"], dtype=object))})
+        head = head.assign_coords({cv.ROLE: (REALIZATION, np.array(["control"], dtype=object))})
         design = xr.concat([head, design.assign_coords(realization=design.realization + 1)],
-                           dim="realization", data_vars="minimal", coords="minimal",
+                           dim=REALIZATION, data_vars="minimal", coords="minimal",
                            compat="override", join="override")
         active = np.flatnonzero(self._space.stds > 0)
         design.attrs.update(control="taylor-local", control_runs=1, normal_inputs=int(
@@ -121,9 +123,9 @@ class Multifidelity(FidelitySampling):
     def rows(self, blocks, round_):
         design = super().rows(blocks, round_)
         if self.surrogate:
-            n = design.sizes["realization"]
-            design[SENSITIVITY_FLAG] = ("realization", np.zeros(n, dtype=bool))
-            design = design.assign_coords({cv.ROLE: ("realization",
+            n = design.sizes[REALIZATION]
+            design[SENSITIVITY_FLAG] = (REALIZATION, np.zeros(n, dtype=bool))
+            design = design.assign_coords({cv.ROLE: (REALIZATION,
                                                      np.full(n, "sample", dtype=object))})
         return design
 
@@ -147,9 +149,9 @@ class Multifidelity(FidelitySampling):
         without a failed sample), and the number of samples dropped for failures."""
         level = runs[LEVEL_VARIABLE].values
         sample = runs["sample"].values
-        status = runs["status"].values
+        status = runs[STATUS].values
         model_row = runs["group"].values >= 0          # not the surrogate's run
-        bad = set(sample[(status != "ok") & model_row].tolist())
+        bad = set(sample[(status != STATUS_OK) & model_row].tolist())
         rows, drawn = [], []
         for model in range(self.n_levels):
             mine = np.flatnonzero((level == self.n_levels - 1 - model) & model_row)
@@ -164,7 +166,7 @@ class Multifidelity(FidelitySampling):
         values = [flat(runs, name, r) for r in rows]
         if surrogate is not None:
             widest = rows[int(np.argmax([r.size for r in rows]))]
-            values.append(surrogate[name](runs["inputs"].values[widest]))
+            values.append(surrogate[name](runs[INPUTS].values[widest]))
         return values
 
     def estimates(self, runs: xr.Dataset, name: str, rows, power: int = 1, surrogate=None):
@@ -187,7 +189,7 @@ class Multifidelity(FidelitySampling):
     # --- re-planning ------------------------------------------------------------------------
 
     def extend(self, design, runs):
-        rounds = int(runs["round"].values.max())
+        rounds = int(runs[ROUND].values.max())
         if rounds >= self.options.max_rounds:
             return None
         rows, drawn, _ = self.samples(runs)
@@ -254,7 +256,7 @@ class Multifidelity(FidelitySampling):
             variance = second["mean"] - mean**2 + var_mean
             std = np.sqrt(np.maximum(variance, 0.0))
             stat = np.stack([mean, variance, std, stderr, mean - z * stderr, mean + z * stderr])
-            data[name] = (("statistic", *dims), stat.reshape(len(stat), *shape))
+            data[name] = ((STATISTIC, *dims), stat.reshape(len(stat), *shape))
             values = self.model_values(runs, name, rows, surrogate)
             shared = min(v.shape[0] for v in values)
             rho = np.stack([pointwise_correlation(values[0][:shared], v[:shared])
@@ -279,7 +281,8 @@ class Multifidelity(FidelitySampling):
             short = self.target_not_met(runs, name, stderr, eps2, drawn)
             if short:
                 warnings.append(short)
-        coords = {"statistic": ["mean", "variance", "std", "stderr", "ci_low", "ci_high"],
+        coords = {STATISTIC: [STATISTIC_MEAN, STATISTIC_VARIANCE, STATISTIC_STD, STATISTIC_STDERR,
+                              STATISTIC_CI_LOW, STATISTIC_CI_HIGH],
                   "model": np.arange(models)}
         coords.update({d: runs[d] for name in output_names(runs)
                        for d in output_shape(runs, name)[0] if d in runs.coords})
@@ -292,9 +295,9 @@ class Multifidelity(FidelitySampling):
                                                              dtype=float)[::-1],
                                                   [np.nan] * free])))
         stats["model_samples"] = ("model", np.concatenate([counts, [0] * free]))
-        stats["model_run_cost"] = ("model", w, {"units": "s" if self.options.costs ==
+        stats["model_run_cost"] = ("model", w, {UNITS: "s" if self.options.costs ==
                                                 "measured" else "stated"})
-        stats.attrs.update(rounds=int(runs["round"].values.max()) + 1,
+        stats.attrs.update(rounds=int(runs[ROUND].values.max()) + 1,
                            total_cost=spent, dropped_samples=dropped,
                            surrogate=self.options.surrogate if free else "none")
         return finish_statistics(stats, design, runs, self.name, warnings)

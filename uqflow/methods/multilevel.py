@@ -29,7 +29,9 @@ from pydantic import Field
 from scipy import stats as sps
 
 from uqflow.levels import LEVEL_VARIABLE
-from uqflow.layout import SOLVER_RUNS
+from uqflow.layout import (LEVEL, ROUND, SOLVER_RUNS, STATISTIC, STATISTIC_CI_HIGH,
+                           STATISTIC_CI_LOW, STATISTIC_MEAN, STATISTIC_STD, STATISTIC_STDERR,
+                           STATISTIC_VARIANCE, STATUS, STATUS_OK, UNITS)
 from uqflow.methods import level_report
 from uqflow.methods.base import finish_statistics, output_names, register_method
 from uqflow.methods.fidelity_sampling import (FidelityOptions, FidelitySampling, flat,
@@ -71,7 +73,7 @@ class Multilevel(FidelitySampling):
         level = runs[LEVEL_VARIABLE].values
         group = runs["group"].values
         sample = runs["sample"].values
-        ok = runs["status"].values == "ok"
+        ok = runs[STATUS].values == STATUS_OK
         out = []
         for l in range(self.n_levels):
             fine = np.flatnonzero((group == l) & (level == l))
@@ -94,7 +96,7 @@ class Multilevel(FidelitySampling):
     # --- re-planning ------------------------------------------------------------------------
 
     def extend(self, design, runs):
-        rounds = int(runs["round"].values.max())
+        rounds = int(runs[ROUND].values.max())
         if rounds >= self.options.max_rounds:
             return None
         pairs = self.pairs(runs)
@@ -150,9 +152,9 @@ class Multilevel(FidelitySampling):
             std = np.sqrt(np.maximum(variance, 0.0))
             stat = np.stack([mean, variance, std, stderr, mean - z * stderr, mean + z * stderr,
                              variance_se, bias, rmse])
-            data[name] = (("statistic", *dims), stat.reshape(len(stat), *shape))
-            data[f"{name}_level_mean"] = (("level", *dims), E.reshape(len(E), *shape))
-            data[f"{name}_level_variance"] = (("level", *dims), V.reshape(len(V), *shape))
+            data[name] = ((STATISTIC, *dims), stat.reshape(len(stat), *shape))
+            data[f"{name}_level_mean"] = ((LEVEL, *dims), E.reshape(len(E), *shape))
+            data[f"{name}_level_variance"] = ((LEVEL, *dims), V.reshape(len(V), *shape))
             data[f"{name}_rates"] = (("rate",), np.array([alpha, beta]))
             # finest-level plain MC with the same stderr: Var[P_L] / stderr^2 runs of c_L
             with np.errstate(invalid="ignore", divide="ignore"):
@@ -185,29 +187,30 @@ class Multilevel(FidelitySampling):
                             f"failed run at either level leaves its correction); the "
                             f"statistics use the others, which biases them if failures "
                             f"depend on the inputs")
-        coords = {"statistic": ["mean", "variance", "std", "stderr", "ci_low", "ci_high",
-                                "variance_stderr", "bias", "rmse"],
-                  "level": np.arange(self.n_levels), "rate": ["alpha", "beta"]}
+        coords = {STATISTIC: [STATISTIC_MEAN, STATISTIC_VARIANCE, STATISTIC_STD, STATISTIC_STDERR,
+                              STATISTIC_CI_LOW, STATISTIC_CI_HIGH, "variance_stderr",
+                              level_report.BIAS, level_report.RMSE],
+                  LEVEL: np.arange(self.n_levels), "rate": ["alpha", "beta"]}
         coords.update({d: runs[d] for name in output_names(runs)
                        for d in output_shape(runs, name)[0] if d in runs.coords})
         stats = xr.Dataset(data, coords=coords)
-        stats = stats.assign_coords(level_value=("level", np.asarray(self.level_values,
+        stats = stats.assign_coords(level_value=(LEVEL, np.asarray(self.level_values,
                                                                      dtype=float)))
-        stats["level_samples"] = ("level", n)
-        stats["level_failed_pairs"] = ("level", failed)
-        stats["level_run_cost"] = ("level", c, {"units": "s" if self.options.costs ==
+        stats["level_samples"] = (LEVEL, n)
+        stats["level_failed_pairs"] = (LEVEL, failed)
+        stats["level_run_cost"] = (LEVEL, c, {UNITS: "s" if self.options.costs ==
                                                 "measured" else "stated"})
-        stats["level_sample_cost"] = ("level", C, dict(stats["level_run_cost"].attrs))
+        stats["level_sample_cost"] = (LEVEL, C, dict(stats["level_run_cost"].attrs))
         stats.attrs.update(gamma=gamma, variance_share=theta, rounds=int(
-            runs["round"].values.max()) + 1, total_cost=float(np.dot(n + failed, C)))
+            runs[ROUND].values.max()) + 1, total_cost=float(np.dot(n + failed, C)))
         return finish_statistics(stats, design, runs, self.name, warnings)
 
     @classmethod
     def report(cls, view):
-        """How sure each output's estimate is and what it saved, the level table and the levels figure; the
-        runs are at several levels, not draws of the finest one."""
+        """How sure each output's estimate is and what it saved, the level table and the
+        levels figure; the runs are at several levels, not draws of the finest one."""
         runs = int(view.stats.attrs.get(SOLVER_RUNS, 0))
-        count = view.stats.sizes.get(level_report.LEVEL, 0)
+        count = view.stats.sizes.get(LEVEL, 0)
         return level_report.level_report(
             view, f"Multilevel Monte Carlo, {count} level{'' if count == 1 else 's'}, {runs} "
                   f"run{'' if runs == 1 else 's'}")

@@ -8,6 +8,7 @@ import numpy as np
 import xarray as xr
 
 from uqflow.fields import germ_variable
+from uqflow.layout import REALIZATION, STATISTIC
 from uqflow.methods.base import (PropagationMethod, failure_warning, finish_statistics,
                                  make_design, ok_mask, output_names, register_method)
 from uqflow.methods.kl_weibull import field_attrs, fields_described
@@ -30,7 +31,7 @@ class Nominal(PropagationMethod):
             design.attrs.update(field_attrs(field))
             # Zero germs: the KL sum vanishes and every field equals its mean exactly.
             design[germ_variable(field.name)] = (
-                ("realization", f"mode_{germ_variable(field.name)[5:]}"),
+                (REALIZATION, f"mode_{germ_variable(field.name)[5:]}"),
                 np.zeros((1, field.n_modes)))
         return design
 
@@ -40,10 +41,10 @@ class Nominal(PropagationMethod):
         for out in output_names(runs):
             value = runs[out].values[0] if ok[0] else np.full(runs[out].shape[1:], np.nan)
             zero = np.zeros_like(value)
-            data[out] = (("statistic", *runs[out].dims[1:]), np.stack([value, zero, zero]))
-        stats = xr.Dataset(data, coords={"statistic": ["mean", "variance", "std"]})
+            data[out] = ((STATISTIC, *runs[out].dims[1:]), np.stack([value, zero, zero]))
+        stats = xr.Dataset(data, coords={STATISTIC: ["mean", "variance", "std"]})
         stats = stats.assign_coords({d: runs[d] for d in runs.coords
-                                     if d != "realization" and d in stats.dims})
+                                     if d != REALIZATION and d in stats.dims})
         stats.attrs.update(fields_described(design))
         return finish_statistics(stats, design, runs, self.name, failure_warning(runs))
 

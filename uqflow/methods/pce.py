@@ -23,7 +23,8 @@ from uqflow.errors import StudyError
 from uqflow.inputs import UNIT_CLIP
 from uqflow.methods.base import (MethodOptions, PropagationMethod, finish_statistics,
                                  make_design, ok_mask, output_names, register_method)
-from uqflow.layout import INPUT_CORRELATION, SOLVER_RUNS
+from uqflow.layout import (INPUT_CORRELATION, INPUT_STD, PARAMETER, REALIZATION, SOLVER_RUNS,
+                           STATISTIC, STATUS, STATUS_PENDING, UNITS)
 from uqflow.methods.monte_carlo import RULE_WORDS
 from uqflow.methods.pce_fit import OVERSAMPLING, basis_size, select_expansion
 from uqflow.methods.sobol import sobol_indices
@@ -138,13 +139,13 @@ class PCE(PropagationMethod):
                     for inp in space.inputs]
         design = make_design(
             space, space.from_unit_hypercube(u),
-            standard_normal=(("realization", "parameter"), sps.norm.ppf(u),
+            standard_normal=((REALIZATION, PARAMETER), sps.norm.ppf(u),
                              {"long_name": "independent standard normal variables behind "
                                            "the inputs"}),
-            standard_uniform=(("realization", "parameter"), u,
+            standard_uniform=((REALIZATION, PARAMETER), u,
                               {"long_name": "the design's points in (0, 1)^d: Φ of "
                                             "standard_normal"}),
-            basis_family=("parameter", np.array(families, dtype=object),
+            basis_family=(PARAMETER, np.array(families, dtype=object),
                           {"long_name": "polynomial family of each input's germ: hermite "
                                         "in standard_normal, legendre in standard_uniform"}))
         design.attrs.update(rule=opts.rule, order=str(opts.order), max_order=opts.top_order,
@@ -154,15 +155,15 @@ class PCE(PropagationMethod):
 
     def analyze(self, design, runs):
         opts = self.options
-        names = [str(p) for p in design["parameter"].values]
-        dims = germ_dimensions(design["input_std"].values, design["input_correlation"].values)
-        rows = np.asarray(runs["realization"].values, dtype=int)
+        names = [str(p) for p in design[PARAMETER].values]
+        dims = germ_dimensions(design[INPUT_STD].values, design[INPUT_CORRELATION].values)
+        rows = np.asarray(runs[REALIZATION].values, dtype=int)
         germs, marginals = _germs(design, rows, dims)
         ok = ok_mask(runs)
-        n_total = int((runs["status"].values != "pending").sum())
+        n_total = int((runs[STATUS].values != STATUS_PENDING).sum())
         rule = design.attrs.get("rule", opts.rule)
         warnings = []
-        if bool(np.any(design["input_correlation"].values != np.eye(len(names)))):
+        if bool(np.any(design[INPUT_CORRELATION].values != np.eye(len(names)))):
             warnings.append("correlated inputs: the Sobol' indices are those of the "
                             "independent standard normal variables behind the inputs "
                             "(Gaussian copula, Cholesky order of the inputs), not of the "
@@ -190,20 +191,20 @@ class PCE(PropagationMethod):
                                 f"for any expansion: its statistics are NaN")
                 continue
             hint = "" if design.attrs.get("basis", opts.basis) == "askey" or not any(
-                design["input_std"].values[k] > 0 and str(f) == "uniform"
+                design[INPUT_STD].values[k] > 0 and str(f) == "uniform"
                 for k, f in enumerate(design.attrs.get("input_kinds", "").split(","))) else \
                 '; basis = "askey" (Legendre) fits uniform inputs far better'
             warnings += _fit_warnings(out, runs, out_dims, shape, fit, opts.loo_warning, hint)
-        coords = {"statistic": ["mean", "variance", "std"], "sobol_index": SOBOL_LABELS,
-                  "parameter": names, "pce_order": np.arange(1, max(orders) + 1)}
+        coords = {STATISTIC: ["mean", "variance", "std"], "sobol_index": SOBOL_LABELS,
+                  PARAMETER: names, "pce_order": np.arange(1, max(orders) + 1)}
         stats = xr.Dataset(data, coords=coords)
         stats = stats.assign_coords({c: runs[c] for c in runs.coords
-                                     if c not in coords and c != "realization"
+                                     if c not in coords and c != REALIZATION
                                      and c in stats.dims})
         for name in stats.data_vars:
             if name.endswith(("_sobol", "_loo_error", "_loo_by_order", "_order", "_terms",
                               "_multi_index")):
-                stats[name].attrs["units"] = ""
+                stats[name].attrs[UNITS] = ""
         stats = finish_statistics(stats, design, runs, self.name, warnings)
         stats.attrs.update(rule=rule, order=str(opts.order), max_order=opts.top_order,
                            basis=design.attrs.get("basis", opts.basis),
@@ -239,8 +240,8 @@ class PCE(PropagationMethod):
             nan = np.full(shape, np.nan)
             moments = np.full((3, *shape), np.nan)
             sobol = np.full((2, d, *shape), np.nan)
-            return {out: (("statistic", *out_dims), moments),
-                    f"{out}_sobol": (("sobol_index", "parameter", *out_dims), sobol),
+            return {out: ((STATISTIC, *out_dims), moments),
+                    f"{out}_sobol": (("sobol_index", PARAMETER, *out_dims), sobol),
                     f"{out}_loo_error": (out_dims, nan)}
         variance = fit.variance
         moments = np.stack([fit.mean, variance, np.sqrt(variance)]).reshape(3, *shape)
@@ -253,8 +254,8 @@ class PCE(PropagationMethod):
         loo_by_order = np.full(max(orders), np.nan)
         loo_by_order[: fit.loo_by_order.size] = fit.loo_by_order
         return {
-            out: (("statistic", *out_dims), moments),
-            f"{out}_sobol": (("sobol_index", "parameter", *out_dims),
+            out: ((STATISTIC, *out_dims), moments),
+            f"{out}_sobol": (("sobol_index", PARAMETER, *out_dims),
                              sobol.reshape(2, d, *shape),
                              {"long_name": "first-order and total Sobol' indices of the "
                                            "standard variables, from the coefficients"}),
@@ -272,7 +273,7 @@ class PCE(PropagationMethod):
                                     fit.coefficients.reshape(-1, *shape),
                                     {"long_name": "coefficients of the orthonormal Hermite "
                                                   f"terms {out}_multi_index"}),
-            f"{out}_multi_index": ((term, "parameter"), multi,
+            f"{out}_multi_index": ((term, PARAMETER), multi,
                                    {"long_name": "degree of each input's standard variable "
                                                  "in each term"}),
         }
@@ -304,7 +305,7 @@ def expansion_indices(stats, out: str):
 def _germs(design, rows, dims):
     """The germ values (rows, dims) and the chaospy marginal each basis is orthonormal in."""
     families = design["basis_family"].values if "basis_family" in design else \
-        np.array(["hermite"] * design.sizes["parameter"])
+        np.array(["hermite"] * design.sizes[PARAMETER])
     z = np.asarray(design["standard_normal"].values, float)[rows]
     u = np.asarray(design["standard_uniform"].values, float)[rows] \
         if "standard_uniform" in design else sps.norm.cdf(z)
@@ -344,7 +345,7 @@ def _fit_warnings(out, runs, out_dims, shape, fit, threshold, hint="") -> list[s
 def _coordinate_text(runs, dim, index) -> str:
     if dim in runs.coords:
         value = runs[dim].values[index]
-        units = runs[dim].attrs.get("units", "")
+        units = runs[dim].attrs.get(UNITS, "")
         text = f"{value:.4g}" if isinstance(value, (float, np.floating)) else str(value)
         return f"{dim} = {text}{' ' + units if units else ''}"
     return f"{dim} index {index}"

@@ -19,7 +19,8 @@ from SALib.analyze import sobol as salib_analyze
 from SALib.sample import sobol as salib_sample
 
 from uqflow.errors import StudyError
-from uqflow.layout import CONFIDENCE, PARAMETER, SOLVER_RUNS
+from uqflow.layout import (CONFIDENCE, PARAMETER, PARAMETER_J, REALIZATION, SOLVER_RUNS, STATISTIC,
+                           STATUS, STATUS_OK, UNITS)
 from uqflow.methods.base import (MAX_BOOTSTRAP_DRAWS, MAX_REALIZATIONS, MethodOptions,
                                  PropagationMethod, failure_warning, finish_statistics,
                                  make_design, output_names, register_method)
@@ -98,20 +99,20 @@ class Sobol(PropagationMethod):
 
     def analyze(self, design, runs):
         opts = self.options
-        names = [str(p) for p in design["parameter"].values]
+        names = [str(p) for p in design[PARAMETER].values]
         d = len(names)
         second = bool(design.attrs.get("second_order", opts.second_order))
         step = 2 * d + 2 if second else d + 2
-        n_rows = design.sizes["realization"]
+        n_rows = design.sizes[REALIZATION]
         n_base = n_rows // step
         boot_seed = int(design.attrs.get("bootstrap_seed", 1)) or 1
         outs = output_names(runs)
         warnings_ = failure_warning(runs)
 
         # Outputs on the design's rows; realizations missing from runs count as failed.
-        rows = np.asarray(runs["realization"].values, dtype=int)
+        rows = np.asarray(runs[REALIZATION].values, dtype=int)
         good = np.zeros(n_rows, dtype=bool)
-        good[rows] = np.asarray(runs["status"].values == "ok")
+        good[rows] = np.asarray(runs[STATUS].values == STATUS_OK)
         values = {}
         for out in outs:
             y = np.full((n_rows, *runs[out].shape[1:]), np.nan)
@@ -137,7 +138,7 @@ class Sobol(PropagationMethod):
             y = values[out][: n_base * step][row_keep]
             m = y.shape[1]
             ab = y.reshape(kept, step, m)[:, [0, step - 1]].reshape(2 * kept, m)
-            data[out] = (("statistic", *dims), _moments(ab).reshape(3, *shape))
+            data[out] = ((STATISTIC, *dims), _moments(ab).reshape(3, *shape))
 
             first = np.full((4, d, m), np.nan)
             pairs = np.full((2, d, d, m), np.nan)
@@ -165,28 +166,28 @@ class Sobol(PropagationMethod):
                 where = "" if not shape else f" at {flat} of {m} points"
                 warnings_.append(f"{out} has zero variance{where}: its sobol indices are NaN "
                                  f"there (every input constant, or none acts on it)")
-            data[f"{out}_sobol"] = (("sobol_index", "parameter", *dims),
+            data[f"{out}_sobol"] = (("sobol_index", PARAMETER, *dims),
                                     first.reshape(4, d, *shape),
                                     {"long_name": "first-order and total sobol indices, "
                                                   f"conf = half-width at {opts.confidence:g}"})
             if second:
-                data[f"{out}_sobol2"] = (("sobol2_index", "parameter", "parameter_j", *dims),
+                data[f"{out}_sobol2"] = (("sobol2_index", PARAMETER, PARAMETER_J, *dims),
                                          pairs.reshape(2, d, d, *shape),
                                          {"long_name": "second-order sobol indices (upper "
                                                        "triangle), conf = half-width"})
 
-        coords = {"statistic": ["mean", "variance", "std"], "sobol_index": FIRST_LABELS,
-                  "parameter": names, "parameter_j": names}
+        coords = {STATISTIC: ["mean", "variance", "std"], "sobol_index": FIRST_LABELS,
+                  PARAMETER: names, PARAMETER_J: names}
         if second:
             coords["sobol2_index"] = SECOND_LABELS
         stats = xr.Dataset(data, coords=coords)
         stats = stats.assign_coords({c: runs[c] for c in runs.coords
-                                     if c not in coords and c != "realization"
+                                     if c not in coords and c != REALIZATION
                                      and c in stats.dims})
         # Indices are fractions of the output variance: unitless, unlike the moments.
         for name in stats.data_vars:
             if name.endswith(("_sobol", "_sobol2")):
-                stats[name].attrs["units"] = ""
+                stats[name].attrs[UNITS] = ""
         stats = finish_statistics(stats, design, runs, self.name, warnings_)
         stats.attrs.update(samples=n_base, samples_kept=kept, second_order=int(second),
                            confidence=opts.confidence, resamples=opts.resamples)

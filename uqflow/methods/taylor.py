@@ -18,7 +18,9 @@ import xarray as xr
 from pydantic import Field, field_validator, model_validator
 
 from uqflow.errors import AccuracyWarning, StudyError
-from uqflow.layout import INPUT_CORRELATION, INPUT_STD, PARAMETER, SOLVER_RUNS
+from uqflow.layout import (INPUTS, INPUT_CORRELATION, INPUT_CV, INPUT_KURTOSIS, INPUT_SKEWNESS,
+                           INPUT_STD, MESSAGE, PARAMETER, PARAMETER_J, REALIZATION, SOLVER_RUNS,
+                           STATISTIC, STATUS, STATUS_OK, STATUS_PENDING, UNITS)
 from uqflow.methods.base import (MethodOptions, PropagationMethod, finish_statistics,
                                  make_design, ok_mask, output_names, register_method)
 from uqflow.report import Column, MethodReport, Sensitivity
@@ -150,13 +152,13 @@ class Taylor(PropagationMethod):
         offsets = np.array(offsets)
         values = mu + offsets
         design = make_design(space, values,
-                             step=("parameter", h, {"long_name": "finite-difference step h_k"}))
+                             step=(PARAMETER, h, {"long_name": "finite-difference step h_k"}))
         # Coordinates, not data variables: everything in runs with a realization dim is
         # taken for a solver output (base.output_names).
         design = design.assign_coords(
-            offset=(("realization", "parameter"), offsets,
+            offset=((REALIZATION, PARAMETER), offsets,
                     {"long_name": "stencil offset from the input means"}),
-            stencil=("realization", np.array(labels, dtype=object)))
+            stencil=(REALIZATION, np.array(labels, dtype=object)))
         design.attrs.update(step_fraction=opts.step, step_check=int(opts.step_check))
         return design
 
@@ -174,23 +176,23 @@ class Taylor(PropagationMethod):
     # --------------------------------------------------------------- analyze
     def analyze(self, design, runs):
         opts = self.options
-        names = [str(p) for p in design["parameter"].values]
-        s = design["input_std"].values
-        rho = design["input_correlation"].values
+        names = [str(p) for p in design[PARAMETER].values]
+        s = design[INPUT_STD].values
+        rho = design[INPUT_CORRELATION].values
         st = _Stencil(design)
         if opts.variance == "second-order" and any(
                 rho[k, j] != 0 for k in st.active for j in st.active if k < j):
             raise _independence_error()
         # The realized offsets, not the nominal ones: mu + h is rounded to a float, and the
         # divided differences below are exact for quadratics only with the true spacing.
-        x = design["inputs"].values
+        x = design[INPUTS].values
         x = np.vstack([x - x[st.centre], np.full((1, x.shape[1]), np.nan)])
         ok = ok_mask(runs)
         with_hessian = opts.order == 2 or opts.variance == "second-order" or bool(st.pairs)
 
         data, warnings = {}, self._failure_warnings(runs, st, names)
-        mu3 = np.where(s > 0, design["input_skewness"].values * s**3, 0.0)
-        mu4 = np.where(s > 0, design["input_kurtosis"].values * s**4, 0.0)
+        mu3 = np.where(s > 0, design[INPUT_SKEWNESS].values * s**3, 0.0)
+        mu4 = np.where(s > 0, design[INPUT_KURTOSIS].values * s**4, 0.0)
         for out in output_names(runs):
             dims = runs[out].dims[1:]
             y = np.where(ok.reshape((-1,) + (1,) * len(dims)), runs[out].values, np.nan)
@@ -212,14 +214,14 @@ class Taylor(PropagationMethod):
             else:
                 var = _second_order_variance(g, hess, computed, s, mu3, mu4, dims)
             std = np.sqrt(np.maximum(var, 0.0))
-            data[out] = (("statistic", *dims), np.stack([mean, var, std, f0]))
-            data[f"{out}_gradient"] = (("parameter", *dims), g, {
+            data[out] = ((STATISTIC, *dims), np.stack([mean, var, std, f0]))
+            data[f"{out}_gradient"] = ((PARAMETER, *dims), g, {
                 "long_name": f"d{out}/dx_k at the input means",
-                "units": _per_param(runs[out].attrs.get("units", ""))})
+                UNITS: _per_param(runs[out].attrs.get(UNITS, ""))})
             if with_hessian:
-                data[f"{out}_hessian"] = (("parameter", "parameter_j", *dims), hess, {
+                data[f"{out}_hessian"] = ((PARAMETER, PARAMETER_J, *dims), hess, {
                     "long_name": f"d2{out}/dx_k dx_j at the input means (NaN: not computed)",
-                    "units": _per_param(runs[out].attrs.get("units", ""), 2)})
+                    UNITS: _per_param(runs[out].attrs.get(UNITS, ""), 2)})
             if st.checked:
                 g2, h2, _ = st.derivatives(y, x, 0.5)
                 floor = st.rounding_floor(y, x)
@@ -227,10 +229,10 @@ class Taylor(PropagationMethod):
                 diag, diag2 = hess[k, k], h2[k, k]
                 dg = _relative_change(g, g2, floor[0])
                 dc = _relative_change(diag, diag2, floor[1])
-                data[f"{out}_gradient_change"] = (("parameter", *dims), dg, {
-                    "long_name": "|g(h) - g(h/2)| / max(|g(h)|, |g(h/2)|)", "units": "1"})
-                data[f"{out}_curvature_change"] = (("parameter", *dims), dc, {
-                    "long_name": "|H_kk(h) - H_kk(h/2)| / max(...)", "units": "1"})
+                data[f"{out}_gradient_change"] = ((PARAMETER, *dims), dg, {
+                    "long_name": "|g(h) - g(h/2)| / max(|g(h)|, |g(h/2)|)", UNITS: "1"})
+                data[f"{out}_curvature_change"] = ((PARAMETER, *dims), dc, {
+                    "long_name": "|H_kk(h) - H_kk(h/2)| / max(...)", UNITS: "1"})
                 # A derivative only matters if its term moves the output by more than a
                 # millionth of its spread; others may wobble without harming anything.
                 terms = [("gradient", dg, sk * np.abs(g))]
@@ -239,11 +241,11 @@ class Taylor(PropagationMethod):
                 for what, change, size in terms:
                     warnings += self._stability_warnings(out, runs, dims, names, what,
                                                          change, size, std)
-        stats = xr.Dataset(data, coords={"statistic": LABELS})
+        stats = xr.Dataset(data, coords={STATISTIC: LABELS})
         stats = stats.assign_coords({d: runs[d] for d in runs.coords
-                                     if d != "realization" and d in stats.dims})
+                                     if d != REALIZATION and d in stats.dims})
 
-        warnings += cv_warnings(design["input_cv"].values, st.active, names, opts.cv_warning)
+        warnings += cv_warnings(design[INPUT_CV].values, st.active, names, opts.cv_warning)
         warnings += self._omitted_mixed_warnings(st, rho, names)
         for msg in warnings:
             pywarnings.warn(msg, AccuracyWarning, stacklevel=2)
@@ -290,9 +292,9 @@ class Taylor(PropagationMethod):
         return msgs
 
     def _failure_warnings(self, runs, st, names):
-        status = runs["status"].values
+        status = runs[STATUS].values
         msgs = []
-        for r in np.flatnonzero(status != "ok"):
+        for r in np.flatnonzero(status != STATUS_OK):
             label = str(st.labels[r])
             if r == st.centre:
                 hurt = "every estimate is NaN"
@@ -302,8 +304,8 @@ class Taylor(PropagationMethod):
                 hurt = "that mixed derivative and the estimates using it are NaN"
             else:
                 hurt = "that input's derivatives and the estimates using them are NaN"
-            why = "did not run" if status[r] == "pending" else \
-                (str(runs["message"].values[r]) or "no message")
+            why = "did not run" if status[r] == STATUS_PENDING else \
+                (str(runs[MESSAGE].values[r]) or "no message")
             msgs.append(f"realization {r} (stencil point {label}) failed: {why}; {hurt}")
         return msgs
 

@@ -22,7 +22,9 @@ from pydantic import Field
 from uqflow.errors import AccuracyWarning, StudyError
 from uqflow.methods.base import (MethodOptions, PropagationMethod, finish_statistics,
                                  is_diagnostic, make_design, output_names, register_method)
-from uqflow.layout import SOLVER_RUNS
+from uqflow.layout import (INPUT_CORRELATION, INPUT_CV, INPUT_KURTOSIS, INPUT_SKEWNESS, INPUT_STD,
+                           MESSAGE, PARAMETER, PARAMETER_J, REALIZATION, SOLVER_RUNS, STATISTIC,
+                           STATUS, STATUS_OK, STATUS_PENDING, UNITS)
 from uqflow.methods.taylor import (LABELS, _label, _per_param, _second_order_variance,
                                    contributions, cv_warnings)
 from uqflow.report import MethodReport
@@ -103,7 +105,7 @@ class TaylorLocal(PropagationMethod):
         self.check(space, fields)
         active = np.flatnonzero(space.stds > 0)
         design = make_design(space, space.means[None, :],
-                             **{SENSITIVITY_FLAG: ("realization", np.array([True]))})
+                             **{SENSITIVITY_FLAG: (REALIZATION, np.array([True]))})
         design.attrs["normal_inputs"] = int(all(space.inputs[k].kind == "normal"
                                                 for k in active))
         return design
@@ -111,9 +113,9 @@ class TaylorLocal(PropagationMethod):
     # --------------------------------------------------------------- analyze
     def analyze(self, design, runs):
         opts = self.options
-        names = [str(p) for p in design["parameter"].values]
-        s = design["input_std"].values
-        rho = design["input_correlation"].values
+        names = [str(p) for p in design[PARAMETER].values]
+        s = design[INPUT_STD].values
+        rho = design[INPUT_CORRELATION].values
         active = np.flatnonzero(s > 0)
         normal = bool(design.attrs.get("normal_inputs", 0))
         if opts.variance == "second-order" and not normal and _correlated(rho, active):
@@ -121,14 +123,14 @@ class TaylorLocal(PropagationMethod):
                              "no closed form; use variance = \"first-order\"",
                              key="method.variance")
         covariance = np.outer(s, s) * rho
-        mu3 = np.where(s > 0, design["input_skewness"].values * s**3, 0.0)
-        mu4 = np.where(s > 0, np.nan_to_num(design["input_kurtosis"].values) * s**4, 0.0)
+        mu3 = np.where(s > 0, design[INPUT_SKEWNESS].values * s**3, 0.0)
+        mu4 = np.where(s > 0, np.nan_to_num(design[INPUT_KURTOSIS].values) * s**4, 0.0)
 
-        status = runs["status"].values[CENTRE]
+        status = runs[STATUS].values[CENTRE]
         warnings = []
-        if status != "ok":
-            why = "did not run" if status == "pending" else \
-                (str(runs["message"].values[CENTRE]) or "no message")
+        if status != STATUS_OK:
+            why = "did not run" if status == STATUS_PENDING else \
+                (str(runs[MESSAGE].values[CENTRE]) or "no message")
             warnings.append(f"the one realization (at the input means) failed: {why}; every "
                             f"estimate is NaN")
         data = {}
@@ -140,7 +142,7 @@ class TaylorLocal(PropagationMethod):
             # the derivatives' parameter axes first, as taylor stores them
             g = np.moveaxis(gradients[run], -1, 0)
             hess = np.moveaxis(hessians[run], (-2, -1), (0, 1))
-            if status != "ok":
+            if status != STATUS_OK:
                 f0, g, hess = (np.full_like(a, np.nan) for a in (f0, g, hess))
             curvature = 0.5 * np.einsum("kj...,kj->...", hess, covariance)
             first_order = np.einsum("k...,kj,j...->...", g, covariance, g)
@@ -159,22 +161,22 @@ class TaylorLocal(PropagationMethod):
             std_first = np.sqrt(np.maximum(first_order, 0.0))
             with np.errstate(divide="ignore", invalid="ignore"):
                 ratio = np.where(curvature == 0, 0.0, np.abs(curvature) / std_first)
-            units = runs[out].attrs.get("units", "")
-            data[out] = (("statistic", *dims), np.stack([mean, var, std, f0]))
-            data[f"{out}_gradient"] = (("parameter", *dims), g, {
+            units = runs[out].attrs.get(UNITS, "")
+            data[out] = ((STATISTIC, *dims), np.stack([mean, var, std, f0]))
+            data[f"{out}_gradient"] = ((PARAMETER, *dims), g, {
                 "long_name": f"local d{out}/dx_k at the input means (frozen state)",
-                "units": _per_param(units)})
-            data[f"{out}_hessian"] = (("parameter", "parameter_j", *dims), hess, {
+                UNITS: _per_param(units)})
+            data[f"{out}_hessian"] = ((PARAMETER, PARAMETER_J, *dims), hess, {
                 "long_name": f"local d2{out}/dx_k dx_j at the input means (frozen state)",
-                "units": _per_param(units, 2)})
+                UNITS: _per_param(units, 2)})
             data[f"{out}_curvature_ratio"] = (dims, ratio, {
                 "long_name": "|1/2 sum_kj H_kj C_kj| / first-order std: the curvature term "
-                             "of the mean against the spread", "units": "1"})
+                             "of the mean against the spread", UNITS: "1"})
             warnings += _curvature_warnings(out, runs, dims, ratio)
-        stats = xr.Dataset(data, coords={"statistic": LABELS})
+        stats = xr.Dataset(data, coords={STATISTIC: LABELS})
         stats = stats.assign_coords({d: runs[d] for d in runs.coords
-                                     if d != "realization" and d in stats.dims})
-        warnings += cv_warnings(design["input_cv"].values, active, names, opts.cv_warning)
+                                     if d != REALIZATION and d in stats.dims})
+        warnings += cv_warnings(design[INPUT_CV].values, active, names, opts.cv_warning)
         for msg in warnings:
             pywarnings.warn(msg, AccuracyWarning, stacklevel=2)
         stats = finish_statistics(stats, design, runs, self.name, warnings)
