@@ -239,14 +239,16 @@ def regular_layout(box: Box, spacing: float, inclusions=(), gap: float = 0.5) ->
     for k, e in enumerate(inclusions):
         if not (e.a > 0 and e.b > 0):
             raise LayoutError(f"inclusions[{k}]", "semi-axes must be > 0")
+        # before the distances: they sample the outline at min(a, b) / 50, which a
+        # semi-axis of 1e-300 m would make ~1e300 samples
+        if _interface_count(e, spacing) < 8 or min(e.a, e.b) < spacing:
+            raise LayoutError(f"inclusions[{k}]", f"semi-axes {e.a:.4g}, {e.b:.4g} m are below "
+                                                  f"the spacing {spacing:.4g} m")
         if e.distance_lower_bound(box) <= clearance:
             raise LayoutError(f"inclusions[{k}]", "crosses or touches the plate's edge")
         for j in range(k):
             if e.distance_lower_bound(inclusions[j]) <= 2.0 * clearance:
                 raise LayoutError(f"inclusions[{k}]", f"overlaps or touches inclusions[{j}]")
-        if _interface_count(e, spacing) < 8 or min(e.a, e.b) < spacing:
-            raise LayoutError(f"inclusions[{k}]", f"semi-axes {e.a:.4g}, {e.b:.4g} m are below "
-                                                  f"the spacing {spacing:.4g} m")
     I, J = np.meshgrid(np.arange(xs.size), np.arange(ys.size))
     I, J = I.ravel(), J.ravel()
     lattice = np.c_[xs[I], ys[J]]
@@ -359,6 +361,11 @@ def random_layout(box: Box, spacing: float, count: int, semi_axes_range, rng,
     uniform in ``semi_axes_range = ((a_min, b_min), (a_max, b_max))``), each at least
     ``min_gap`` from the others and from the edge; then ``regular_layout``."""
     (a_lo, b_lo), (a_hi, b_hi) = semi_axes_range
+    if min(a_lo, b_lo) < spacing:
+        # an ellipse narrower than the spacing holds no particle across and fails
+        # regular_layout; its outline would also be sampled at min(a, b) / 50 first
+        raise LayoutError("random.semi_axes_min", f"{min(a_lo, b_lo):.4g} m is below the "
+                                                  f"spacing {spacing:.4g} m")
     placed: list[Ellipse] = []
     attempts = 0
     while len(placed) < count:

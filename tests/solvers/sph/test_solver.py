@@ -68,6 +68,12 @@ def test_bad_scenes_name_their_key(change, key):
                           min_gap=1e308)), "scene.random.min_gap"),
     (example3(matrix=dict(E=1e308, nu=0.4)), "scene.matrix.E"),     # lambda + 2 mu overflows
     (example3(constraints="penalty", penalty=1e308), "scene.penalty"),
+    # a semi-axis of 1e-300 m asked the overlap test for ~1e300 outline samples (ValueError)
+    (example1("regular", edge="fixed", inclusions=[dict(centre=[0.0, 0.0],
+                                                        semi_axes=[20.0, 1e-300])]),
+     "scene.inclusions[0]"),
+    (example3(random=dict(count=2, semi_axes_min=[6e-6, 1e-300], semi_axes_max=[8e-6, 4e-6])),
+     "scene.random.semi_axes_min"),
 ])
 def test_extreme_scene_values_are_one_line_errors_naming_their_key(scene, key):
     with pytest.raises(SceneError) as e:
