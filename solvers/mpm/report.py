@@ -43,7 +43,13 @@ from solvers.mpm.probes import LABELS
 from solvers.mpm.scene import PROBE_QUANTITIES, parse
 from solvers.mpm.scene_map import probe_words, write_scene_map
 from uqflow.errors import StudyError
-from uqflow.layout import (LONG_NAME, STUDY_OVERRIDES, STUDY_READ_FILES, STUDY_TEXT,
+from uqflow.layout import (COMPILE_TIME, FAILED_RUNS, INPUT_CV, LONG_NAME, METHOD,
+                           METHOD_OPTIONS, REALIZATION, RUNS_GROUP, SOLVER_COMPILE_TIME,
+                           SOLVER_DESCRIPTION, SOLVER_RUNS, SOLVER_WALL_TIME, STATISTIC,
+                           STATISTIC_MEAN, STATISTIC_STDERR, STATISTIC_VARIANCE,
+                           STATISTICS_GROUP, STATUS, STATUS_FAILED, STATUS_OK, STATUS_PENDING,
+                           STUDY_FILE, STUDY_NAME, STUDY_OVERRIDES, STUDY_READ_FILES,
+                           STUDY_TEXT, STUDY_TEXT_OMITTED, UNITS, WALL_TIME, WITH_SENSITIVITIES,
                            is_diagnostic)
 from uqflow.levels import scene_with
 from uqflow.report import (FigureWarning, ResultView, figure_path, grid, new_figure,
@@ -162,47 +168,47 @@ class MPMResult:
 
     def statistic(self, output: str, label: str) -> xr.DataArray | None:
         if self.stats is None or output not in self.stats \
-                or label not in self.stats["statistic"].values:
+                or label not in self.stats[STATISTIC].values:
             return None
         return self.stats[output].sel(statistic=label)
 
     def cost(self) -> tuple[int, int, float]:
         """Solver runs done, failed runs, solver seconds (from the statistics, else runs)."""
         source = self.stats.attrs if self.stats is not None else {}
-        if "solver_runs" in source:
-            return (int(source["solver_runs"]), int(source.get("failed_runs", 0)),
-                    float(source.get("solver_wall_time", math.nan)))
-        if self.runs is None or "status" not in self.runs:
+        if SOLVER_RUNS in source:
+            return (int(source[SOLVER_RUNS]), int(source.get(FAILED_RUNS, 0)),
+                    float(source.get(SOLVER_WALL_TIME, math.nan)))
+        if self.runs is None or STATUS not in self.runs:
             return 0, 0, math.nan
-        status = np.asarray(self.runs["status"].values).astype(str)
-        done = status != "pending"
-        wall = np.asarray(self.runs["wall_time"].values, float)[done] \
-            if "wall_time" in self.runs else np.array([np.nan])
-        return int(done.sum()), int((status == "failed").sum()), float(np.nansum(wall))
+        status = np.asarray(self.runs[STATUS].values).astype(str)
+        done = status != STATUS_PENDING
+        wall = np.asarray(self.runs[WALL_TIME].values, float)[done] \
+            if WALL_TIME in self.runs else np.array([np.nan])
+        return int(done.sum()), int((status == STATUS_FAILED).sum()), float(np.nansum(wall))
 
 
 def _file_of(tree: xr.DataTree) -> str:
     source = tree.encoding.get("source") if tree.encoding else None
     if source:
         return Path(source).name
-    return str(tree.attrs.get("study_file") or tree.attrs.get("study_name") or "result")
+    return str(tree.attrs.get(STUDY_FILE) or tree.attrs.get(STUDY_NAME) or "result")
 
 
 def _scene_identity(attrs: dict) -> tuple[str, str]:
     """(what the scene is, its identity): a scene file by the sha256 of its text as the study
     read it, an inline scene table by the sha256 of its canonical JSON."""
-    read = json.loads(str(attrs.get("study_read_files") or "{}"))
+    read = json.loads(str(attrs.get(STUDY_READ_FILES) or "{}"))
     if "scene" in read:
         path, sha = read["scene"]
         return f"scene file {path} (sha256 {sha[:12]})", sha
     try:
-        scene = tomllib.loads(str(attrs.get("study", ""))).get("scene")
+        scene = tomllib.loads(str(attrs.get(STUDY_TEXT, ""))).get("scene")
     except tomllib.TOMLDecodeError:
         scene = None
     if isinstance(scene, dict):
         sha = hashlib.sha256(json.dumps(scene, sort_keys=True, default=str).encode()).hexdigest()
         return f"inline scene table (sha256 {sha[:12]})", sha
-    description = str(attrs.get("solver_description", "?"))
+    description = str(attrs.get(SOLVER_DESCRIPTION, "?"))
     return f"scene '{description}'", description
 
 
@@ -289,15 +295,15 @@ def _probe_outputs(ds: xr.Dataset | None, want_statistic: bool) -> list[str]:
         return []
     return [str(v) for v in ds.data_vars
             if "probe" in ds[v].dims and "time" in ds[v].dims and not is_diagnostic(ds[v])
-            and (not want_statistic or "statistic" in ds[v].dims)
-            and (want_statistic or "realization" in ds[v].dims)]
+            and (not want_statistic or STATISTIC in ds[v].dims)
+            and (want_statistic or REALIZATION in ds[v].dims)]
 
 
 def _common_cv(ds: xr.Dataset | None) -> tuple[float | None, str, tuple[str, ...]]:
-    if ds is None or "input_cv" not in ds:
+    if ds is None or INPUT_CV not in ds:
         return None, "?", ()
     names = tuple(str(p) for p in ds["parameter"].values)
-    cv = np.asarray(ds["input_cv"].values, float)
+    cv = np.asarray(ds[INPUT_CV].values, float)
     finite = cv[np.isfinite(cv) & (cv > 0)]
     if finite.size == 0:
         return None, "0", names
@@ -308,23 +314,23 @@ def _common_cv(ds: xr.Dataset | None) -> tuple[float | None, str, tuple[str, ...
 
 def _read(tree: xr.DataTree) -> MPMResult:
     attrs = dict(tree.attrs)
-    runs = tree["runs"].to_dataset() if "runs" in tree.children else None
-    stats = tree["statistics"].to_dataset() if "statistics" in tree.children else None
+    runs = tree[RUNS_GROUP].to_dataset() if RUNS_GROUP in tree.children else None
+    stats = tree[STATISTICS_GROUP].to_dataset() if STATISTICS_GROUP in tree.children else None
     source = stats if stats is not None else runs
     if source is None or "probe" not in source.coords:
         raise StudyError("has no probe outputs (time, probe): not an MPM result",
                          file=_file_of(tree))
-    method = str((stats.attrs.get("method") if stats is not None else None)
-                 or attrs.get("method", "?"))
+    method = str((stats.attrs.get(METHOD) if stats is not None else None)
+                 or attrs.get(METHOD, "?"))
     try:
-        options = json.loads(str(attrs.get("method_options") or "{}"))
+        options = json.loads(str(attrs.get(METHOD_OPTIONS) or "{}"))
     except json.JSONDecodeError:
         options = {}
     outputs = _probe_outputs(stats, True) if stats is not None else _probe_outputs(runs, False)
     cv, cv_text, parameters = _common_cv(source)
     label = _method_label(method, stats, options)
     return MPMResult(
-        file=_file_of(tree), name=str(attrs.get("study_name", "?")), method=method,
+        file=_file_of(tree), name=str(attrs.get(STUDY_NAME, "?")), method=method,
         label=label, attrs=attrs, runs=runs, stats=stats,
         outputs=outputs, probes=[str(p) for p in source["probe"].values],
         times=np.asarray(source["time"].values, float), parameters=parameters, cv=cv,
@@ -369,7 +375,7 @@ def load_results(trees) -> tuple[list[MPMResult], list[str], list[str]]:
 
 def mean_error(res: MPMResult, output: str) -> xr.DataArray | None:
     """The standard error of the mean the result reports (``stderr``), None without one."""
-    return res.statistic(output, "stderr")
+    return res.statistic(output, STATISTIC_STDERR)
 
 
 def variance_error(res: MPMResult, output: str) -> tuple[xr.DataArray | None, str]:
@@ -388,9 +394,9 @@ def variance_error(res: MPMResult, output: str) -> tuple[xr.DataArray | None, st
         return res.stats[f"{output}_variance_stderr"], "reported by the method"
     if not res.plain_monte_carlo:
         return None, "not available"
-    if res.runs is None or output not in res.runs or "status" not in res.runs:
+    if res.runs is None or output not in res.runs or STATUS not in res.runs:
         return None, "not available (no runs)"
-    ok = np.asarray(res.runs["status"].values).astype(str) == "ok"
+    ok = np.asarray(res.runs[STATUS].values).astype(str) == STATUS_OK
     y = np.asarray(res.runs[output].values, float)
     template = res.stats[output].isel(statistic=0, drop=True)
     kind = str(res.stats.attrs.get("stderr_kind", "iid"))
@@ -433,7 +439,7 @@ def _score(res: MPMResult, outputs: list[str], k: int) -> float:
     """Median over outputs and probes of stderr / |mean| at time index ``k``."""
     ratios = []
     for out in outputs:
-        se, mean = mean_error(res, out), res.statistic(out, "mean")
+        se, mean = mean_error(res, out), res.statistic(out, STATISTIC_MEAN)
         if se is None or mean is None:
             continue
         s = np.asarray(se.isel(time=k).values, float)
@@ -512,8 +518,8 @@ def output_units(results: list[MPMResult], output: str) -> str:
     schema's table of probe quantities; "" only for an output none of them knows."""
     for res in results:
         for ds in (res.stats, res.runs):
-            if ds is not None and output in ds and "units" in ds[output].attrs:
-                return str(ds[output].attrs["units"])
+            if ds is not None and output in ds and UNITS in ds[output].attrs:
+                return str(ds[output].attrs[UNITS])
     return PROBE_QUANTITIES.get(output, ("",))[0]
 
 
@@ -620,8 +626,8 @@ def seed_difference_line(t: float) -> str:
 
 def _moment_rows(group, ref, out, k, j, probe, div) -> list[list[str]]:
     rows = []
-    ref_mean = _value(ref.statistic(out, "mean"), k, j) if ref else math.nan
-    ref_var = _value(ref.statistic(out, "variance"), k, j) if ref else math.nan
+    ref_mean = _value(ref.statistic(out, STATISTIC_MEAN), k, j) if ref else math.nan
+    ref_var = _value(ref.statistic(out, STATISTIC_VARIANCE), k, j) if ref else math.nan
     ref_se = _value(mean_error(ref, out), k, j) if ref else math.nan
     ref_var_err, how = variance_error(ref, out) if ref else (None, "")
     ref_var_se = _value(ref_var_err, k, j)
@@ -649,8 +655,8 @@ def _result_rows(res, ref, out, k, j, probe, div, ref_mean, ref_var, ref_se,
     quadratic's full one), which costs only the control runs."""
     rows = []
     runs, failed, _ = res.cost()
-    mean = _value(res.statistic(out, "mean"), k, j)
-    var = _value(res.statistic(out, "variance"), k, j)
+    mean = _value(res.statistic(out, STATISTIC_MEAN), k, j)
+    var = _value(res.statistic(out, STATISTIC_VARIANCE), k, j)
     if res.stats is None:
         rows.append([probe, res.cv_text, res.file, res.label, f"{runs}",
                      "no statistics (study did not finish)", "", "", ""])
@@ -731,20 +737,20 @@ class RunTimes:
 def run_times(res: MPMResult) -> RunTimes | None:
     """The result's run times from its runs; None without runs or wall times."""
     runs = res.runs
-    if runs is None or "wall_time" not in runs or "status" not in runs:
+    if runs is None or WALL_TIME not in runs or STATUS not in runs:
         return None
-    status = np.asarray(runs["status"].values).astype(str)
-    done = status != "pending"
-    wall = np.asarray(runs["wall_time"].values, float)[done]
+    status = np.asarray(runs[STATUS].values).astype(str)
+    done = status != STATUS_PENDING
+    wall = np.asarray(runs[WALL_TIME].values, float)[done]
     compile_ = None
-    if "compile_time" in runs:
-        recorded = np.asarray(runs["compile_time"].values, float)[done]
+    if COMPILE_TIME in runs:
+        recorded = np.asarray(runs[COMPILE_TIME].values, float)[done]
         if np.all(np.isfinite(recorded)):
             compile_ = recorded
-    flagged = np.asarray(runs["with_sensitivities"].values, bool)[done] \
-        if "with_sensitivities" in runs else np.zeros(wall.size, bool)
+    flagged = np.asarray(runs[WITH_SENSITIVITIES].values, bool)[done] \
+        if WITH_SENSITIVITIES in runs else np.zeros(wall.size, bool)
     return RunTimes(run=wall - compile_ if compile_ is not None else wall,
-                    ok=status[done] == "ok", plain=~flagged, compile=compile_)
+                    ok=status[done] == STATUS_OK, plain=~flagged, compile=compile_)
 
 
 def _per_run_baseline(results: list[MPMResult]) -> tuple[float, str]:
@@ -772,8 +778,8 @@ def _result_cost(res: MPMResult) -> tuple[float, float, float]:
     if times is not None:
         return times.solver_time, times.per_run, times.compile_time
     runs, _, wall = res.cost()
-    compile_ = float(res.stats.attrs["solver_compile_time"]) \
-        if res.stats is not None and "solver_compile_time" in res.stats.attrs else math.nan
+    compile_ = float(res.stats.attrs[SOLVER_COMPILE_TIME]) \
+        if res.stats is not None and SOLVER_COMPILE_TIME in res.stats.attrs else math.nan
     solver = wall - compile_ if np.isfinite(compile_) else wall
     return solver, (solver / runs if runs else math.nan), compile_
 
@@ -835,14 +841,14 @@ def _draw_one(results, groups, refs, out, j, probe):
     for row, (group, ref) in enumerate(zip(groups, refs)):
         ax_mean, ax_var = axes[row]
         if ref is not None:
-            mean = np.asarray(ref.statistic(out, "mean").isel(probe=j).values, float) / div
+            mean = np.asarray(ref.statistic(out, STATISTIC_MEAN).isel(probe=j).values, float) / div
             se = mean_error(ref, out)
             if se is not None:
                 s = np.asarray(se.isel(probe=j).values, float) / div
                 ax_mean.fill_between(t_us, mean - BAND_WIDTH * s, mean + BAND_WIDTH * s,
                                      color="0.8", label=f"reference ± {BAND_WIDTH:g} standard "
                                                         f"errors of its mean")
-            var = np.asarray(ref.statistic(out, "variance").isel(probe=j).values,
+            var = np.asarray(ref.statistic(out, STATISTIC_VARIANCE).isel(probe=j).values,
                              float) / div ** 2
             err, _ = variance_error(ref, out)
             if err is not None:
@@ -854,7 +860,8 @@ def _draw_one(results, groups, refs, out, j, probe):
             style = dict(color=colors[n % len(colors)], lw=1.8 if res is ref else 1.1,
                          ls="-" if res is ref else ("--", ":", "-.")[n % 3])
             label = f"{res.words} ({res.file})" + (", reference" if res is ref else "")
-            for ax, stat, d in ((ax_mean, "mean", div), (ax_var, "variance", div ** 2)):
+            for ax, stat, d in ((ax_mean, STATISTIC_MEAN, div),
+                                (ax_var, STATISTIC_VARIANCE, div ** 2)):
                 values = res.statistic(out, stat)
                 if values is not None:
                     ax.plot(t_us, np.asarray(values.isel(probe=j).values, float) / d,
@@ -919,8 +926,8 @@ def report(trees, folder, figures: bool = True, time: float | None = None,
     parts = ["MPM comparison: each result's probe statistics against the reference, and the "
              "cost"]
     for res in results:
-        if not str(res.attrs.get("study") or "").strip():
-            why = str(res.attrs.get("study_text_omitted") or "").split(";")[0] \
+        if not str(res.attrs.get(STUDY_TEXT) or "").strip():
+            why = str(res.attrs.get(STUDY_TEXT_OMITTED) or "").split(";")[0] \
                 or "the result stores no study text"
             notes.append(f"{res.file}: {why}; its scene is identified by {res.scene[0]}")
         runs, failed, _ = res.cost()
