@@ -131,9 +131,10 @@ def test_taylor_contributions_are_g_squared_s_squared(kind, description):
     assert sensitivity.values.dims == ("parameter", "index")
     g, s = stats["y_gradient"].values, stats["input_std"].values
     assert np.array_equal(sensitivity.values.values[:, 0], (g * s) ** 2)
-    # central differences of a quadratic are exact up to rounding of y ~ 40 over steps
-    # h = 0.1 s: |error| <= ~1e3 eps |y| / h relative, far below 1e-9
-    assert sensitivity.values.values[:, 0] == pytest.approx([16.0, 1.0], rel=1e-9)
+    # central differences of a quadratic are exact up to the rounding of y ~ 40 over the
+    # steps h = 0.1 s: ~1e3 eps |y| / (h |g|), below 1e-10 of g² s² even for g = 1
+    assert sensitivity.values.values[:, 0] == pytest.approx(
+        [16.0, 1.0], rel=1e-9)  # rounding of y over h: ~1e3 eps |y| / (h |g|) < 1e-10
     assert sensitivity.quantity == "variance [(m)²]" and sensitivity.note == ""
     assert report.sensitivities("not an output") is None
 
