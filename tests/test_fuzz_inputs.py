@@ -55,7 +55,9 @@ SHIPPED = SHIPPED_STUDIES + _scenes_no_study_reads()
 def _base(study: Path) -> dict:
     """The TOML document of a shipped study, or the host study of a lone scene file."""
     if study.parent == SCENES:
-        return {"name": "host", "solver": "mpm", "scene": str(study),
+        # an SPH scene file under the MPM solver would stop at the MPM parser's first key
+        solver = "sph" if study.name.startswith("sph_") else "mpm"
+        return {"name": "host", "solver": solver, "scene": str(study),
                 "method": {"kind": "nominal"}, "execution": {"workers": 0}}
     return tomllib.loads(study.read_text())
 
