@@ -89,7 +89,8 @@ def test_display_units_pick_the_si_prefix_by_magnitude(values, units, scale, lab
 
 def test_display_units_show_2_3e9_pa_as_2_3_gpa():
     scale, label = report.display_units([2.3e9], "Pa")
-    assert (label, 2.3e9 * scale) == ("GPa", pytest.approx(2.3, rel=4e-16))  # one rounding
+    # 2.3e9, 1e-9, their product and 2.3 are each rounded once: under 4 x 2^-53 apart
+    assert (label, 2.3e9 * scale) == ("GPa", pytest.approx(2.3, rel=1e-15))
 
 
 @pytest.mark.parametrize("values", [[], [0.0], [np.nan], [np.inf, -np.inf], [0.0, np.nan]])
@@ -162,9 +163,10 @@ def test_scatter_band_is_mean_plus_minus_1_96_std_without_draws(hook):
     assert labels == [band.label, "95 % interval of the mean (± 1.96 standard errors)"]
     _, low, high = band_polygons(fig)[1]
     stderr = view.statistic("s_xx", "stderr").values[:, 0]
+    half = 1.959963984540054 * stderr  # ± 1.96 standard errors (Phi^-1(0.975))
     np.testing.assert_allclose(np.sort(np.concatenate([low, high])), 1e-9 * np.sort(
-        np.concatenate([mean[:, 0] - 1.96 * stderr, mean[:, 0] + 1.96 * stderr])),
-        rtol=1e-4)  # 1.96 against 1.95996...: 2e-5 of the half-width
+        np.concatenate([mean[:, 0] - half, mean[:, 0] + half])),
+        rtol=1e-12)  # the figure scales each edge once more: a few ulp
     std_axis = fig.axes[2]  # value panels first row, std panels second (2 probes: 2 columns)
     assert std_axis.get_ylabel() == "std [GPa]"
     np.testing.assert_allclose(std_axis.lines[0].get_ydata(), 1e-9 * std[:, 0], rtol=1e-12)
@@ -194,7 +196,8 @@ def test_exceedance_band_contains_the_curve_and_is_clopper_pearson():
     assert np.all(curve.lower <= curve.probability) and np.all(curve.probability <= curve.upper)
     for k, low, high in zip([6, 5, 3, 2, 1, 0], curve.lower, curve.upper):
         exact = sps.binomtest(k, 7).proportion_ci(0.95, method="exact")
-        # the same beta quantiles by another route: their root-finding tolerance, 1e-10
+        # scipy finds the same limits by brentq on the binomial tail (xtol 2e-12, rtol 4 eps):
+        # its root is within ~3e-12 of the beta quantile, so 1e-10 bounds it 30 times over
         assert (low, high) == (pytest.approx(exact.low, abs=1e-10),
                                pytest.approx(exact.high, abs=1e-10))
 

@@ -12,6 +12,10 @@ if [ -z "$browser" ]; then
     echo "report_screenshot.sh: chromium not found: install the Debian package 'chromium'" >&2
     exit 2
 fi
+if ! command -v uqflow > /dev/null; then
+    echo "report_screenshot.sh: uqflow not found: activate the environment it is installed in" >&2
+    exit 2
+fi
 scratch=$(mktemp -d)
 trap 'rm -rf "$scratch"' EXIT
 cd "$root"
