@@ -9,6 +9,7 @@ level by level: its levels are different discretisations, not one sample."""
 from __future__ import annotations
 
 import hashlib
+import os
 import json
 import tomllib
 import warnings
@@ -162,7 +163,7 @@ def scene_table(attrs) -> tuple[dict | None, str]:
             scene = tomllib.loads(text)
         except tomllib.TOMLDecodeError:
             return None, f"the scene file {path} is not valid TOML"
-        where = f"the scene file {path}"
+        where = f"the scene file {os.path.normpath(path)}"
     try:
         overrides = tomllib.loads(str(attrs.get(STUDY_OVERRIDES) or "")).get("scene", {})
     except tomllib.TOMLDecodeError:
