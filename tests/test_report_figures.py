@@ -337,3 +337,20 @@ def test_the_report_layer_names_no_method_or_solver():
         for name in names:
             assert not re.search(rf"(?<![\w-]){re.escape(name.lower())}(?![\w-])", text), \
                 f"{source.name} names {name!r}"
+
+
+def test_an_output_over_labels_only_gets_a_bar_per_label(hook):
+    """No line drawn between probes: the band at each label is a vertical bar."""
+    hook(MethodReport(runs_are_draws=False))
+    tree = field_result()
+    stats = tree["statistics"].to_dataset().isel(t=-1, drop=True)
+    view = ResultView(xr.DataTree.from_dict({"/": xr.Dataset(attrs={"study_name": "p"}),
+                                             "statistics": stats}))
+    fig = framework_figures.scatter_figure(view, "s_xx")
+    band = framework_figures.scatter_band(view, "s_xx")
+    bars = fig.axes[0].collections[0]
+    assert bars.get_label() == band.label
+    ends = np.array([segment[:, 1] for segment in bars.get_segments()])
+    np.testing.assert_allclose(ends, 1e-9 * np.stack([band.lower.values, band.upper.values],
+                                                     axis=1), rtol=1e-12)  # one scaling
+    assert [t.get_text() for t in fig.axes[1].get_xticklabels()] == ["H", "I"]

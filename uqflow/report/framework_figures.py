@@ -121,7 +121,8 @@ def _axis(view: ResultView, dim: str) -> tuple[np.ndarray, str, bool]:
         scale, units = display_units(values, ds[dim].attrs.get("units", ""))
         name = str(ds[dim].attrs.get("long_name", dim))
         return values * scale, quantity_label(name, units), True
-    return np.arange(ds.sizes[dim], dtype=float), f"{dim} (index)", False
+    return np.arange(ds.sizes[dim], dtype=float), \
+        (dim if dim in ds.coords else f"{dim} (index)"), False
 
 
 def _field_layout(var: xr.DataArray) -> tuple[str, str | None] | None:
@@ -157,7 +158,7 @@ def scatter_figure(view: ResultView, output: str):
     if band is None:
         return None
     xdim, panel_dim = layout
-    x, xlabel, _ = _axis(view, xdim)
+    x, xlabel, numeric = _axis(view, xdim)
     labels = _panels(var.sizes[panel_dim]) if panel_dim else [None]
     scale, units = display_units(np.concatenate([np.ravel(band.lower.values),
                                                  np.ravel(band.upper.values)]),
@@ -176,14 +177,12 @@ def scatter_figure(view: ResultView, output: str):
         def line(a):
             return np.asarray(a.isel(pick).transpose(xdim).values, dtype=float) * scale
 
-        ax.fill_between(x, line(band.lower), line(band.upper), color=BAND_COLOR, alpha=0.55,
-                        linewidth=0, label=band.label)
-        if band.stderr is not None:
-            m, e = line(band.mean), Z95 * line(band.stderr)
-            ax.fill_between(x, m - e, m + e, color=STDERR_COLOR, alpha=0.3, linewidth=0,
-                            label=MEAN_INTERVAL_LABEL)
-        ax.plot(x, line(band.mean), color=MEAN_COLOR, linewidth=1.8, label="mean")
-        ax_std.plot(x, line(band.std), color=STD_COLOR, linewidth=1.5)
+        if numeric:
+            _draw_band(ax, ax_std, x, band, line)
+        else:  # labels (probes, parts): no line between them, a bar at each
+            _draw_bars(ax, ax_std, x, band, line)
+            ax_std.set_xticks(x, [str(v) for v in view.stats[xdim].values]
+                              if xdim in view.stats.coords else x.astype(int))
         if k % columns == 0:  # one y label per row of panels
             ax.set_ylabel(quantity_label(name, units))
             ax_std.set_ylabel(quantity_label("std", units))
@@ -199,6 +198,32 @@ def scatter_figure(view: ResultView, output: str):
     fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center",
                ncols=3 if columns > 2 else 1, fontsize="small")
     return fig
+
+
+def _draw_band(ax, ax_std, x, band: ScatterBand, line) -> None:
+    """The prediction band, the interval of the mean and the mean over a numeric axis."""
+    ax.fill_between(x, line(band.lower), line(band.upper), color=BAND_COLOR, alpha=0.55,
+                    linewidth=0, label=band.label)
+    if band.stderr is not None:
+        m, e = line(band.mean), Z95 * line(band.stderr)
+        ax.fill_between(x, m - e, m + e, color=STDERR_COLOR, alpha=0.3, linewidth=0,
+                        label=MEAN_INTERVAL_LABEL)
+    ax.plot(x, line(band.mean), color=MEAN_COLOR, linewidth=1.8, label="mean")
+    ax_std.plot(x, line(band.std), color=STD_COLOR, linewidth=1.5)
+
+
+def _draw_bars(ax, ax_std, x, band: ScatterBand, line) -> None:
+    """The same at each label of a categorical axis: a wide bar for the prediction band, a
+    narrower one for the interval of the mean, a dot for the mean."""
+    ax.vlines(x, line(band.lower), line(band.upper), color=BAND_COLOR, linewidth=12,
+              label=band.label)
+    if band.stderr is not None:
+        m, e = line(band.mean), Z95 * line(band.stderr)
+        ax.vlines(x, m - e, m + e, color=STDERR_COLOR, alpha=0.6, linewidth=5,
+                  label=MEAN_INTERVAL_LABEL)
+    ax.plot(x, line(band.mean), "o", color=MEAN_COLOR, label="mean")
+    ax_std.plot(x, line(band.std), "o", color=STD_COLOR)
+    ax.margins(x=0.15)
 
 
 def _scalar_runs(view: ResultView, output: str) -> np.ndarray | None:
