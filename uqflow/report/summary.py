@@ -15,7 +15,11 @@ import math
 import numpy as np
 import xarray as xr
 
-from uqflow.layout import PARAMETER
+from uqflow.layout import (COMPILE_TIME, COMPLETE, ELAPSED_TIME, FAILED_RUNS, FIELD_PREFIX,
+                           GERM_PREFIX, INPUT_CV, INPUT_MEAN, INPUT_SKEWNESS, INPUT_STD, MESSAGE,
+                           PARAMETER, PARAMETER_UNITS, REALIZATION, SOLVER_COMPILE_TIME,
+                           SOLVER_RUNS, SOLVER_WALL_TIME, STATUS, STATUS_FAILED, STATUS_OK,
+                           STATUS_PENDING, STOPPED_EARLY, STUDY_NAME, WALL_TIME, WARNINGS)
 from uqflow.report.contributions import MethodReport, Sensitivity
 from uqflow.report.tables import focus_point as _focus
 from uqflow.report.tables import Table
@@ -54,13 +58,13 @@ def summary_blocks(tree: xr.DataTree) -> list:
     (the text summary draws the tables as grids, the HTML report as HTML tables)."""
     view = ResultView(tree)
     attrs, runs, stats = view.attrs, view.runs, view.stats
-    name, method = attrs.get("study_name", "?"), view.method
+    name, method = attrs.get(STUDY_NAME, "?"), view.method
     if stats is None:
         return _unfinished(name, method, attrs, runs)
 
-    state = "complete" if int(attrs.get("complete", 1)) else "incomplete"
-    if attrs.get("stopped_early"):
-        state += f", {attrs['stopped_early']}"
+    state = "complete" if int(attrs.get(COMPLETE, 1)) else "incomplete"
+    if attrs.get(STOPPED_EARLY):
+        state += f", {attrs[STOPPED_EARLY]}"
     contribution = view.method_report
     lines = [f"study '{name}' ({method}, {state})"]
     if contribution.description:
@@ -112,7 +116,7 @@ def summary_blocks(tree: xr.DataTree) -> list:
     if failure:
         lines.append(failure)
     lines += [""] + _inputs_table(stats, runs)
-    recorded = [w for w in str(stats.attrs.get("warnings", "")).split("\n") if w]
+    recorded = [w for w in str(stats.attrs.get(WARNINGS, "")).split("\n") if w]
     if recorded:
         n_warn = len(recorded)
         lines += ["", f"{n_warn} warning{'s' if n_warn > 1 else ''} recorded with the "
@@ -158,12 +162,12 @@ def _sensitivity_table(view: ResultView, out: str, sens: Sensitivity) -> list[st
 
 
 def _cost_line(stats: xr.Dataset, attrs: dict, method: str, contribution: MethodReport) -> str:
-    runs_ = stats.attrs.get("solver_runs", attrs.get("solver_runs", "?"))
-    failed = stats.attrs.get("failed_runs", attrs.get("failed_runs", "?"))
+    runs_ = stats.attrs.get(SOLVER_RUNS, attrs.get(SOLVER_RUNS, "?"))
+    failed = stats.attrs.get(FAILED_RUNS, attrs.get(FAILED_RUNS, "?"))
     detail = contribution.cost_details
     return (f"cost: {runs_} solver runs, {failed} failed, solver wall time "
-            f"{_seconds(stats.attrs.get('solver_wall_time'))}, elapsed "
-            f"{_seconds(attrs.get('elapsed_time'))}, method {method}"
+            f"{_seconds(stats.attrs.get(SOLVER_WALL_TIME))}, elapsed "
+            f"{_seconds(attrs.get(ELAPSED_TIME))}, method {method}"
             + (f" ({', '.join(detail)})" if detail else ""))
 
 
@@ -206,15 +210,15 @@ def _variance_column(stats: xr.Dataset, outs: list[str]):
 def _compile_lines(stats: xr.Dataset, runs: xr.Dataset | None) -> list[str]:
     """numba's compile time apart from the runs' own: the first runs in each process compile
     the solver's kernels, so the summed wall time over-states what one more run costs."""
-    if "solver_compile_time" not in stats.attrs and (runs is None or "compile_time" not in runs):
+    if SOLVER_COMPILE_TIME not in stats.attrs and (runs is None or COMPILE_TIME not in runs):
         return []
-    compiling = stats.attrs.get("solver_compile_time")
+    compiling = stats.attrs.get(SOLVER_COMPILE_TIME)
     line = (f"compile time (numba, part of the solver wall time above): "
             f"{_seconds(compiling)}")
-    if runs is not None and "compile_time" in runs and "status" in runs:
-        ok = _status(runs) == "ok"
-        own = (np.asarray(runs["wall_time"].values, float)
-               - np.asarray(runs["compile_time"].values, float))[ok]
+    if runs is not None and COMPILE_TIME in runs and STATUS in runs:
+        ok = _status(runs) == STATUS_OK
+        own = (np.asarray(runs[WALL_TIME].values, float)
+               - np.asarray(runs[COMPILE_TIME].values, float))[ok]
         own = own[np.isfinite(own)]
         if own.size:
             line += (f"; per run without it: median {_seconds(np.median(own))} over "
@@ -232,11 +236,11 @@ def _field_rows(stats: xr.Dataset, runs: xr.Dataset | None) -> list[list[str]]:
         germs = {}
     if runs is not None:
         for var in map(str, runs.data_vars):
-            if var.startswith("germ_") and var not in germs.values():
-                germs[str(runs[var].attrs.get("field", var[len("germ_"):]))] = var
+            if var.startswith(GERM_PREFIX) and var not in germs.values():
+                germs[str(runs[var].attrs.get("field", var[len(GERM_PREFIX):]))] = var
     rows = []
     for name, var in germs.items():
-        prefix = f"field_{str(var)[len('germ_'):]}_"
+        prefix = f"{FIELD_PREFIX}{str(var)[len(GERM_PREFIX):]}_"
         info = {k[len(prefix):]: v for k, v in stats.attrs.items() if k.startswith(prefix)}
         modes = str(info.get("modes", runs[var].shape[-1] if runs is not None and var in runs
                              else "?"))
@@ -257,17 +261,17 @@ def _inputs_table(stats: xr.Dataset, runs: xr.Dataset | None = None) -> list[str
                   "sqrt(lambda_j) phi_j(x) xi_j)):"]
         lines.append(Table(["field", "parameters", "kernel", "correlation length", "KL modes",
                             "germs xi_j", "amplitude"], fields, frozenset({3})))
-    if "parameter" not in stats.coords or stats.sizes.get("parameter", 0) == 0:
+    if PARAMETER not in stats.coords or stats.sizes.get(PARAMETER, 0) == 0:
         return lines or ["inputs: none uncertain"]
-    params = [str(p) for p in stats["parameter"].values]
-    units = [str(u) for u in stats["parameter_units"].values] \
-        if "parameter_units" in stats.coords else [""] * len(params)
+    params = [str(p) for p in stats[PARAMETER].values]
+    units = [str(u) for u in stats[PARAMETER_UNITS].values] \
+        if PARAMETER_UNITS in stats.coords else [""] * len(params)
 
     def col(name):
         return stats[name].values if name in stats else np.full(len(params), np.nan)
 
-    mean, std, cv, skew = col("input_mean"), col("input_std"), col("input_cv"), \
-        col("input_skewness")
+    mean, std, cv, skew = col(INPUT_MEAN), col(INPUT_STD), col(INPUT_CV), \
+        col(INPUT_SKEWNESS)
     rows = []
     for k, p in enumerate(params):
         # A zero-mean input has no C.V. (the store keeps inf); say so rather than print inf.
@@ -280,35 +284,35 @@ def _inputs_table(stats: xr.Dataset, runs: xr.Dataset | None = None) -> list[str
 
 
 def _status(runs: xr.Dataset) -> np.ndarray:
-    return np.asarray(runs["status"].values).astype(str)
+    return np.asarray(runs[STATUS].values).astype(str)
 
 
 def _first_failure(runs: xr.Dataset | None) -> str | None:
-    if runs is None or "status" not in runs:
+    if runs is None or STATUS not in runs:
         return None
-    failed = np.flatnonzero(_status(runs) == "failed")
+    failed = np.flatnonzero(_status(runs) == STATUS_FAILED)
     if failed.size == 0:
         return None
     r = int(failed[0])
-    message = str(runs["message"].values[r]) if "message" in runs else ""
-    index = runs["realization"].values[r] if "realization" in runs.coords else r
+    message = str(runs[MESSAGE].values[r]) if MESSAGE in runs else ""
+    index = runs[REALIZATION].values[r] if REALIZATION in runs.coords else r
     return f"first failure, realization {index}: {message or '(no message)'}"
 
 
 def _unfinished(name: str, method: str, attrs: dict, runs: xr.Dataset | None) -> list[str]:
     lines = [f"study '{name}' ({method}): no statistics: the study did not finish",
              "(it was stopped by failing realizations, interrupted, or is still running)", ""]
-    if runs is None or "status" not in runs:
+    if runs is None or STATUS not in runs:
         return lines + ["no runs recorded"]
     status = _status(runs)
-    counts = {s: int((status == s).sum()) for s in ("ok", "failed", "pending")}
+    counts = {s: int((status == s).sum()) for s in (STATUS_OK, STATUS_FAILED, STATUS_PENDING)}
     others = sorted(set(status) - set(counts))
     counts.update({s: int((status == s).sum()) for s in others})
     lines.append(f"runs: {status.size} planned: "
                  + ", ".join(f"{n} {s}" for s, n in counts.items()))
-    wall = runs["wall_time"].values if "wall_time" in runs else np.array([np.nan])
-    compiling = (f" (numba compiling {_seconds(np.nansum(runs['compile_time'].values))} of it)"
-                 if "compile_time" in runs else "")
+    wall = runs[WALL_TIME].values if WALL_TIME in runs else np.array([np.nan])
+    compiling = (f" (numba compiling {_seconds(np.nansum(runs[COMPILE_TIME].values))} of it)"
+                 if COMPILE_TIME in runs else "")
     lines.append(f"solver wall time so far {_seconds(np.nansum(wall))}{compiling}")
     failure = _first_failure(runs)
     if failure:
