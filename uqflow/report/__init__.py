@@ -9,8 +9,9 @@ solvers alike (docs/results.md, docs/architecture.md).
 - ``ResultView``: a result as a report sees it; ``MethodReport`` (with ``Column``,
   ``Sensitivity``, ``FigureSpec``): what a method's ``report`` hook returns.
 - Plumbing for anyone's tables and figures: ``Table``, ``grid``, ``number``, ``seconds``,
-  ``new_figure``, ``save_figure``, ``figure_path``, ``safe_file_name``, ``figure_folder``, ``axis_label``,
-  ``scientific_ticks``, ``colors``, ``coordinate``, ``input_label``, ``FigureWarning``.
+  ``new_figure``, ``save_figure``, ``figure_path``, ``safe_file_name``, ``figure_folder``,
+  ``axis_label``, ``scientific_ticks``, ``colors``, ``coordinate``, ``input_label``,
+  ``FigureWarning``.
 
 The report layer names no method and no solver: what is particular to one comes from its hook.
 """

@@ -21,7 +21,8 @@ import numpy as np
 import xarray as xr
 from scipy import stats as sps
 
-from uqflow.layout import PARAMETER, STATISTIC
+from uqflow.layout import (LONG_NAME, PARAMETER, STATISTIC, STATISTIC_MEAN, STATISTIC_STD,
+                           STATISTIC_STDERR, UNITS)
 from uqflow.report.figures import (FigureWarning, colors, figure_path, input_label, new_figure,
                                    save_figure)
 from uqflow.report.units import display_units, quantity_label
@@ -57,10 +58,10 @@ def scatter_band(view: ResultView, output: str) -> ScatterBand | None:
     they are draws from the inputs' distribution (``MethodReport.runs_are_draws``), else
     mean ± 1.96 std from the statistics (95 % if the output were normal). None without a
     mean and a std."""
-    mean, std = view.statistic(output, "mean"), view.statistic(output, "std")
+    mean, std = view.statistic(output, STATISTIC_MEAN), view.statistic(output, STATISTIC_STD)
     if mean is None or std is None:
         return None
-    stderr = view.statistic(output, "stderr")
+    stderr = view.statistic(output, STATISTIC_STDERR)
     stderr = None if stderr is None or not np.any(np.isfinite(stderr.values)) else stderr
     runs = view.sample_values(output) if view.method_report.runs_are_draws else None
     if runs is not None and runs.shape[1:] == mean.shape and runs.shape[0] >= 2:
@@ -118,8 +119,8 @@ def _axis(view: ResultView, dim: str) -> tuple[np.ndarray, str, bool]:
     ds = view.stats
     if dim in ds.coords and np.issubdtype(ds[dim].dtype, np.number):
         values = np.asarray(ds[dim].values, dtype=float)
-        scale, units = display_units(values, ds[dim].attrs.get("units", ""))
-        name = str(ds[dim].attrs.get("long_name", dim))
+        scale, units = display_units(values, ds[dim].attrs.get(UNITS, ""))
+        name = str(ds[dim].attrs.get(LONG_NAME, dim))
         return values * scale, quantity_label(name, units), True
     return np.arange(ds.sizes[dim], dtype=float), \
         (dim if dim in ds.coords else f"{dim} (index)"), False

@@ -18,8 +18,9 @@ import xarray as xr
 from uqflow.layout import (COMPILE_TIME, COMPLETE, ELAPSED_TIME, FAILED_RUNS, FIELD_PREFIX,
                            GERM_PREFIX, INPUT_CV, INPUT_MEAN, INPUT_SKEWNESS, INPUT_STD, MESSAGE,
                            PARAMETER, PARAMETER_UNITS, REALIZATION, SOLVER_COMPILE_TIME,
-                           SOLVER_RUNS, SOLVER_WALL_TIME, STATUS, STATUS_FAILED, STATUS_OK,
-                           STATUS_PENDING, STOPPED_EARLY, STUDY_NAME, WALL_TIME, WARNINGS)
+                           SOLVER_RUNS, SOLVER_WALL_TIME, STATISTIC_MEAN, STATISTIC_STD,
+                           STATISTIC_VARIANCE, STATUS, STATUS_FAILED, STATUS_OK, STATUS_PENDING,
+                           STOPPED_EARLY, STUDY_NAME, WALL_TIME, WARNINGS)
 from uqflow.report.contributions import MethodReport, Sensitivity
 from uqflow.report.tables import focus_point as _focus
 from uqflow.report.tables import Table
@@ -78,13 +79,13 @@ def summary_blocks(tree: xr.DataTree) -> list:
         focus = _focus(stats, out)
         unit = _units(stats, runs, out)
         row = [out, unit or "-", _where(stats, focus) or "-",
-               _cell(stats, out, "mean", focus), _cell(stats, out, "std", focus)]
+               _cell(stats, out, STATISTIC_MEAN, focus), _cell(stats, out, STATISTIC_STD, focus)]
         if variance_header:
             row.append(variance_cell(out, focus))
         row += [column.cell(out, focus) for column in contribution.columns]
         rows.append(row)
-        if focus and _stat(stats, out, "mean") is not None:
-            mean = np.asarray(_stat(stats, out, "mean").values, dtype=float)
+        if focus and _stat(stats, out, STATISTIC_MEAN) is not None:
+            mean = np.asarray(_stat(stats, out, STATISTIC_MEAN).values, dtype=float)
             finite = mean[np.isfinite(mean)]
             span = f"{_num(finite.min())} .. {_num(finite.max())}" if finite.size else "nan"
             notes.append(f"{out} is a field of {mean.size} points "
@@ -194,12 +195,12 @@ def _variance_stderr(stats: xr.Dataset, out: str) -> xr.DataArray | None:
 def _variance_column(stats: xr.Dataset, outs: list[str]):
     """Header and cell function of the variance column (None: no output has a variance).
     The '±' appears only with a method that gives the variance's standard error."""
-    if not any(_stat(stats, out, "variance") is not None for out in outs):
+    if not any(_stat(stats, out, STATISTIC_VARIANCE) is not None for out in outs):
         return None, None
     errors = {out: _variance_stderr(stats, out) for out in outs}
 
     def cell(out, focus):
-        value = _cell(stats, out, "variance", focus)
+        value = _cell(stats, out, STATISTIC_VARIANCE, focus)
         error = np.nan if errors[out] is None else float(errors[out].isel(focus))
         return f"{value} ± {_num(error)}" if math.isfinite(error) else value
 

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 import xarray as xr
 
-from uqflow.layout import STATISTIC, UNITS
+from uqflow.layout import STATISTIC, STATISTIC_STD, UNITS
 from uqflow.report.units import display_units, format_value, long_name, units_attr
 
 
@@ -82,7 +82,7 @@ def units_of(output: str, *datasets: xr.Dataset | None) -> str:
 def focus_point(stats: xr.Dataset, output: str) -> dict[str, int]:
     """Index of a field output's point of largest std ({} for a scalar output): where a table
     row of a field is taken."""
-    std = statistic(stats, output, "std")
+    std = statistic(stats, output, STATISTIC_STD)
     if std is None or std.ndim == 0:
         return {}
     values = np.asarray(std.values, dtype=float)
