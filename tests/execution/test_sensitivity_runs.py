@@ -10,10 +10,11 @@ import uqflow
 from solvers.analytic import AnalyticSolver
 from uqflow.errors import StudyError
 from uqflow.execute import run_study
-from uqflow.methods.base import make_design, output_names
 from uqflow.inputs import InputSpace, RandomInput
-from uqflow.realization import (SENSITIVITY_FLAG, evaluate_design, gradient_variable,
-                                hessian_variable, realization_prefix, sensitivity_arrays)
+from uqflow.layout import (WITH_SENSITIVITIES as SENSITIVITY_FLAG, gradient_variable,
+                           hessian_variable, output_names)
+from uqflow.methods.base import make_design
+from uqflow.realization import evaluate_design, realization_prefix, sensitivity_arrays
 from uqflow.store import read_runs, write_result
 from uqflow.study import load_study
 
