@@ -41,7 +41,6 @@ from _record import ROOT, write_section  # noqa: E402
 from _studies import write_normal_study, write_scene_variant  # noqa: E402
 
 from solvers.mpm.materials import johnson_cook  # noqa: E402
-from solvers.mpm.materials.sensitivities import johnson_cook_flow_stress_value  # noqa: E402
 
 JC_GPA = {"A": 0.792, "B": 0.510, "C": 0.014, "n": 0.26}     # seed Table 5, stresses in GPa
 # the study means in Pa: the 4340 defaults of the flow-stress parameters (the same numbers)
@@ -180,7 +179,7 @@ def seed_matched_time(times: np.ndarray, eps_p: np.ndarray, fitted: np.ndarray) 
 def log_rate_star(flow_stress_pa: np.ndarray, eps_p: np.ndarray) -> np.ndarray:
     """ln eps_dot* the nominal run's flow stress implies under the seed conventions (T* = 0):
     sigma_y / (A + B eps_p^n) = 1 + C ln eps_dot*."""
-    hard = johnson_cook_flow_stress_value(*JC_PA.values(), eps_p, 1.0, 0.0)   # ε̇* = 1, T* = 0
+    hard = johnson_cook.johnson_cook_flow_stress_value(*JC_PA.values(), eps_p, 1.0, 0.0)  # ε̇*=1, T*=0
     return (flow_stress_pa / hard - 1.0) / JC_PA["C"]
 
 

@@ -24,11 +24,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from solvers.mpm.materials import johnson_cook as JC, state as ST
-from solvers.mpm.materials.sensitivities import (JC_PARAMETERS, MG_PARAMETERS,
-                                                 johnson_cook_return_sensitivities,
-                                                 johnson_cook_sensitivities,
-                                                 mie_gruneisen_sensitivities)
+from solvers.mpm.materials import johnson_cook as JC, mie_gruneisen as MG, state as ST
+from solvers.mpm.materials.johnson_cook import (johnson_cook_return_sensitivities,
+                                                johnson_cook_sensitivities)
+from solvers.mpm.materials.mie_gruneisen import mie_gruneisen_sensitivities
+
+# each model's differentiable parameters, as the model declares them
+MG_PARAMETERS = MG.DIFFERENTIABLE_PARAMETERS
+JC_PARAMETERS = JC.DIFFERENTIABLE_PARAMETERS
 
 LOCAL_PARAMETERS = MG_PARAMETERS + JC_PARAMETERS          # a steel particle's derivatives
 EOS_SLOTS = slice(0, len(MG_PARAMETERS))                   # where each model's land in them

@@ -13,12 +13,13 @@ the linear U_s = C + S1 u_p Hugoniot exactly when E is the Hugoniot energy ½ p 
 
 from __future__ import annotations
 
+import numpy as np
 from numba import njit
 
 from .parameters import ParameterSpec
 from .state import ERR_MG_DENOMINATOR, MG_DEN_MIN, OK
 
-# the EOS parameters with a one-run Taylor derivative (sensitivities.py), in its order
+# the EOS parameters with analytic derivatives (below), in their gradients' order
 DIFFERENTIABLE_PARAMETERS = ("eos.S1", "eos.S2", "eos.S3", "eos.gamma0", "eos.a")
 
 
@@ -84,3 +85,83 @@ def mg_bulk_sound_speed_sq(rho0, C, a, g, dfdmu, rho, E, p):
     if not c2 > floor:
         c2 = floor
     return c2
+
+
+# ------------------------------------------------------------------------------------------
+# Analytic parameter derivatives (numpy, vectorised; docs/mpm_materials.md § 10)
+# ------------------------------------------------------------------------------------------
+# The seed's one-run Taylor method (000, eq. 22–35) differentiates the pressure with respect
+# to DIFFERENTIABLE_PARAMETERS = (S1, S2, S3, γ0, a) at a frozen state (μ, E). These are the
+# derivatives of the formulas above (the tension branch for μ ≤ 0 included). States are
+# arrays, parameters scalars or arrays that broadcast against them; value (N,), gradient
+# (N, 5), Hessian (N, 5, 5) in DIFFERENTIABLE_PARAMETERS order. The value function also
+# accepts complex parameters (the branch depends on the state only): complex-step
+# differentiation applies to it.
+
+def _mg_denominator_terms(mu, S1, S2, S3):
+    """(den, ∂den/∂(S1, S2, S3)) of the compression branch; den is linear in S1, S2, S3."""
+    mp1 = mu + 1.0
+    dS = (-mu, -mu * mu / mp1, -mu * mu * mu / (mp1 * mp1))
+    den = 1.0 - (S1 - 1.0) * mu - S2 * mu * mu / mp1 - S3 * mu * mu * mu / (mp1 * mp1)
+    return den, dS
+
+
+def _mg_states(mu, E, S1, S2, S3):
+    """Broadcast state and S arrays; the compression mask; the denominator checked against the
+    material's guard (a state past it is one the material refused, so it has no derivative)."""
+    mu, E = np.broadcast_arrays(np.asarray(mu, dtype=float), np.asarray(E, dtype=float))
+    compressed = mu > 0.0
+    mu_c = np.where(compressed, mu, 0.0)       # the tension branch never sees den
+    den, dS = _mg_denominator_terms(mu_c, S1, S2, S3)
+    den = np.broadcast_to(den, mu.shape)
+    bad = compressed & ~(np.real(den) > MG_DEN_MIN)
+    if np.any(bad):
+        i = int(np.flatnonzero(bad.ravel())[0])
+        raise ValueError(f"Mie–Grüneisen sensitivities: {int(bad.sum())} compressed state(s) at "
+                         f"or past the denominator guard den ≤ {MG_DEN_MIN:g} (first: index {i}, "
+                         f"mu = {mu.ravel()[i]!r}); the material refuses these states")
+    return mu, E, compressed, mu_c, np.where(compressed, den, 1.0), dS
+
+
+def mie_gruneisen_pressure_value(mu, E, rho0, C, S1, S2, S3, gamma0, a):
+    """p*(μ, E), seed eq. (10) as in ``mie_gruneisen.py`` (tension branch for μ ≤ 0), for arrays
+    of states; the parameters may be complex (complex-step differentiation)."""
+    mu, E, compressed, mu_c, den, _ = _mg_states(mu, E, S1, S2, S3)
+    k = rho0 * C * C
+    num = 1.0 + (1.0 - 0.5 * gamma0) * mu_c - 0.5 * a * mu_c * mu_c
+    f = np.where(compressed, k * mu_c * num / (den * den), k * mu)
+    return f + (gamma0 + a * mu) * E
+
+
+def mie_gruneisen_sensitivities(mu, E, rho0, C, S1, S2, S3, gamma0, a):
+    """(p*, ∂p*/∂θ, ∂²p*/∂θ²) with θ = (S1, S2, S3, γ0, a), for arrays of states (μ, E).
+
+    Compression, p* = kμN/den² + (γ0 + aμ)E with k = ρ0C², N = 1 + (1 − γ0/2)μ − (a/2)μ²,
+    d_i = ∂den/∂S_i = −(μ, μ²/(μ+1), μ³/(μ+1)²) (den and N are linear in θ):
+      ∂p/∂S_i = −2kμN d_i/den³,  ∂p/∂γ0 = −kμ²/(2den²) + E,  ∂p/∂a = −kμ³/(2den²) + μE;
+      ∂²p/∂S_i∂S_j = 6kμN d_i d_j/den⁴,  ∂²p/∂γ0∂S_i = kμ² d_i/den³,
+      ∂²p/∂a∂S_i = kμ³ d_i/den³,  the (γ0, a) block 0.
+    Tension (μ ≤ 0, including μ = 0): p* = kμ + (γ0 + aμ)E; ∂p/∂γ0 = E, ∂p/∂a = μE, rest 0.
+    Raises ValueError for a compressed state at or past the material's denominator guard.
+    """
+    mu, E, compressed, mu_c, den, dS = _mg_states(mu, E, S1, S2, S3)
+    k = rho0 * C * C
+    num = 1.0 + (1.0 - 0.5 * gamma0) * mu_c - 0.5 * a * mu_c * mu_c
+    den2 = den * den
+    den3 = den2 * den
+    f = np.where(compressed, k * mu_c * num / den2, k * mu)
+    p = f + (gamma0 + a * mu) * E
+
+    shape = mu.shape
+    grad = np.zeros(shape + (len(DIFFERENTIABLE_PARAMETERS),))
+    hess = np.zeros(shape + (len(DIFFERENTIABLE_PARAMETERS),) * 2)
+    d = [np.broadcast_to(np.asarray(di, dtype=float), shape) for di in dS]   # 0 in tension
+    for i in range(3):
+        grad[..., i] = -2.0 * k * mu_c * num * d[i] / den3
+        for j in range(i, 3):
+            hess[..., i, j] = hess[..., j, i] = 6.0 * k * mu_c * num * d[i] * d[j] / (den2 * den2)
+        hess[..., i, 3] = hess[..., 3, i] = k * mu_c ** 2 * d[i] / den3
+        hess[..., i, 4] = hess[..., 4, i] = k * mu_c ** 3 * d[i] / den3
+    grad[..., 3] = -0.5 * k * mu_c ** 2 / den2 + E
+    grad[..., 4] = -0.5 * k * mu_c ** 3 / den2 + mu * E
+    return p, grad, hess

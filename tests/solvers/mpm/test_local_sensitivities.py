@@ -130,7 +130,7 @@ def test_step_columns_in_a_run_sum_to_the_time():
 
 
 # --- the consistent tangent: derivatives of one return against finite differences ------------
-from solvers.mpm.materials.sensitivities import johnson_cook_return_sensitivities  # noqa: E402
+from solvers.mpm.materials.johnson_cook import johnson_cook_return_sensitivities  # noqa: E402
 
 THETA_4340 = np.array([792e6, 510e6, 0.014, 0.26, 1.03])    # (A, B, C, n, m)
 G_4340 = 81.8e9
@@ -241,8 +241,8 @@ def test_consistent_tangent_matches_finite_differences_of_the_return(name):
 
 # --- a whole run: per-probe derivatives from the recorded state -------------------------------
 from solvers.mpm import probe_sensitivities as PS                                   # noqa: E402
-from solvers.mpm.materials.sensitivities import (JC_PARAMETERS, MG_PARAMETERS,       # noqa: E402
-                                                 mie_gruneisen_pressure_value)
+from solvers.mpm.materials.mie_gruneisen import mie_gruneisen_pressure_value       # noqa: E402
+from solvers.mpm.probe_sensitivities import JC_PARAMETERS, MG_PARAMETERS           # noqa: E402
 from solvers.mpm.probe_sensitivities import ProbeSensitivities, particle_derivatives  # noqa: E402
 from uqflow.errors import SolverError                                               # noqa: E402
 

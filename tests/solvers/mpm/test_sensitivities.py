@@ -1,4 +1,4 @@
-"""Analytic constitutive sensitivities (solvers/mpm/materials/sensitivities.py) against
+"""Analytic constitutive sensitivities (johnson_cook.py, mie_gruneisen.py) against
 complex-step and finite-difference derivatives, at 1,000 states per model that include every
 branch and limit: εp = 0 and εp = e^(−2/n), T* = 0, T* ≥ 1, ε̇* < 1, μ = 0±, the MG pole."""
 
@@ -7,10 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from solvers.mpm.materials.johnson_cook import johnson_cook_flow_stress
-from solvers.mpm.materials.mie_gruneisen import mg_denominator, mie_gruneisen_pressure
-from solvers.mpm.materials.sensitivities import (
-    JC_PARAMETERS, MG_PARAMETERS, johnson_cook_flow_stress_value, johnson_cook_sensitivities,
+from solvers.mpm.materials.johnson_cook import (
+    DIFFERENTIABLE_PARAMETERS as JC_PARAMETERS, johnson_cook_flow_stress,
+    johnson_cook_flow_stress_value, johnson_cook_sensitivities)
+from solvers.mpm.materials.mie_gruneisen import (
+    DIFFERENTIABLE_PARAMETERS as MG_PARAMETERS, mg_denominator, mie_gruneisen_pressure,
     mie_gruneisen_pressure_value, mie_gruneisen_sensitivities)
 from solvers.mpm.materials.state import MG_DEN_MIN
 
