@@ -223,15 +223,16 @@ def _inside(module: str, package: str) -> bool:
 
 
 def private_imports(name: str) -> list[str]:
-    """Private names module ``name`` takes from another package: ``from X import _y``,
-    ``import X._m``, and ``m._y`` where ``m`` is a module imported from another package."""
+    """Private names module ``name`` takes from another package (ours or a library's):
+    ``from X import _y``, ``import X._m``, and ``m._y`` where ``m`` is a module imported from
+    another package (``import X as m``, or ``from X import m`` where ``X.m`` is ours)."""
     package = _package_of(name)
     found = []
     foreign_aliases: dict[str, str] = {}  # local name -> the other package's module
     for node in import_nodes(name):
         if isinstance(node, ast.ImportFrom):
             base = _base_of(name, node)
-            if _inside(base, package) or not base.startswith(PACKAGES):
+            if _inside(base, package):
                 continue
             for alias in node.names:
                 dotted = f"{base}.{alias.name}"
@@ -242,12 +243,12 @@ def private_imports(name: str) -> list[str]:
                     foreign_aliases[alias.asname or alias.name] = dotted
         else:
             for alias in node.names:
-                if _inside(alias.name, package) or not alias.name.startswith(PACKAGES):
+                if _inside(alias.name, package):
                     continue
                 if any(map(_private, alias.name.split("."))):
                     found.append(f"{name}: import {alias.name} (line {node.lineno})")
-                if alias.asname:
-                    foreign_aliases[alias.asname] = alias.name
+                foreign_aliases[alias.asname or alias.name.partition(".")[0]] = \
+                    alias.name if alias.asname else alias.name.partition(".")[0]
     for node in ast.walk(tree_of(name)):
         if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and \
                 node.value.id in foreign_aliases and _private(node.attr):
@@ -265,7 +266,9 @@ def test_the_private_name_check_finds_each_form(tmp_path, monkeypatch):
         "solvers/x/__init__.py": "",
         "solvers/x/a.py": ("from uqflow.report.tables import _grid\n"
                            "import uqflow.report.tables as t\n"
-                           "def f():\n    return t._grid\n"),
+                           "def f():\n    return t._grid\n"
+                           "import numpy as np\nfrom scipy.stats import _qmc\n"
+                           "v = np._NoValue, np.__version__\n"),
         "solvers/x/b.py": "from solvers.x.a import _helper\nfrom ._c import d\n",
         "solvers/x/_c.py": "d = 1\n",
     }
@@ -275,7 +278,9 @@ def test_the_private_name_check_finds_each_form(tmp_path, monkeypatch):
     with _tree_at(tmp_path, monkeypatch):
         assert private_imports("solvers.x.a") == [
             "solvers.x.a: from uqflow.report.tables import _grid (line 1)",
-            "solvers.x.a: uqflow.report.tables._grid (line 4)"]
+            "solvers.x.a: from scipy.stats import _qmc (line 6)",
+            "solvers.x.a: uqflow.report.tables._grid (line 4)",
+            "solvers.x.a: numpy._NoValue (line 7)"]
         assert private_imports("solvers.x.b") == []  # its own package's private names
 
 
