@@ -413,15 +413,23 @@ def toml_value(value) -> str:
     return toml_value(str(value))  # a date or time read from TOML
 
 
+def read_overrides(text: str) -> dict[str, Any]:
+    """The overrides a result records (its ``study_overrides`` attribute, ``key = value``
+    lines: ``Study.overrides_text``) as {key: value}, in their order."""
+    return dict(parse_override(line.replace(" = ", "=", 1)) for line in text.splitlines()
+                if line.strip())
+
+
 def _key_parts(key: str) -> list[str]:
     """``inputs.0.cv`` or ``inputs[0].cv`` as ["inputs", "0", "cv"]."""
     return [part for part in re.sub(r"\[(\d+)\]", r".\1", key).split(".")]
 
 
-def _set_key(document: dict, key: str, value) -> None:
-    """Set the dotted ``key`` of the TOML ``document`` (an array of tables entered by index),
-    creating tables on the way; a one-line ``StudyError`` naming ``--set`` where the key
-    cannot be set."""
+def set_key(document: dict, key: str, value) -> None:
+    """Set the dotted ``key`` of the TOML ``document`` in place (an array of tables entered
+    by index, ``inputs.0.cv``), creating tables on the way; a one-line ``StudyError`` naming
+    ``--set`` where the key cannot be set. How an override applies, also to a scene table a
+    report rebuilds from a result (``read_overrides``)."""
     parts = _key_parts(key)
     if any(not part.strip() for part in parts):
         raise StudyError(f"'{key}' is not a dotted key (e.g. method.samples, inputs.0.cv)",
@@ -458,7 +466,7 @@ def _apply_overrides(document: dict, overrides: Mapping[str, Any]) -> tuple[dict
         if parts[0] == "scene" and len(parts) > 1 and isinstance(document.get("scene"), str):
             into_scene[".".join(parts[1:])] = value
         else:
-            _set_key(document, key, value)
+            set_key(document, key, value)
     return document, into_scene
 
 
@@ -538,7 +546,7 @@ def _resolve(spec: StudySpec, path: Path, text: str, label: str,
         scene = copy.deepcopy(scene)
         for key, value in scene_overrides.items():
             try:
-                _set_key(scene, key, value)
+                set_key(scene, key, value)
             except StudyError as exc:
                 raise StudyError(f"scene.{exc.reason}", key=SET_OPTION) from None
     read_files = {} if scene_label is None else \

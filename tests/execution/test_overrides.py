@@ -11,7 +11,7 @@ import xarray as xr
 import uqflow
 from uqflow.errors import StudyError
 from uqflow.layout import STUDY_HASH, STUDY_OVERRIDES, STUDY_TEXT
-from uqflow.study import load_study, parse_override, toml_value
+from uqflow.study import load_study, parse_override, read_overrides, set_key, toml_value
 
 from ._common import comparable
 
@@ -69,6 +69,7 @@ def test_overrides_give_the_statistics_of_the_file_that_says_the_same(write_stud
 
     attrs = uqflow.open_result(overridden.path).attrs
     assert attrs[STUDY_OVERRIDES] == 'method.samples = 64\nmethod.rule = "lhs"\n'
+    assert read_overrides(attrs[STUDY_OVERRIDES]) == {"method.samples": 64, "method.rule": "lhs"}
     assert attrs[STUDY_TEXT] == base.read_text()
     assert STUDY_OVERRIDES not in uqflow.open_result(plain.path).attrs
     assert attrs[STUDY_HASH] != load_study(base).sha256  # the hash covers the overrides
@@ -189,3 +190,18 @@ def test_the_overrides_section_of_the_study_file_page_is_what_uqflow_does():
     done = subprocess.run([str(UQFLOW), "validate", "studies/ishigami_mc.toml", "--set",
                            key_value], capture_output=True, text=True, timeout=300, cwd=root)
     assert done.returncode == 2 and done.stderr == error + "\n"
+
+
+def test_recorded_overrides_read_back_and_set_into_a_table():
+    """What a report does to rebuild the scene a result ran: the recorded lines read back
+    and set into the table, arrays entered by index, values with ' = ' inside kept whole."""
+    overrides = {"scene.bodies.1.material": {"model": "elastic", "E": 2e11},
+                 "scene.name": "a = b", "scene.cell_size": 0.5}
+    text = "".join(f"{key} = {toml_value(value)}\n" for key, value in overrides.items())
+    assert read_overrides(text) == overrides
+    scene = {"bodies": [{"material": "steel"}, {"material": "water"}], "cell_size": 1.0}
+    for key, value in read_overrides(text).items():
+        set_key(scene, key.removeprefix("scene."), value)
+    assert scene == {"bodies": [{"material": "steel"}, {"material": {"model": "elastic",
+                                                                      "E": 2e11}}],
+                     "cell_size": 0.5, "name": "a = b"}
