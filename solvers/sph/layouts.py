@@ -361,11 +361,12 @@ def random_layout(box: Box, spacing: float, count: int, semi_axes_range, rng,
     uniform in ``semi_axes_range = ((a_min, b_min), (a_max, b_max))``), each at least
     ``min_gap`` from the others and from the edge; then ``regular_layout``."""
     (a_lo, b_lo), (a_hi, b_hi) = semi_axes_range
-    if min(a_lo, b_lo) < spacing:
-        # an ellipse narrower than the spacing holds no particle across and fails
-        # regular_layout; its outline would also be sampled at min(a, b) / 50 first
-        raise LayoutError("random.semi_axes_min", f"{min(a_lo, b_lo):.4g} m is below the "
-                                                  f"spacing {spacing:.4g} m")
+    if min(a_hi, b_hi) < spacing:
+        # every ellipse drawn would fail regular_layout (narrower than the spacing): said at
+        # once, not after sampling outlines thinner than the spacing
+        raise LayoutError("random.semi_axes_max", f"{min(a_hi, b_hi):.4g} m is below the "
+                                                  f"spacing {spacing:.4g} m: every ellipse "
+                                                  f"drawn would be narrower than it")
     placed: list[Ellipse] = []
     attempts = 0
     while len(placed) < count:

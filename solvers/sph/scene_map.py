@@ -1,5 +1,5 @@
-"""A map of an SPH scene for the engineer who reads its results (docs/sph.md § 10, "The scene
-map"): the plate, every particle coloured by its material with a legend naming the materials
+"""A map of an SPH scene for the engineer who reads its results (docs/sph.md § 10, the scene
+map): the plate, every particle coloured by its material with a legend naming the materials
 and their moduli in words, the outline of every inclusion, the interface pairs the constraints
 tie together (where the particle spacing leaves them visible), the loading as arrows and the
 supports as markers; axes in mm.
