@@ -53,3 +53,50 @@ def test_the_table_says_what_the_answer_cost_and_how_sure_it_is(quickstart):
     assert "rows 'seed': seed 000's Table 6" in comparison and "speed-up" in comparison
     # the one-run answer beside the corrected one, for every probe of every output
     assert comparison.count("its control: taylor-local surrogate") == 3 * 4
+
+
+@pytest.mark.slow
+def test_the_figures_show_the_scatter_in_gpa_the_probes_where_they_are_and_a_scene_map(
+        quickstart, tmp_path):
+    """Issue 17: the quickstart's figures read for a mechanics engineer, and its HTML report
+    holds every table and figure."""
+    from html.parser import HTMLParser
+
+    from uqflow.report.framework_figures import scatter_figure
+
+    view = report.ResultView(quickstart)
+    fig = scatter_figure(view, "flow_stress")
+    labels = [ax.get_ylabel() for ax in fig.axes]
+    titles = [ax.get_title() for ax in fig.axes if ax.get_title()]
+    # the flow stress is ~1 GPa: shown in GPa, the std below it in GPa too
+    assert "flow stress [GPa]" in labels and "std [GPa]" in labels, labels
+    assert "probe H (x = 45, y = 0 mm)" in titles, titles   # the scene's probe H at (45, 0) mm
+    legend = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert any("quantiles of 8 runs" in t for t in legend), legend
+    assert any("interval of the mean" in t for t in legend), legend
+
+    written = report.write_figures(quickstart, tmp_path)
+    text, solver_figures = report.solver_report([quickstart], tmp_path, figures=True)
+    names = {p.name for p in [*written, *solver_figures]}
+    assert {"flow_stress_scatter.png", "S11_scatter.png", "S22_scatter.png",
+            "scene_map.png"} <= names, names
+    page = report.write_html(quickstart, tmp_path / "quickstart_report.html",
+                             solver_text=text, solver_figures=solver_figures,
+                             figures=written)
+
+    class Images(HTMLParser):
+        def __init__(self):
+            super().__init__()
+            self.images, self.tables = [], 0
+
+        def handle_starttag(self, tag, attrs):
+            attrs = dict(attrs)
+            if tag == "img":
+                self.images.append(attrs.get("src", ""))
+            self.tables += tag == "table"
+
+    parsed = Images()
+    parsed.feed(page.read_text(encoding="utf-8"))
+    assert len(parsed.images) == len(written) + len(solver_figures)
+    assert all(src.startswith("data:image/png;base64,") for src in parsed.images)
+    assert parsed.tables >= 2   # the outputs and the inputs
