@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pkgutil
 from importlib import import_module
 from importlib.metadata import entry_points
 
@@ -30,12 +31,15 @@ class Registry:
         if self._entry_points_loaded:
             return
         self._entry_points_loaded = True
-        # Built-ins also resolve from a source checkout that was never pip-installed.
-        for module in self.builtins:
-            try:
-                import_module(module)
-            except ImportError:
-                pass
+        # Built-ins also resolve from a source checkout that was never pip-installed: every
+        # module of a built-in package is imported, so its decorators register it and adding
+        # one touches no list here.
+        for package in self.builtins:
+            for module in _package_modules(package):
+                try:
+                    import_module(module)
+                except ImportError:
+                    pass
         for ep in entry_points(group=self.group):
             if ep.name in self._classes:
                 continue
@@ -71,6 +75,18 @@ class Registry:
             doc = (self._classes[name].__doc__ or "").strip().splitlines()
             out[name] = doc[0] if doc else ""
         return out
+
+
+def _package_modules(name: str) -> list[str]:
+    """``name`` and, if it is a package, the modules and packages directly in it."""
+    try:
+        package = import_module(name)
+    except ImportError:
+        return []
+    found = [name]
+    for info in pkgutil.iter_modules(getattr(package, "__path__", [])):
+        found.append(f"{name}.{info.name}")
+    return found
 
 
 #: Propagation methods by name (``uqflow.methods.register_method``). It lives here, not in

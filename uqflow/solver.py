@@ -33,8 +33,9 @@ from uqflow.registry import Registry
 __all__ = ["Solver", "SolverError", "SceneError", "register_solver", "get_solver",
            "solver_registry", "DIAGNOSTIC_KIND", "is_diagnostic"]
 
-solver_registry = Registry("uqflow.solvers", "solver", builtins=("solvers.analytic", "solvers.gamut_bar",
-                                                               "solvers.mpm", "solvers.sph"))
+#: Solvers by name; the packages of ``solvers/`` (the built-ins, also in a source tree that
+#: was never pip-installed) register on the first lookup, third-party ones by entry point.
+solver_registry = Registry("uqflow.solvers", "solver", builtins=("solvers",))
 
 
 def register_solver(name: str):

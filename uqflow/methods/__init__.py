@@ -5,11 +5,6 @@ from uqflow.layout import METHOD, STATISTICS_GROUP
 from uqflow.methods.base import (MethodOptions, PropagationMethod, finish_statistics,
                                  get_method, make_design, method_registry, ok_mask,
                                  output_names, register_method, sample_mask)
-# Importing the built-ins registers them, also in a source tree that was never pip-installed.
-from uqflow.methods import kl_weibull, monte_carlo, nominal, sobol, taylor  # noqa: E402,F401
-from uqflow.methods import taylor_local  # noqa: E402,F401
-from uqflow.methods import pce  # noqa: E402,F401
-from uqflow.methods import multifidelity, multilevel  # noqa: E402,F401
 
 
 def compare_results(trees: list, folder, figures: bool = True) -> tuple[str, list]:
