@@ -89,17 +89,25 @@ METHODS = {
 }
 
 
-def test_every_built_in_solver_and_method_is_checked():
+def _entry_points() -> dict:
     with open(Path(__file__).resolve().parents[1] / "pyproject.toml", "rb") as fh:
-        entry_points = tomllib.load(fh)["project"]["entry-points"]
-    assert set(METHODS) == set(entry_points["uqflow.methods"])
+        return tomllib.load(fh)["project"]["entry-points"]
+
+
+#: every built-in method: the options above where a method needs some, its defaults otherwise,
+#: so a new method is checked by its entry point alone
+BUILT_IN_METHODS = sorted(_entry_points()["uqflow.methods"])
+
+
+def test_every_built_in_solver_is_checked():
+    """A solver needs a scene: a new one adds its smallest scene to SOLVERS."""
     assert {SOLVERS[label][0].name for label in SOLVERS} - {TinyModel.name} == \
-        set(entry_points["uqflow.solvers"])
+        set(_entry_points()["uqflow.solvers"])
 
 
-@pytest.mark.parametrize("kind", list(METHODS))
+@pytest.mark.parametrize("kind", BUILT_IN_METHODS)
 def test_built_in_method_passes_check_method(kind, tmp_path):
-    options, kwargs = METHODS[kind]
+    options, kwargs = METHODS.get(kind, ({}, {}))
     outcome = check_method(uqflow.get_method(kind), options, folder=tmp_path, **kwargs)
     assert outcome == dict.fromkeys(outcome, "ok")
 
