@@ -433,3 +433,46 @@ def test_cli_run_writes_the_html_report_beside_the_figures(tmp_path, capsys):
     assert html_images(html) == (figures, []) and figures
     assert main(["run", str(study), "--quiet", "--force", "--no-figures"]) == 0
     assert "report:" not in capsys.readouterr().out
+
+
+# ------------------------------------------------------------------- the scene a result ran
+
+def _decay_result(folder, scene, overrides=None):
+    """A nominal run of the decay model with ``scene`` (a TOML value: inline table or file
+    name) and ``--set`` overrides; the result's attributes."""
+    path = write_study(folder, "decay", (scene, DECAY[1]), 'kind = "nominal"')
+    out = run_study(load_study(path, overrides=overrides), show_progress=False)
+    return dict(report.open_result(out.path).attrs)
+
+
+def test_the_scene_ran_is_the_inline_table_with_the_recorded_overrides(tmp_path):
+    attrs = _decay_result(tmp_path, '{ model = "exponential_decay", t = [2.0] }',
+                          {"scene.t": [3.0]})
+    assert report.scene_ran(attrs) == ({"model": "exponential_decay", "t": [3.0]},
+                                       "the study's inline scene table")
+
+
+def test_the_scene_ran_is_the_scene_file_while_it_holds_what_the_study_read(tmp_path):
+    scene_file = tmp_path / "scene.toml"
+    scene_file.write_text('model = "exponential_decay"\nt = [2.0]\n')
+    attrs = _decay_result(tmp_path, '"scene.toml"', {"scene.t": [3.0]})
+    assert report.scene_ran(attrs) == ({"model": "exponential_decay", "t": [3.0]},
+                                       f"the scene file {scene_file}")
+    scene_file.write_text('model = "exponential_decay"\nt = [2.5]\n')
+    assert report.scene_ran(attrs) == (None, f"the scene file {scene_file} changed after "
+                                             f"the run (sha256 differs)")
+    scene_file.unlink()
+    assert report.scene_ran(attrs) == (None, f"the scene file {scene_file} cannot be read "
+                                             f"from here")
+
+
+def test_a_recorded_override_applies_as_set_applied_it(tmp_path):
+    # an array of tables is entered by index, as --set enters it (uqflow.overrides.set_key)
+    attrs = {"study": 'scene = { bodies = [{ x = 1 }, { x = 2 }] }',
+             "study_overrides": "scene.bodies.1.x = 5\n"}
+    assert report.scene_ran(attrs)[0] == {"bodies": [{"x": 1}, {"x": 5}]}
+    attrs["study_overrides"] = "scene.bodies.0.x.y = 5\n"
+    scene, why = report.scene_ran(attrs)
+    assert scene is None and why.startswith("the recorded override cannot be applied: ")
+    assert report.scene_ran({"study": 'name = "s"'}) == \
+        (None, "the result names no scene file and stores no scene table")

@@ -13,7 +13,6 @@ from __future__ import annotations
 import copy
 import difflib
 import hashlib
-import json
 import re
 import tomllib
 import unicodedata
@@ -32,6 +31,9 @@ from uqflow.inputs import DISTRIBUTIONS, InputSpace, RandomInput
 from uqflow.levels import Levels, LevelsSpec, level_solver, resolve_levels, scene_with
 from uqflow.methods import PropagationMethod, get_method
 from uqflow.methods.base import MAX_REALIZATIONS
+# the --set mechanics live in uqflow.overrides; their names stay importable from here
+from uqflow.overrides import (SET_OPTION, key_parts, parse_override,  # noqa: F401
+                              read_overrides, set_key, shown_value, toml_value)
 from uqflow.solver import Solver, get_solver
 
 
@@ -177,7 +179,7 @@ class StudySpec(_Strict):
     def _table_or_path(cls, v):
         if not isinstance(v, (dict, str)):
             raise ValueError("must be an inline table of scene options or the path of a "
-                             f"scene file, got {_shown(v)}")
+                             f"scene file, got {shown_value(v)}")
         if isinstance(v, str) and not v.strip():
             raise ValueError("the path of a scene file must not be empty")
         return _visible(v) if isinstance(v, str) else v
@@ -267,17 +269,6 @@ def _user_loc(loc, data) -> tuple:
     return tuple(out)
 
 
-def _shown(value) -> str:
-    if isinstance(value, bool):
-        return str(value).lower()
-    if isinstance(value, dict):
-        return "a table"
-    if isinstance(value, list):
-        return "an array"
-    text = repr(value)
-    return text if len(text) <= 40 else text[:37] + "..."
-
-
 def _reason(err: dict) -> str:
     kind = err["type"]
     if kind == "extra_forbidden":
@@ -363,7 +354,7 @@ def validation_error(exc: ValidationError, file: str, prefix: str = "",
     if value is not _MISSING and "got" not in reason and \
             kind not in ("missing", "extra_forbidden", "value_error", "assertion_error") and \
             (not isinstance(value, (dict, list)) or kind.endswith("_type")):
-        reason = f"{reason}, got {_shown(value)}"
+        reason = f"{reason}, got {shown_value(value)}"
     key = _key(loc)
     if key == "inputs" and errors[0]["type"] == "list_type":
         reason += " (write each input as an [[inputs]] table, with double brackets)"
@@ -372,97 +363,13 @@ def validation_error(exc: ValidationError, file: str, prefix: str = "",
     return StudyError(reason, file=file, key=key or None)
 
 
-# ----------------------------------------------------------------------------- overrides
-
-#: where an override comes from, as errors name it
-SET_OPTION = "--set"
-
-
-def parse_override(text: str) -> tuple[str, Any]:
-    """``KEY=VALUE`` of ``--set`` as (key, value): the value is read as a TOML value (``64``,
-    ``0.1``, ``"lhs"``, ``true``, ``[1, 2]``, ``{ model = "ishigami" }``); a bare word that is
-    not valid TOML (``pce``, ``sobol``) is taken as a string."""
-    key, equals, value = text.partition("=")
-    key = key.strip()
-    if not equals or not key:
-        raise StudyError(f"expected KEY=VALUE (e.g. method.samples=64), got {text!r}",
-                         key=SET_OPTION)
-    try:
-        parsed = tomllib.loads(f"value = {value.strip()}")
-    except tomllib.TOMLDecodeError:
-        return key, value.strip()
-    return key, parsed["value"] if list(parsed) == ["value"] else value.strip()
-
-
-def toml_value(value) -> str:
-    """``value`` written as a TOML value (what ``parse_override`` reads back)."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, (int, float)):
-        text = repr(float(value)) if isinstance(value, float) else str(value)
-        return {"nan": "nan", "inf": "inf", "-inf": "-inf"}.get(text, text)
-    if isinstance(value, str):
-        # JSON's escapes (\", \\, \n, \uXXXX) are TOML's; non-ASCII stays as it is, but
-        # DEL, which JSON leaves and TOML refuses
-        return json.dumps(value, ensure_ascii=False).replace("\x7f", "\\u007f")
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(toml_value(v) for v in value) + "]"
-    if isinstance(value, Mapping):
-        return "{ " + ", ".join(f"{json.dumps(str(k), ensure_ascii=False)} = {toml_value(v)}"
-                                for k, v in value.items()) + " }"
-    return toml_value(str(value))  # a date or time read from TOML
-
-
-def read_overrides(text: str) -> dict[str, Any]:
-    """The overrides a result records (its ``study_overrides`` attribute, ``key = value``
-    lines: ``Study.overrides_text``) as {key: value}, in their order."""
-    return dict(parse_override(line.replace(" = ", "=", 1)) for line in text.splitlines()
-                if line.strip())
-
-
-def _key_parts(key: str) -> list[str]:
-    """``inputs.0.cv`` or ``inputs[0].cv`` as ["inputs", "0", "cv"]."""
-    return [part for part in re.sub(r"\[(\d+)\]", r".\1", key).split(".")]
-
-
-def set_key(document: dict, key: str, value) -> None:
-    """Set the dotted ``key`` of the TOML ``document`` in place (an array of tables entered
-    by index, ``inputs.0.cv``), creating tables on the way; a one-line ``StudyError`` naming
-    ``--set`` where the key cannot be set. How an override applies, also to a scene table a
-    report rebuilds from a result (``read_overrides``)."""
-    parts = _key_parts(key)
-    if any(not part.strip() for part in parts):
-        raise StudyError(f"'{key}' is not a dotted key (e.g. method.samples, inputs.0.cv)",
-                         key=SET_OPTION)
-    here, path = document, []
-    for i, part in enumerate(parts):
-        last = i == len(parts) - 1
-        where = ".".join(path) or "the study"
-        if isinstance(here, list):
-            if not part.isdigit() or int(part) >= len(here):
-                raise StudyError(f"{key}: {where} has {len(here)} entries (0 to "
-                                 f"{len(here) - 1}); {SET_OPTION} sets keys of an entry by "
-                                 f"its index, it adds none", key=SET_OPTION)
-            part = int(part)
-        elif not isinstance(here, dict):
-            raise StudyError(f"{key}: {where} is {_shown(here)}, not a table",
-                             key=SET_OPTION)
-        if last:
-            here[part] = copy.deepcopy(value)
-        else:
-            if isinstance(here, dict) and part not in here:
-                here[part] = {}
-            here = here[part]
-        path.append(str(part))
-
-
 def _apply_overrides(document: dict, overrides: Mapping[str, Any]) -> tuple[dict, dict]:
     """The document with ``overrides`` set, and the overrides that reach into a scene file
     (``scene.<key>`` where ``scene`` names a file): those apply to the scene's table."""
     document = copy.deepcopy(document)
     into_scene = {}
     for key, value in overrides.items():
-        parts = _key_parts(key)
+        parts = key_parts(key)
         if parts[0] == "scene" and len(parts) > 1 and isinstance(document.get("scene"), str):
             into_scene[".".join(parts[1:])] = value
         else:
@@ -474,9 +381,9 @@ def _overridden(error: StudyError, overrides: Mapping[str, Any]) -> StudyError:
     """``error`` saying which override it comes from, when its key is (in or above) one."""
     if not overrides or error.key is None:
         return error
-    mine = _key_parts(error.key)
+    mine = key_parts(error.key)
     for key, value in overrides.items():
-        theirs = _key_parts(key)
+        theirs = key_parts(key)
         n = min(len(mine), len(theirs))
         if mine[:n] == theirs[:n]:
             return type(error)(f"{error.reason} (from {SET_OPTION} {key}={toml_value(value)})",

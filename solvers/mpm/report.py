@@ -48,12 +48,11 @@ from uqflow.layout import (COMPILE_TIME, FAILED_RUNS, INPUT_CV, LONG_NAME, METHO
                            SOLVER_DESCRIPTION, SOLVER_RUNS, SOLVER_WALL_TIME, STATISTIC,
                            STATISTIC_MEAN, STATISTIC_STDERR, STATISTIC_VARIANCE,
                            STATISTICS_GROUP, STATUS, STATUS_FAILED, STATUS_OK, STATUS_PENDING,
-                           STUDY_FILE, STUDY_NAME, STUDY_OVERRIDES, STUDY_READ_FILES,
+                           STUDY_FILE, STUDY_NAME, STUDY_READ_FILES,
                            STUDY_TEXT, STUDY_TEXT_OMITTED, UNITS, WALL_TIME, WITH_SENSITIVITIES,
                            is_diagnostic)
-from uqflow.levels import scene_with
 from uqflow.report import (FigureWarning, ResultView, figure_path, grid, new_figure,
-                           save_figure, seconds)
+                           save_figure, scene_ran, seconds)
 
 __all__ = ["report", "load_results", "seed_tables", "seed_moments", "seed_costs",
            "choose_reference", "table_time", "variance_error", "moments_tables", "cost_table",
@@ -212,47 +211,10 @@ def _scene_identity(attrs: dict) -> tuple[str, str]:
     return f"scene '{description}'", description
 
 
-def scene_table(attrs: dict) -> tuple[dict | None, str]:
-    """The scene a result ran, as a table, and where it came from; (None, why) when it
-    cannot be had. The study's inline scene table; else the scene file the study read, if
-    it still holds the text the study read (the sha256 in ``study_read_files``); the
-    command line's overrides of scene keys (``study_overrides``) applied on top."""
-    try:
-        study = tomllib.loads(str(attrs.get(STUDY_TEXT, "")))
-    except tomllib.TOMLDecodeError:
-        study = {}
-    scene, where = study.get("scene"), "the study's inline scene table"
-    if not isinstance(scene, dict):
-        read = json.loads(str(attrs.get(STUDY_READ_FILES) or "{}"))
-        if "scene" not in read:
-            return None, "the result names no scene file and stores no scene table"
-        path, sha = read["scene"]
-        try:
-            text = Path(path).read_text(encoding="utf-8-sig")
-        except (OSError, UnicodeDecodeError):
-            return None, f"the scene file {path} cannot be read from here"
-        if hashlib.sha256(text.encode()).hexdigest() != sha:
-            return None, f"the scene file {path} changed after the run (sha256 differs)"
-        try:
-            scene = tomllib.loads(text)
-        except tomllib.TOMLDecodeError:
-            return None, f"the scene file {path} is not valid TOML"
-        where = f"scene file {path}"
-    for line in str(attrs.get(STUDY_OVERRIDES) or "").splitlines():
-        key, _, value = line.partition(" = ")      # uqflow.study's ``key = value`` lines
-        if key.startswith("scene."):
-            try:
-                scene = scene_with(scene, key.removeprefix("scene."),
-                                   tomllib.loads(f"value = {value}")["value"])
-            except tomllib.TOMLDecodeError:
-                return None, f"the override {line!r} cannot be read"
-    return scene, where
-
-
 def scene_map(tree: xr.DataTree, folder: Path) -> tuple[list[Path], list[str]]:
     """``scene_map.png`` of the scene ``tree`` ran, in ``folder``; ([], [why not]) when the
     scene cannot be had or drawn (the rest of the report goes on)."""
-    scene, where = scene_table(dict(tree.attrs))
+    scene, where = scene_ran(tree.attrs)
     if scene is None:
         return [], [f"{_file_of(tree)}: no scene map: {where}"]
     try:

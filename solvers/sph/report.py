@@ -8,10 +8,6 @@ level by level: its levels are different discretisations, not one sample."""
 
 from __future__ import annotations
 
-import hashlib
-import os
-import json
-import tomllib
 import warnings
 from pathlib import Path
 
@@ -22,11 +18,9 @@ from solvers.sph.scene import parse
 from solvers.sph.scene_layout import scene_layout
 from solvers.sph.scene_map import FILE_NAME, pairs_visible, write_scene_map
 from uqflow.errors import StudyError
-from uqflow.layout import (LEVEL, STATUS, STUDY_NAME, STUDY_OVERRIDES, STUDY_READ_FILES,
-                           STUDY_TEXT, sample_mask)
-from uqflow.levels import scene_with
+from uqflow.layout import LEVEL, STATUS, STUDY_NAME, sample_mask
 from uqflow.report import (FigureWarning, axis_label, display_units, figure_path, new_figure,
-                           save_figure)
+                           save_figure, scene_ran)
 
 #: confidence of the interval of a proportion; the stress–strain band holds this share of
 #: the realizations (the 2.5 % and 97.5 % quantiles)
@@ -137,54 +131,10 @@ def report(trees, folder, figures: bool = True) -> tuple[str, list[Path]]:
     return "\n\n".join(parts), pngs
 
 
-def scene_table(attrs) -> tuple[dict | None, str]:
-    """The scene a result ran, and where it comes from; (None, why) when it cannot be had.
-
-    The study's inline scene table, else the scene file it read if that still holds the text
-    the study read (its sha256 in ``study_read_files``); command-line overrides of scene keys
-    (``study_overrides``) on top."""
-    try:
-        study = tomllib.loads(str(attrs.get(STUDY_TEXT, "")))
-    except tomllib.TOMLDecodeError:
-        study = {}
-    scene, where = study.get("scene"), "the study's inline scene table"
-    if not isinstance(scene, dict):
-        read = json.loads(str(attrs.get(STUDY_READ_FILES) or "{}"))
-        if "scene" not in read:
-            return None, "the result names no scene file and holds no scene table"
-        path, sha = read["scene"]
-        try:
-            text = Path(path).read_text(encoding="utf-8-sig")
-        except (OSError, UnicodeDecodeError):
-            return None, f"the scene file {path} cannot be read from here"
-        if hashlib.sha256(text.encode()).hexdigest() != sha:
-            return None, f"the scene file {path} changed after the run"
-        try:
-            scene = tomllib.loads(text)
-        except tomllib.TOMLDecodeError:
-            return None, f"the scene file {path} is not valid TOML"
-        where = f"the scene file {os.path.normpath(path)}"
-    try:
-        overrides = tomllib.loads(str(attrs.get(STUDY_OVERRIDES) or "")).get("scene", {})
-    except tomllib.TOMLDecodeError:
-        overrides = {}
-    for key, value in _dotted(overrides):
-        scene = scene_with(scene, key, value)
-    return scene, where
-
-
-def _dotted(table: dict, prefix: str = ""):
-    for key, value in table.items():
-        if isinstance(value, dict):
-            yield from _dotted(value, f"{prefix}{key}.")
-        else:
-            yield f"{prefix}{key}", value
-
-
 def scene_map(tree, folder: Path, name: str = FILE_NAME) -> tuple[Path | None, str]:
     """The map of the scene ``tree`` ran (``scene_map.png``) and a line saying what it shows;
     (None, why not) when the scene cannot be had or drawn: the rest of the report goes on."""
-    scene, where = scene_table(tree.attrs)
+    scene, where = scene_ran(tree.attrs)
     if scene is None:
         return None, f"no scene map: {where}"
     try:

@@ -5,6 +5,8 @@ solvers alike (docs/results.md, docs/architecture.md).
   ``write_figures(tree, folder)``: the PNG figures; ``solver_report(trees, folder)``: what the
   results' solver adds (its ``Solver.report``); ``write_html(tree, path)``: all of it in one
   self-contained HTML file.
+- ``scene_ran(attrs)``: the scene a result ran (study text or checked scene file, with the
+  recorded ``--set`` overrides), or why it cannot be had: for a solver's scene map.
 - ``display_units(values, units)``: the SI prefix a figure shows a quantity in (GPa, mm, µs).
 - ``ResultView``: a result as a report sees it; ``MethodReport`` (with ``Column``,
   ``Sensitivity``, ``FigureSpec``): what a method's ``report`` hook returns.
@@ -24,6 +26,7 @@ from uqflow.report.framework_figures import (exceedance_curve, scatter_band,
                                              write_figures)
 from uqflow.report.html import write_html
 from uqflow.report.solver_hook import solver_report
+from uqflow.report.scene import scene_ran
 from uqflow.report.summary import summary_table
 from uqflow.report.tables import (Table, focus_point, grid, number, seconds, statistic,
                                   units_of, where)
@@ -36,4 +39,4 @@ __all__ = ["Column", "FigureSpec", "MethodReport", "Sensitivity", "FigureWarning
            "new_figure", "safe_file_name", "save_figure", "scientific_ticks", "open_result",
            "solver_report", "summary_table", "write_figures", "focus_point", "grid", "number",
            "seconds", "statistic", "units_of", "where", "ResultView", "Table", "display_units",
-           "exceedance_curve", "scatter_band", "write_html"]
+           "exceedance_curve", "scatter_band", "write_html", "scene_ran"]

@@ -14,6 +14,7 @@ from matplotlib.colors import to_rgba
 from solvers.mpm import report as mpm_report
 from solvers.mpm.scene import parse
 from solvers.mpm.scene_map import draw_scene_map, material_words
+from uqflow.report import scene_ran
 
 from .test_report import trees, write
 
@@ -197,7 +198,7 @@ def test_an_inline_scene_and_the_command_lines_overrides_are_what_is_drawn(tmp_p
     study = study.replace('": ', '" = ')      # JSON objects as TOML inline tables
     assert tomllib.loads(study)["scene"] == scene
     attrs = {"study": study, "study_overrides": "scene.resolution = 0.5\n"}
-    drawn, where = mpm_report.scene_table(attrs)
+    drawn, where = scene_ran(attrs)
     assert where == "the study's inline scene table"
     assert drawn["resolution"] == 0.5 and drawn["bodies"] == scene["bodies"]
     assert parse(drawn).grid.dx == pytest.approx(0.01)
