@@ -15,7 +15,8 @@
   realization with their mean and the deterministic value (Figs. 29-32).
 
 A result is identified by its root attributes: ``method`` (``nominal``: deterministic, any
-other: stochastic) and the scene in the stored study text (``study``): material, property
+other: stochastic) and the scene it ran (``uqflow.report.scene_ran``: the stored study text's
+or its unchanged scene file's, with the recorded ``--set`` overrides): material, property
 overrides such as ``n_ro``, ``grid`` and ``loading``. The seed's numbers come from
 ``data/seed_tables.toml`` (a copy of ``tests/data/seed_tables.toml``), never retyped here.
 
@@ -40,7 +41,7 @@ import xarray as xr
 
 from solvers.gamut_bar.bar_figure import draw as draw_bar, field_realizations
 from solvers.gamut_bar.materials import MATERIALS
-from uqflow.report import FigureWarning, figure_path, new_figure, save_figure
+from uqflow.report import FigureWarning, figure_path, new_figure, save_figure, scene_ran
 
 __all__ = ["report", "mean_curve", "comparison_tables", "identify", "seed_tables",
            "GamutResult", "Table", "STRAINS"]
@@ -164,19 +165,13 @@ def _study_of(attrs: dict) -> dict:
 
 
 def _scene_of(attrs: dict) -> tuple[dict, str]:
-    """The scene of the stored study text (a scene file is read relative to the study file)
-    and where it came from: "study" or, as the last resort, "description" (the solver's
+    """The scene the result ran (``uqflow.report.scene_ran``: the stored study text's scene,
+    or the scene file it read while unchanged, with the recorded ``--set`` overrides) and
+    where it came from: "study" or, as the last resort, "description" (the solver's
     description names material, loading and grid, not property overrides); ({}, "") when
     neither tells."""
-    scene = None
-    try:
-        scene = _study_of(attrs).get("scene")
-        if isinstance(scene, str):
-            base = Path(str(attrs.get("study_file", "."))).parent
-            scene = tomllib.loads((base / scene).read_text(encoding="utf-8-sig"))
-    except (tomllib.TOMLDecodeError, OSError, ValueError):
-        scene = None
-    if isinstance(scene, dict):
+    scene, _ = scene_ran(attrs)
+    if scene is not None:
         return scene, "study"
     # "gamut_bar/M1 monotonic, 500 local bonds, uniform grid"
     m = re.search(r"gamut_bar/(\w+) (\w+), \d+ local bonds, (\w+) grid",
@@ -189,7 +184,7 @@ def _scene_of(attrs: dict) -> tuple[dict, str]:
 def _without_study_text(attrs: dict) -> str:
     """Why a result's scene is not read from its study text (one clause)."""
     if str(attrs.get("study") or "").strip():
-        return "its study text names no scene this report reads"
+        return scene_ran(attrs)[1]
     return str(attrs.get("study_text_omitted") or "").split(";")[0] \
         or "the result stores no study text"
 

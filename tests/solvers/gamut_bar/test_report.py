@@ -108,6 +108,13 @@ def test_results_are_identified_from_their_study_text(trees):
     assert nro21.overrides == {"n_ro": 21.0} and nro21.slug == "m2_nro21"
 
 
+def test_a_result_is_identified_with_its_recorded_set_overrides(trees):
+    # --set scene.n_ro=25 ran another case than the study text says: the case names it
+    tree = _by_name(trees, "m1-monotonic-stochastic-uniform").copy()
+    tree.attrs = dict(tree.attrs, study_overrides="scene.n_ro = 25.0\n")
+    assert gb.identify(tree).case == "M1 (n_ro = 25)"
+
+
 def test_other_solvers_give_nothing(trees):
     tree = trees[0].copy()
     tree.attrs = dict(tree.attrs, solver="analytic")
