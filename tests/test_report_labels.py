@@ -10,6 +10,7 @@ import pytest
 import xarray as xr
 
 import uqflow
+from levels_study import euler_levels_study
 from solvers.analytic import AnalyticSolver
 from uqflow import report
 from uqflow.execute import run_study
@@ -262,36 +263,8 @@ def test_a_figure_path_is_refused_outside_its_folder(tmp_path):
 
 # --------------------------------------------------------------------------- levels
 
-LEVELS = """\
-name = "a-study-name-long-enough-to-clip-the-levels-figure-title-mlmc"
-solver = "analytic"
-scene = { model = "euler_decay" }
-outputs = ["y"]
-
-[[inputs]]
-name = "k"
-distribution = "uniform"
-lower = 0.5
-upper = 1.5
-
-[levels]
-key = "steps"
-values = [4, 8, 16]
-
-[method]
-kind = "multilevel"
-target_rmse = 0.02
-pilot = 8
-costs = [1.0, 2.0, 4.0]
-
-[execution]
-workers = 0
-seed = 5
-
-[output]
-path = "ml.nc"
-figures = false
-"""
+LEVELS = euler_levels_study("a-study-name-long-enough-to-clip-the-levels-figure-title-mlmc",
+                            output="ml.nc")
 
 
 @pytest.fixture(scope="module")

@@ -6,42 +6,19 @@ import pytest
 import xarray as xr
 
 import uqflow
+from levels_study import euler_levels_study
 from solvers.analytic import AnalyticSolver
 from uqflow.errors import StudyError
 from uqflow.execute import run_study
 from uqflow.solver import solver_registry
 
-EULER_MLMC = """\
-name = "levels-errors"
-solver = "{solver}"
-scene = {{ model = "euler_decay"{scene_extra} }}
-outputs = {outputs}
-
-[[inputs]]
-name = "k"
-distribution = "uniform"
-lower = 0.5
-upper = 1.5
-
-[levels]
-key = "{key}"
-values = {values}
-align = "interpolate"
-
-[method]
-kind = "{kind}"
-target_rmse = 0.01
-pilot = 8
-{method_extra}
-"""
-
-
 def study(tmp_path, *, solver="analytic", scene_extra="", outputs='["y"]', key="steps",
           values="[4, 8, 16]", kind="multilevel", method_extra="costs = [4.0, 8.0, 16.0]"):
     path = tmp_path / "study.toml"
-    path.write_text(EULER_MLMC.format(solver=solver, scene_extra=scene_extra, outputs=outputs,
-                                      key=key, values=values, kind=kind,
-                                      method_extra=method_extra))
+    path.write_text(euler_levels_study("levels-errors", solver=solver, scene_extra=scene_extra,
+                                       outputs=outputs, key=key, values=values,
+                                       align="interpolate", kind=kind, target_rmse=0.01,
+                                       method_extra=method_extra))
     return path
 
 

@@ -14,6 +14,7 @@ import pytest
 import xarray as xr
 
 import uqflow
+from levels_study import euler_levels_study
 from solvers.analytic import AnalyticSolver
 from uqflow.execute import run_study
 from uqflow.fields import FieldSpec, RandomField
@@ -196,44 +197,13 @@ def test_nominal_is_one_run_and_no_draw():
 
 # ----------------------------------------------------------------------------- levels
 
-LEVELS = """\
-name = "{kind}-study"
-solver = "analytic"
-scene = {{ model = "euler_decay" }}
-outputs = ["y"]
-
-[[inputs]]
-name = "k"
-distribution = "uniform"
-lower = 0.5
-upper = 1.5
-
-[levels]
-key = "steps"
-values = [4, 8, 16]
-
-[method]
-kind = "{kind}"
-target_rmse = 0.02
-pilot = 8
-costs = [1.0, 2.0, 4.0]
-
-[execution]
-workers = 0
-seed = 5
-
-[output]
-path = "{kind}.nc"
-figures = false
-"""
-
-
 @pytest.fixture(scope="module")
 def level_results(tmp_path_factory) -> dict[str, xr.DataTree]:
     folder = tmp_path_factory.mktemp("levels")
     trees = {}
     for kind in ("multilevel", "multifidelity"):
-        (folder / f"{kind}.toml").write_text(LEVELS.format(kind=kind))
+        (folder / f"{kind}.toml").write_text(
+            euler_levels_study(f"{kind}-study", kind=kind, output=f"{kind}.nc"))
         out = run_study(load_study(folder / f"{kind}.toml"), show_progress=False)
         trees[kind] = uqflow.open_result(out.path)
     return trees
