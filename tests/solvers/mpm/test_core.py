@@ -18,6 +18,8 @@ from solvers.mpm.shapes import GIMP, KINDS, LINEAR, QUADRATIC, shape1d
 from uqflow.errors import SceneError, SolverError
 from uqflow.solver import get_solver
 
+from ._common import set_at
+
 SCENES = Path(__file__).resolve().parents[3] / "studies" / "scenes"
 
 
@@ -92,16 +94,7 @@ def small_scene():
 
 
 def _set(path, value):
-    def mutate(s):
-        *head, last = path
-        d = s
-        for k in head:
-            d = d[k]
-        if value is KeyError:
-            del d[last]
-        else:
-            d[last] = value
-    return mutate
+    return lambda scene: set_at(scene, path, value)
 
 
 BAD = [

@@ -21,6 +21,8 @@ from solvers.mpm.scene import SceneSpec, parse, validate
 from uqflow.errors import SceneError
 from uqflow.levels import scene_with
 
+from ._common import set_at
+
 REPO = Path(__file__).resolve().parents[3]
 STUDIES = REPO / "studies"
 
@@ -151,16 +153,7 @@ def _tiny() -> dict:
 
 
 def _with(path, value):
-    scene = _tiny()
-    *head, last = path
-    holder = scene
-    for part in head:
-        holder = holder[part]
-    if value is KeyError:
-        del holder[last]
-    else:
-        holder[last] = value
-    return scene
+    return set_at(_tiny(), path, value)
 
 
 BAD = [
