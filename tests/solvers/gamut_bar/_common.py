@@ -17,6 +17,31 @@ def solver(**scene):
     return GamutBarSolver.from_scene(scene)
 
 
+def small_solver(loading: str):
+    """A 40-bond bar under ``loading``; a cyclic one through 3 cycles, each once."""
+    cyclic = {"cycles": 3, "cycle_repeats": 1} if loading == "cyclic" else {}
+    return solver(loading=loading, local_bonds=40, **cyclic)
+
+
+def field_table(name: str, parameters: str, *, correlation_length: float,
+                captured_variance: float, store_values: bool | None = None) -> str:
+    """A study's ``[[fields]]`` table for the bar (``parameters`` as TOML text): exponential
+    kernel, symmetric Weibull germ of scale 1 and shape 2, divisor 10."""
+    text = f"""
+[[fields]]
+name = "{name}"
+parameters = {parameters}
+kernel = "exponential"
+correlation_length = {correlation_length}
+captured_variance = {captured_variance}
+germ = {{ kind = "symmetric-weibull", scale = 1.0, shape = 2.0 }}
+divisor = 10
+"""
+    if store_values is not None:
+        text += f"store_values = {'true' if store_values else 'false'}\n"
+    return text
+
+
 @functools.lru_cache(maxsize=None)
 def _cached(scene_items, params_items):
     return solver(**dict(scene_items)).run(dict(params_items))

@@ -18,20 +18,7 @@ from uqflow.layout import FIELD_PREFIX
 from uqflow.report import figure_folder, solver_report
 from uqflow.study import load_study
 
-from ._common import EPS
-
-FIELD = """
-[[fields]]
-name = "{name}"
-parameters = {parameters}
-kernel = "exponential"
-correlation_length = 0.02
-captured_variance = 0.9
-germ = {{ kind = "symmetric-weibull", scale = 1.0, shape = 2.0 }}
-divisor = 10
-store_values = {store}
-"""
-
+from ._common import EPS, field_table
 
 def _study(folder: Path, name: str, fields: str, method: str) -> Path:
     path = folder / f"{name}.toml"
@@ -49,8 +36,10 @@ def written(tmp_path_factory):
     framework's own figures, which take most of a run's time, are left out): (result, figure)
     of each."""
     folder = tmp_path_factory.mktemp("bar_fields")
-    fields = (FIELD.format(name="E", parameters='["bar.E", "bar.rho"]', store="true")
-              + FIELD.format(name="w", parameters='["bar.w"]', store="false"))
+    fields = "".join(field_table(name, parameters, correlation_length=0.02,
+                                 captured_variance=0.9, store_values=store)
+                     for name, parameters, store in (("E", '["bar.E", "bar.rho"]', True),
+                                                     ("w", '["bar.w"]', False)))
     out = {}
     for name, f, method in (("fields", fields, 'kind = "kl-weibull"\nrealizations = 12'),
                             ("nominal", "", 'kind = "nominal"')):

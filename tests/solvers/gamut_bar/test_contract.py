@@ -13,7 +13,7 @@ from solvers.gamut_bar.network import stochastic_grid
 from uqflow.errors import SceneError, SolverError
 from uqflow.solver import Solver, get_solver
 
-from ._common import EPS, FakeFields, material, run, solver
+from ._common import EPS, FakeFields, material, run, small_solver, solver
 
 
 def test_registered_and_a_solver():
@@ -38,10 +38,7 @@ def test_nominal_and_units():
 
 @pytest.mark.parametrize("loading", ["monotonic", "cyclic"])
 def test_template_matches_the_run(loading):
-    scene = {"loading": loading, "local_bonds": 40}
-    if loading == "cyclic":
-        scene.update(cycles=3, cycle_repeats=1)
-    s = solver(**scene)
+    s = small_solver(loading)
     t = s.outputs()
     ds = s.run({})
     assert set(t.data_vars) == set(ds.data_vars)

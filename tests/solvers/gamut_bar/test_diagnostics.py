@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import pytest
 
-from ._common import solver
+from ._common import small_solver
 
 DIAGNOSTICS = {"load_steps": "steps", "newton_iterations": "newton_iterations",
                "factorisations": "factorisations"}      # output: the run attribute it copies
@@ -15,10 +15,7 @@ DIAGNOSTICS = {"load_steps": "steps", "newton_iterations": "newton_iterations",
 
 @pytest.mark.parametrize("loading", ["monotonic", "cyclic"])
 def test_the_template_marks_the_counters_as_diagnostics_and_a_run_fills_them(loading):
-    scene = {"loading": loading, "local_bonds": 40}
-    if loading == "cyclic":
-        scene.update(cycles=3, cycle_repeats=1)
-    s = solver(**scene)
+    s = small_solver(loading)
     template = s.outputs()
     marked = {n for n, v in template.data_vars.items()
               if v.attrs.get("output_kind") == "diagnostic"}

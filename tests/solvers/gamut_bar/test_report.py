@@ -17,18 +17,13 @@ from solvers.gamut_bar import report as gb
 from uqflow.execute import run_study
 from uqflow.study import load_study
 
+from ._common import field_table
+
 ROOT = Path(__file__).resolve().parents[3]
 
-FIELDS = "".join(f"""
-[[fields]]
-name = "{name}"
-parameters = {params}
-kernel = "exponential"
-correlation_length = 0.01
-captured_variance = 0.95
-germ = {{ kind = "symmetric-weibull", scale = 1.0, shape = 2.0 }}
-divisor = 10
-""" for name, params in (("E", '["bar.E", "bar.rho"]'), ("R", '["bar.R"]'), ("w", '["bar.w"]')))
+FIELDS = "".join(field_table(name, params, correlation_length=0.01, captured_variance=0.95)
+                 for name, params in (("E", '["bar.E", "bar.rho"]'), ("R", '["bar.R"]'),
+                                      ("w", '["bar.w"]')))
 
 # (material, extra scene text, loading, grid, stochastic)
 CASES = [
