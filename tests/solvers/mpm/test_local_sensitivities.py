@@ -14,6 +14,8 @@ import pytest
 from solvers.mpm.materials import johnson_cook as jc, state as st
 from solvers.mpm.solver import MPMSolver, _Run
 
+from . import jc_reference as jc_ref
+
 REPO = Path(__file__).resolve().parents[3]
 EPS = np.finfo(float).eps
 # pow, exp, log: within ULP units in the last place on any CPU (numpy's AVX-512 loops ≤ 4)
@@ -323,6 +325,7 @@ def test_probe_derivatives_equal_closed_forms_of_the_recorded_state(recorded):
     A, B, n, C, m = prm[[jc.I_JA, jc.I_JB, jc.I_JN, jc.I_JC, jc.I_JM]]
     G = prm[jc.I_G]
     seed = conventions == "seed"
+    floor = jc.SEED_RATE_STAR_FLOOR if seed else 1.0
     col = {p: wrt.index(f"steel.{p}") for p in MG_PARAMETERS + JC_PARAMETERS}
     plastic_seen = 0
     for j, probe in enumerate(sol.cfg.probes):
@@ -332,14 +335,13 @@ def test_probe_derivatives_equal_closed_forms_of_the_recorded_state(recorded):
         (i,) = idx
         row = run.S[i]
         ep, sy = row[st.EPS_P], row[st.SY]
-        h = A + B * ep ** n if ep > 0 else A
         g_sy = sens.gradient["flow_stress"][-1, j]
         T_star = (row[st.T_RETURN] - prm[jc.I_TROOM]) / (prm[jc.I_TMELT] - prm[jc.I_TROOM])
-        t = 1.0 - T_star ** m if T_star > 0 else 1.0
-        assert g_sy[col["jc.A"]] == pytest.approx(sy / h, rel=CLOSED_FORM_REL)
-        assert g_sy[col["jc.B"]] == pytest.approx(ep ** n * sy / h, rel=CLOSED_FORM_REL)
-        assert g_sy[col["jc.C"]] == pytest.approx(h * np.log(row[st.RATE_STAR]) * t,
-                                                  rel=CLOSED_FORM_REL, abs=0.0)
+        f = jc_ref.factors(A, B, C, n, m, ep, row[st.RATE_STAR], T_star, floor)
+        h = float(f.h)
+        assert g_sy[col["jc.A"]] == pytest.approx(f.h_A * sy / h, rel=CLOSED_FORM_REL)
+        assert g_sy[col["jc.B"]] == pytest.approx(f.h_B * sy / h, rel=CLOSED_FORM_REL)
+        assert g_sy[col["jc.C"]] == pytest.approx(h * f.r_C * f.t, rel=CLOSED_FORM_REL, abs=0.0)
         # deviator through the tangent
         dep = row[st.EPS_P_RATE] * row[st.DT]
         if dep > 0:
@@ -401,8 +403,8 @@ def test_derivatives_without_a_local_dependence_are_exactly_zero(recorded):
         assert not sens.gradient[o][0].any()
     plate = [j for j, p in enumerate(sol.cfg.probes) if p.name != "W"]
     rate_factor = sol.cfg.materials["steel"].values
-    r0 = 1.0 if rate_factor["seed_conventions"] == 0 else 1.0 + rate_factor["jc.C"] * np.log(
-        jc.SEED_RATE_STAR_FLOOR)
+    at_rest = 1.0 if rate_factor["seed_conventions"] == 0 else jc.SEED_RATE_STAR_FLOOR
+    r0 = float(jc_ref.rate_factor(rate_factor["jc.C"], at_rest, floor=at_rest))
     # bound: r0 is 1 exactly (uqflow) or 1 + C ln(floor) (seed): numba's libm log against
     # numpy's (SIMD on AVX-512), each within ULP, grown by |C ln|/r0 in the sum, 1.5 roundings
     assert sens.gradient["flow_stress"][0, plate, wrt.index("steel.jc.A")] == pytest.approx(
@@ -433,15 +435,12 @@ def test_total_rate_flow_stress_derivative_uses_the_total_rate(recorded):
     steel = sol.mat_index[sol.labels.index("steel")]
     rows = run.S[steel]
     g, _ = particle_derivatives("flow_stress_total_rate", rows, prm)
-    ep = rows[:, st.EPS_P]
-    h = A + B * np.where(ep > 0, ep, 0.0) ** n
-    np.testing.assert_allclose(g[:, 5], rows[:, st.SY_TOTAL_RATE] / h,
-                               rtol=CLOSED_FORM_REL)
     rate = rows[:, st.EQ_STRAIN_RATE] / prm[jc.I_EPS0]
-    rate = (np.maximum(rate, jc.SEED_RATE_STAR_FLOOR) if conventions == "seed"
-            else np.maximum(rate, 1.0))
+    floor = jc.SEED_RATE_STAR_FLOOR if conventions == "seed" else 1.0
     T_star = (rows[:, st.T_RETURN] - prm[jc.I_TROOM]) / (prm[jc.I_TMELT] - prm[jc.I_TROOM])
-    t = np.where(T_star > 0, 1.0 - np.clip(T_star, 0, 1) ** m, 1.0)
-    np.testing.assert_allclose(g[:, 7], h * np.log(rate) * t, rtol=CLOSED_FORM_REL, atol=0)
+    f = jc_ref.factors(A, B, C, n, m, rows[:, st.EPS_P], rate, T_star, floor)
+    np.testing.assert_allclose(g[:, 5], f.h_A * rows[:, st.SY_TOTAL_RATE] / f.h,
+                               rtol=CLOSED_FORM_REL)
+    np.testing.assert_allclose(g[:, 7], f.h * f.r_C * f.t, rtol=CLOSED_FORM_REL, atol=0)
     if conventions == "seed":
         assert np.any(g[:, 7] < 0)                           # below ε̇0: C softens

@@ -19,6 +19,7 @@ from solvers.mpm.materials.mie_gruneisen import (mg_bulk_sound_speed_sq, mg_coef
                                                  mie_gruneisen_pressure)
 from uqflow.errors import SceneError, SolverError
 
+from . import jc_reference as jc_ref
 from .test_sensitivities import EPS, jc_value_rtol
 
 MODULES = [jc, jwl, water, elastic]
@@ -80,13 +81,6 @@ def test_library_holds_the_design_data():
 
 
 # --- Johnson-Cook ----------------------------------------------------------------------------
-def jc_numpy(A, B, n, C, m, ep, rs, Ts):
-    h = A + B * np.where(ep > 0, np.maximum(ep, 0.0) ** n, 0.0)
-    r = 1.0 + C * np.log(np.maximum(rs, 1.0))
-    th = np.where(Ts <= 0, 1.0, np.where(Ts >= 1, 0.0, 1.0 - np.clip(Ts, 0, 1) ** m))
-    return h * r * th
-
-
 def random_jc_states(rng, k):
     d = jc.PARAMETERS
     A = d["jc.A"] * rng.uniform(0.7, 1.3, k)
@@ -106,7 +100,7 @@ def random_jc_states(rng, k):
 def test_johnson_cook_flow_stress_matches_numpy_at_1000_states():
     rng = np.random.default_rng(11)
     A, B, n, C, m, ep, rs, Ts = random_jc_states(rng, 1000)
-    ref = jc_numpy(A, B, n, C, m, ep, rs, Ts)
+    ref = jc_ref.flow_stress(A, B, C, n, m, ep, rs, Ts)
     got = np.array([jc.johnson_cook_flow_stress(*args) for args in zip(A, B, n, C, m, ep, rs, Ts)])
     # numpy's pow/log (SIMD on AVX-512) against numba's libm, the same operations: ≤ ULP per
     # function, amplified by T*^m/(1 − T*^m) in 1 − T*^m (test_sensitivities.jc_value_rtol)
@@ -118,9 +112,9 @@ def test_johnson_cook_flow_stress_matches_numpy_at_1000_states():
     assert f(*a.values(), 0.0, 0.3, 0.0) == 792e6                  # rate* < 1 clamped to 1
     assert f(*a.values(), 0.1, 1.0, -0.5) == f(*a.values(), 0.1, 1.0, 0.0)   # T* < 0 → 0
     assert f(*a.values(), 0.1, 10.0, 1.0) == 0.0                   # melt
-    # numba's pow/log against Python's: any two within ULP (jc_value_rtol, 3.4e-15 at T* = 0.5)
+    # numba's pow/log against numpy's: any two within ULP (jc_value_rtol, 3.4e-15 at T* = 0.5)
     assert f(*a.values(), 0.1, 10.0, 0.5) == pytest.approx(
-        (792e6 + 510e6 * 0.1**0.26) * (1 + 0.014 * math.log(10.0)) * (1 - 0.5**1.03),
+        float(jc_ref.flow_stress(792e6, 510e6, 0.014, 0.26, 1.03, 0.1, 10.0, 0.5)),
         rel=float(jc_value_rtol(1.03, 0.5)))
 
 
@@ -142,7 +136,7 @@ def test_radial_return_lands_on_the_yield_surface():
     A, B, n, C, m, ep, _, Ts = random_jc_states(rng, k)
     Ts = np.clip(Ts, 0.0, 0.9)
     dt = 10 ** rng.uniform(-9, -6, k)
-    sy0 = jc_numpy(A, B, n, C, m, ep, np.ones(k), Ts)
+    sy0 = jc_ref.flow_stress(A, B, C, n, m, ep, np.ones(k), Ts)
     ratio = np.where(rng.random(k) < 0.25, rng.uniform(0.2, 0.999, k), rng.uniform(1.0001, 5, k))
     devs = random_deviators(rng, k, ratio * sy0)
     for j in range(k):
@@ -159,7 +153,7 @@ def test_radial_return_lands_on_the_yield_surface():
         assert abs(seq - sy) / sy < 1e-10                                  # on the surface
         assert dep > 0.0
         assert abs(dep - (seq_trial - sy) / (3 * G)) <= 1e-12 * seq_trial / (3 * G)  # eq. 18
-        ref = jc_numpy(A[j], B[j], n[j], C[j], m[j], ep[j] + dep, dep / dt[j], Ts[j])
+        ref = jc_ref.flow_stress(A[j], B[j], C[j], n[j], m[j], ep[j] + dep, dep / dt[j], Ts[j])
         # σy = JC(final): numba's libm against numpy's (jc_value_rtol), + 2 eps for the rate
         # Δεp·(1/Δt) against Δεp/Δt (C ln ε̇* moves by C·eps)
         assert sy == pytest.approx(float(ref), rel=float(jc_value_rtol(m[j], Ts[j])) + 2 * EPS)
@@ -184,7 +178,8 @@ def test_radial_return_perfect_plasticity_increment():
                 # bound: seq_t − A cancels with condition seq_t/(seq_t − A) ≤ 101 (seq_t ≥ 1.01 A) on ~10 eps of rounding: 2e-13
                 assert dep == pytest.approx((seq_t - A) / (3 * G), rel=1e-12)
             else:   # rate-hardened: still Δεp = (σeq* − σy)/(3G) with σy = A(1 + C ln ε̇*)
-                assert sy == pytest.approx(A * (1 + C * math.log(max(dep / dt, 1.0))), rel=1e-13)
+                assert sy == pytest.approx(float(jc_ref.flow_stress(A, 0.0, C, 0.26, 1.03, 0.3,
+                                                                    dep / dt, 0.0)), rel=1e-13)
                 assert dep == pytest.approx((seq_t - sy) / (3 * G), rel=1e-10)
 
 
@@ -260,9 +255,11 @@ def test_jc_update_converges_on_the_mc_thin_plate_states(realization):
     assert jc.update(prm, S, 0, *L, dt, time, x, y) == st.OK           # was ERR_OTHER (4)
     dep, sy = S[0, st.EPS_P], S[0, st.SY]
     assert 0.0 < dep < 1e-20                               # Δεp ~ 1e-26: ε̇* < 1, εp^n steep
-    assert sy == pytest.approx(float(jc_numpy(A, B, n, C, m, dep, dep / dt, 0.0)), rel=1e-13)
+    assert sy == pytest.approx(float(jc_ref.flow_stress(A, B, C, n, m, dep, dep / dt, 0.0)),
+                               rel=1e-13)
     assert abs(seq_t - 3 * G * dep - sy) <= 1e-13 * seq_t               # consistency
-    assert B * dep ** n == pytest.approx(seq_t - 3 * G * dep - A, rel=1e-6)   # rate factor 1
+    assert jc_ref.hardening_increase(B, n, dep) == pytest.approx(seq_t - 3 * G * dep - A,
+                                                                 rel=1e-6)      # rate factor 1
     s1 = st.deviatoric(S)[0]
     assert jc.von_mises(*s1) == pytest.approx(sy, rel=1e-10)            # on the surface
     assert s1 == pytest.approx(np.array(trial) * (sy / seq_t), rel=1e-9, abs=1e-3)
@@ -285,8 +282,8 @@ def jc_return_check(args, devs, sy0, G, dt, eps0, ep):
         assert dep[j] >= 0.0 and sy >= sy0[j] * (1 - 1e-13)
         assert abs(seq_t - 3 * G[j] * dep[j] - sy) <= 2e-13 * seq_t, j
         assert abs(jc.von_mises(nxx, nyy, nxy, nzz) - sy) <= 1e-10 * sy, j
-        ref = jc_numpy(A[j], B[j], n[j], C[j], m[j], ep[j] + dep[j], dep[j] / (dt[j] * eps0[j]),
-                       Ts[j])
+        ref = jc_ref.flow_stress(A[j], B[j], C[j], n[j], m[j], ep[j] + dep[j],
+                                 dep[j] / (dt[j] * eps0[j]), Ts[j])
         assert abs(sy - ref) <= 1e-13 * sy, j
         # bound: one scale factor sy/seq_t applied to s_zz, 3 roundings ≈ 7e-16; abs for s_zz ≈ 0
         assert nzz == pytest.approx(s[3] * sy / seq_t, rel=1e-13, abs=1e-9 * sy)
@@ -307,7 +304,7 @@ def test_jc_return_converges_over_the_physical_range():
     Ts = np.where(rng.random(k) < 0.2, 0.0, rng.uniform(0.0, 0.99, k))
     eps0 = np.where(rng.random(k) < 0.5, 1.0, 10 ** rng.uniform(-3, 3, k))
     dt = 10 ** rng.uniform(-10, -3, k)
-    sy0 = jc_numpy(A, B, n, C, m, ep, np.ones(k), Ts)
+    sy0 = jc_ref.flow_stress(A, B, C, n, m, ep, np.ones(k), Ts)
     over = np.where(rng.random(k) < 0.5, 10 ** rng.uniform(-15, 2, k), rng.uniform(0, 100, k))
     seq = sy0 * (1.0 + over)
     # second half: trial stress from a known root Δεp = ε̇p dt, ε̇p log-uniform in 1e-3..1e7 /s
@@ -315,8 +312,9 @@ def test_jc_return_converges_over_the_physical_range():
     rate = 10 ** rng.uniform(-3, 7, k - k // 2)
     dt[h] = np.minimum(dt[h], 0.05 / rate)                  # Δεp ≤ 0.05: overstress ≲ 100
     dep_true = rate * dt[h]
-    seq[h] = 3 * G[h] * dep_true + jc_numpy(A[h], B[h], n[h], C[h], m[h], ep[h] + dep_true,
-                                             dep_true / (dt[h] * eps0[h]), Ts[h])
+    seq[h] = 3 * G[h] * dep_true + jc_ref.flow_stress(A[h], B[h], C[h], n[h], m[h],
+                                                       ep[h] + dep_true,
+                                                       dep_true / (dt[h] * eps0[h]), Ts[h])
     keep = seq > sy0 * (1 + 1e-15)
     assert keep.mean() > 0.99
     devs = np.stack(random_deviators(rng, k, seq), axis=1)
@@ -340,7 +338,8 @@ def test_jc_return_tiny_overstress_at_first_yield():
             s = [d[0] for d in random_deviators(np.random.default_rng(1), 1, A * (1 + delta))]
             *_, dep, sy, code = jc.jc_radial_return(*s, G, dt, A, B, n, C, m, 1.0, 0.0, 0.0)
             assert code == st.OK
-            approx = (A * delta / B) ** (1 / n)         # 3GΔεp and the rate term negligible
+            # 3GΔεp and the rate term negligible: B Δεp^n = A δ
+            approx = jc_ref.strain_for_hardening_increase(B, n, A * delta)
             if approx < 1e-3 * dt and approx * 3 * G < 1e-6 * A * delta:
                 assert dep == pytest.approx(approx, rel=1e-6)
             assert abs(A * (1 + delta) - 3 * G * dep - sy) <= 1e-13 * A * (1 + delta)
@@ -360,7 +359,7 @@ def test_jc_return_outside_the_steel_range_never_fails():
     ep = np.where(rng.random(k) < 0.5, 0.0, 10 ** rng.uniform(-12, 0, k))
     Ts = np.where(rng.random(k) < 0.2, 0.0, rng.uniform(0.0, 1 - 1e-6, k))
     dt, eps0 = 10 ** rng.uniform(-10, -3, k), 10 ** rng.uniform(-3, 3, k)
-    sy0 = jc_numpy(A, B, n, C, m, ep, np.ones(k), Ts)
+    sy0 = jc_ref.flow_stress(A, B, C, n, m, ep, np.ones(k), Ts)
     devs = np.stack(random_deviators(rng, k, sy0 * (1 + 10 ** rng.uniform(-16, 3, k))), axis=1)
     underflow = 0
     for j in range(k):
@@ -377,8 +376,8 @@ def test_jc_return_outside_the_steel_range_never_fails():
             assert ep[j] == 0.0 and n[j] < 0.045, j
             underflow += 1
         else:
-            ref = jc_numpy(A[j], B[j], n[j], C[j], m[j], ep[j] + dep,
-                           dep / (dt[j] * eps0[j]), Ts[j])
+            ref = jc_ref.flow_stress(A[j], B[j], C[j], n[j], m[j], ep[j] + dep,
+                                     dep / (dt[j] * eps0[j]), Ts[j])
             assert abs(sy - ref) <= 1e-13 * sy, j
     assert 0 < underflow < 0.05 * k
 
