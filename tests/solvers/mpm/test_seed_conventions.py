@@ -11,6 +11,7 @@ import pytest
 
 from solvers.mpm.solver import MPMSolver, _Run
 
+from . import jc_reference as jc_ref
 from .test_local_sensitivities import small_scene
 
 REPO = Path(__file__).resolve().parents[3]
@@ -81,13 +82,13 @@ def test_seed_rate_factor_is_finite_and_positive_from_rest_to_huge_rates(rate):
         star = max(S[0, st.EQ_STRAIN_RATE] / jc.SEED_EPS0_DOT, jc.SEED_RATE_STAR_FLOOR)
         assert S[0, st.EQ_STRAIN_RATE] == pytest.approx(2 * rate / np.sqrt(3), rel=4 * EPS)
         assert S[0, st.RATE_STAR] == star
-        factor = 1.0 + C * np.log(star)
+        factor = jc_ref.rate_factor(C, star, floor=jc.SEED_RATE_STAR_FLOOR)
         assert factor > 0.0
         A, B, n, _, m = jc_args(prm)
         assert S[0, st.SY] == jc.johnson_cook_flow_stress_seed(A, B, n, C, m, S[0, st.EPS_P],
                                                                star, 0.0)
         # the rate factor's bound, and per side εp^n within ULP, B·, A + and the product
-        assert S[0, st.SY] == pytest.approx((A + B * S[0, st.EPS_P] ** n) * factor,
+        assert S[0, st.SY] == pytest.approx(jc_ref.hardening(A, B, n, S[0, st.EPS_P]) * factor,
                                             rel=rate_factor_rtol(C, star) + (2 * ULP + 3) * EPS)
         assert S[0, st.SY_TOTAL_RATE] == S[0, st.SY]         # the seed's return uses it
         if rate < jc.SEED_EPS0_DOT and C > 0:
@@ -141,12 +142,12 @@ def test_seed_scene_run_has_no_heating_and_slow_rate_softening():
     np.testing.assert_array_equal(S[:, st.RATE_STAR], np.maximum(
         S[:, st.EQ_STRAIN_RATE] / jc.SEED_EPS0_DOT, jc.SEED_RATE_STAR_FLOOR))
     A, B, n, C, m = jc_args(run.prms[sol.labels.index("steel")])
-    hard = A + B * np.where(S[:, st.EPS_P] > 0, S[:, st.EPS_P], 0.0) ** n
+    hard = jc_ref.hardening(A, B, n, S[:, st.EPS_P])
     factor = S[:, st.SY] / hard
     assert np.all(factor[slow] < 1.0)                        # the rate factor below ε̇0
     # numba's σy over numpy's hardening: the rate factor's bound, εp^n within ULP on each
     # side with B·, A + (ULP + 1 each), the product and the division
-    expected = 1.0 + C * np.log(S[:, st.RATE_STAR])
+    expected = jc_ref.rate_factor(C, S[:, st.RATE_STAR], floor=jc.SEED_RATE_STAR_FLOOR)
     bound = rate_factor_rtol(C, S[:, st.RATE_STAR]) + (2 * ULP + 3) * EPS
     assert (np.abs(factor - expected) <= bound * np.abs(expected)).all()
 
