@@ -476,3 +476,22 @@ def test_a_recorded_override_applies_as_set_applied_it(tmp_path):
     assert scene is None and why.startswith("the recorded override cannot be applied: ")
     assert report.scene_ran({"study": 'name = "s"'}) == \
         (None, "the result names no scene file and stores no scene table")
+
+
+def test_a_report_hook_that_raises_costs_only_the_methods_part(studies, monkeypatch, tmp_path):
+    """A broken hook (a third party's method) warns naming the method; the table and the
+    inputs are still reported, and drawing the figures raises nothing."""
+    from uqflow.methods.monte_carlo import MonteCarlo
+
+    def broken(cls, view):
+        raise KeyError("no such statistic")
+
+    tree = report.open_result(studies("mc", ISHIGAMI, MC))
+    monkeypatch.setattr(MonteCarlo, "report", classmethod(broken))
+    with pytest.warns(report.ReportHookWarning, match="method 'monte-carlo' failed"):
+        text = report.summary_table(tree)
+    assert "cost:" in text and "95 % CI of the mean" not in text  # the method's column went
+    assert "x1" in text.split("cost:")[1]                           # the inputs table stays
+    with pytest.warns(report.ReportHookWarning):
+        written = report.write_figures(tree, tmp_path)   # without the hook: no draws claimed,
+    assert all(p.exists() for p in written)              # so no histogram, but no error

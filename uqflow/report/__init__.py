@@ -31,12 +31,13 @@ from uqflow.report.summary import summary_table
 from uqflow.report.tables import (Table, focus_point, grid, number, seconds, statistic,
                                   units_of, where)
 from uqflow.report.units import display_units
-from uqflow.report.view import ResultView
+from uqflow.report.view import ReportHookWarning, ResultView
 from uqflow.store import open_result
 
 __all__ = ["Column", "FigureSpec", "MethodReport", "Sensitivity", "FigureWarning",
            "axis_label", "colors", "coordinate", "figure_folder", "figure_path", "input_label",
            "new_figure", "safe_file_name", "save_figure", "scientific_ticks", "open_result",
            "solver_report", "summary_table", "write_figures", "focus_point", "grid", "number",
-           "seconds", "statistic", "units_of", "where", "ResultView", "Table", "display_units",
+           "seconds", "statistic", "units_of", "where", "ResultView", "ReportHookWarning", "Table",
+           "display_units",
            "exceedance_curve", "scatter_band", "write_html", "scene_ran"]

@@ -2,16 +2,22 @@
 
 from __future__ import annotations
 
+import warnings
 from functools import cached_property
 
 import numpy as np
 import xarray as xr
 
 from uqflow.errors import StudyError
-from uqflow.layout import LONG_NAME, METHOD, STATISTIC, STATUS, STUDY_NAME, sample_mask
+from uqflow.layout import (LONG_NAME, METHOD, RUNS_GROUP, STATISTIC, STATISTICS_GROUP, STATUS,
+                           STUDY_NAME, sample_mask)
 from uqflow.report import tables
 from uqflow.registry import method_registry
 from uqflow.report.contributions import MethodReport
+
+
+class ReportHookWarning(UserWarning):
+    """A method's report hook raised: the report goes on without the method's part."""
 
 
 class ResultView:
@@ -19,8 +25,9 @@ class ResultView:
 
     def __init__(self, tree: xr.DataTree):
         self.attrs = dict(tree.attrs)
-        self.runs = tree["runs"].to_dataset() if "runs" in tree.children else None
-        self.stats = tree["statistics"].to_dataset() if "statistics" in tree.children else None
+        self.runs = tree[RUNS_GROUP].to_dataset() if RUNS_GROUP in tree.children else None
+        self.stats = tree[STATISTICS_GROUP].to_dataset() \
+            if STATISTICS_GROUP in tree.children else None
         self.design = tree["design"].to_dataset() if "design" in tree.children else None
         if self.runs is None and self.stats is None:
             raise StudyError("has neither a 'runs' nor a 'statistics' group: not a uqflow "
@@ -46,7 +53,13 @@ class ResultView:
             method = method_registry.get(self.method)
         except StudyError:
             return MethodReport()
-        return method.report(self) or MethodReport()
+        try:
+            return method.report(self) or MethodReport()
+        except Exception as exc:  # a broken hook (a third party's) must not cost the report
+            warnings.warn(f"the report hook of method '{self.method}' failed "
+                          f"({type(exc).__name__}: {exc}); the report shows what every "
+                          f"result has", ReportHookWarning, stacklevel=2)
+            return MethodReport()
 
     def units(self, output: str) -> str:
         return tables.units_of(output, self.stats, self.runs)
