@@ -70,6 +70,29 @@ SOLVER_WALL_TIME, SOLVER_COMPILE_TIME = "solver_wall_time", "solver_compile_time
 WARNINGS = "warnings"
 CONFIDENCE = "confidence"
 
+# ----------------------------------------------------------------------------- limit states
+#: dim of the margins, failures and failure statistics: one label per limit state and
+#: system of the study's [[limit_states]] (``uqflow.limit_states``)
+LIMIT_STATE = "limit_state"
+#: (limit_state): P[failure] of each limit state
+FAILURE_PROBABILITY = "failure_probability"
+#: (limit_state, bound): the interval of P[failure]; its bounds BOUND_LOW and BOUND_HIGH
+FAILURE_INTERVAL = "failure_probability_interval"
+BOUND, BOUND_LOW, BOUND_HIGH = "bound", "low", "high"
+#: (limit_state): the coefficient of variation of the estimate of P[failure]
+FAILURE_COV = "failure_probability_cov"
+#: (limit_state): the reliability index beta = -Phi^-1(P[failure])
+RELIABILITY_INDEX = "reliability_index"
+#: (limit_state): the count of failure events among the runs that ran ok
+FAILURES = "failures"
+#: attribute: how the interval of P[failure] was computed (Clopper-Pearson, Wilson, ...)
+INTERVAL_METHOD = "interval_method"
+#: (limit_state): the realizations that ran ok, over which P[failure] is estimated, and
+#: those that did not (a solver error is neither failure nor safe: they are left out)
+FAILURE_RUNS, FAILURE_LEFT_OUT = "failure_probability_runs", "failure_probability_left_out"
+#: attribute: how P[failure] and its interval were estimated and what was left out, in words
+FAILURE_NOTE = "failure_probability_note"
+
 # ----------------------------------------------------------------------------- root attributes
 STUDY_NAME, SOLVER = "study_name", "solver"
 COMPLETE, STOPPED_EARLY, ELAPSED_TIME = "complete", "stopped_early", "elapsed_time"

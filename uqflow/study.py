@@ -29,6 +29,7 @@ from pydantic import (AfterValidator, BaseModel, BeforeValidator, ConfigDict, Fi
 from uqflow.errors import SceneError, StudyError
 from uqflow.inputs import DISTRIBUTIONS, InputSpace, RandomInput
 from uqflow.levels import Levels, LevelsSpec, level_solver, resolve_levels, scene_with
+from uqflow.limit_states import LimitStates
 from uqflow.methods import PropagationMethod, get_method
 from uqflow.methods.base import MAX_REALIZATIONS
 # the --set mechanics live in uqflow.overrides; their names stay importable from here
@@ -171,6 +172,8 @@ class StudySpec(_Strict):
     fields: list[dict[str, Any]] = Field(default_factory=list)
     method: MethodSpec
     levels: LevelsSpec | None = None
+    # validated by uqflow.limit_states against the solver's outputs (its own one-line errors)
+    limit_states: Any = None
     execution: ExecutionSpec = Field(default_factory=ExecutionSpec)
     output: OutputSpec = Field(default_factory=OutputSpec)
 
@@ -206,6 +209,8 @@ class Study:
     levels: Levels | None = None
     #: keys set from outside the file (``uqflow run --set``), applied before validation
     overrides: dict[str, Any] = field(default_factory=dict)
+    #: the failure events of ``[[limit_states]]`` (None without any)
+    limit_states: LimitStates | None = None
 
     @property
     def name(self) -> str:
@@ -529,6 +534,8 @@ def _resolve(spec: StudySpec, path: Path, text: str, label: str,
                          "run)", key="inputs")
     method.check(space, fields)
     method.check_solver(solver, outputs, space.names)
+    limit_states = _limit_states(spec, template, outputs, label)
+    method.check_limit_states(limit_states)
     levels = _levels(spec, method, scene, solver_class, outputs, scene_label or label)
     if levels is not None:
         scene, solver = levels.scenes[-1], levels.solvers[-1]
@@ -540,7 +547,23 @@ def _resolve(spec: StudySpec, path: Path, text: str, label: str,
     return Study(spec=spec, path=path, text=text, solver_class=solver_class, scene=scene,
                  solver=solver, space=space, method=method, outputs=outputs,
                  output_path=output_path, fields=fields, read_files=read_files,
-                 levels=levels)
+                 levels=levels, limit_states=limit_states)
+
+
+def _limit_states(spec: StudySpec, template, outputs: list[str],
+                  label: str) -> LimitStates | None:
+    """The study's [[limit_states]], checked against the outputs it stores."""
+    if spec.limit_states is None:
+        return None
+    try:
+        return LimitStates.from_tables(spec.limit_states, template[outputs], label)
+    except StudyError as exc:
+        which = re.fullmatch(r"limit_states\[(\d+)\]\.output", exc.key or "")
+        named = spec.limit_states[int(which.group(1))].get("output") if which else None
+        if isinstance(named, str) and named in template.data_vars:
+            raise StudyError(f"'{named}' is an output of the solver but not of this study: "
+                             f"add it to outputs", file=exc.file, key=exc.key) from None
+        raise
 
 
 def _levels(spec: StudySpec, method, scene: dict, solver_class, outputs: list[str],

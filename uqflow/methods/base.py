@@ -172,6 +172,26 @@ class PropagationMethod(abc.ABC):
     #: whether the method adds realizations after seeing runs (``extend``)
     extends: ClassVar[bool] = False
 
+    #: whether the method estimates failure probabilities of the study's [[limit_states]]
+    uses_limit_states: ClassVar[bool] = False
+    #: the study's ``uqflow.limit_states.LimitStates`` (None without [[limit_states]])
+    limit_states = None
+
+    def check_limit_states(self, limit_states) -> None:
+        """Take the study's ``uqflow.limit_states.LimitStates``, or None when it declares no
+        [[limit_states]]; called at load time after ``check_solver``. The default refuses
+        limit states a method does not use (its result would silently ignore them) and
+        stores them as ``self.limit_states``; a method that needs them refuses None."""
+        if limit_states is not None and not self.uses_limit_states:
+            users = [name for name in method_registry.names()
+                     if getattr(method_registry.get(name), "uses_limit_states", False)]
+            instead = "kind = " + " or ".join(f'"{n}"' for n in users) if users else \
+                "a method that does"
+            raise StudyError(f"method '{self.name}' estimates no failure probability: drop "
+                             f"the [[limit_states]] tables, or use {instead}",
+                             key="limit_states")
+        self.limit_states = limit_states
+
     def check_levels(self, levels) -> None:
         """Take the study's ``uqflow.levels.Levels`` (raise ``StudyError`` if unusable);
         called at load time for a method with ``uses_levels``."""
