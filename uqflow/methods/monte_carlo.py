@@ -17,10 +17,28 @@ With ``control`` (``"taylor-local"`` or ``"taylor"``) a few control realizations
 design and give a quadratic surrogate whose mean is known; mean, variance and their errors are
 then the control-variate estimates of ``uqflow/methods/control_variate.py`` (quantiles stay
 the plain sample ones). See docs/control_variates.md.
+
+With ``[[limit_states]]`` (``uqflow.limit_states``) the statistics add, per limit state, the
+failure count among the realizations that ran ok, P[failure], its interval, its coefficient
+of variation and the reliability index (``uqflow.probability``). A realization that did not run
+ok is neither a failure nor safe: it is counted apart and left out. The interval follows the
+rule:
+
+* ``random``: Clopper–Pearson (exact binomial; coverage at least the level for every p, n).
+* ``lhs``: Clopper–Pearson too. The failures of a Latin hypercube are not binomial, but the
+  variance of its fraction is at most N / (N - 1) times the binomial one for any N (Owen 1997)
+  and asymptotically never above it (Stein 1987), so the binomial interval is conservative
+  up to that factor, as the mean's i.i.d. error is.
+* ``sobol``/``halton``: the mean of the replicates' failure fractions, a Student t interval
+  over their spread (R - 1 degrees of freedom), the c.o.v. their standard error / P.
+
+``target_cov`` stops, at the same ``stop_points`` as ``target_rel_stderr``, once every limit
+state's c.o.v. is at most the target (both targets must hold when both are set).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Literal
 
 import warnings as pywarnings
@@ -30,12 +48,16 @@ import xarray as xr
 from pydantic import Field, ValidationInfo, field_validator, model_validator
 from scipy import stats as sps
 
-from uqflow.errors import AccuracyWarning
+from uqflow import probability
+from uqflow.errors import AccuracyWarning, StudyError
 
 from uqflow.methods import control_variate as cv
-from uqflow.layout import (CONFIDENCE, REALIZATION, SOLVER_RUNS, STATISTIC, STATISTIC_CI_HIGH,
-                           STATISTIC_CI_LOW, STATISTIC_MEAN, STATISTIC_STD, STATISTIC_STDERR,
-                           STATISTIC_VARIANCE, STATUS, STATUS_PENDING)
+from uqflow.layout import (BOUND, BOUND_HIGH, BOUND_LOW, CONFIDENCE, FAILURE_COV,
+                           FAILURE_INTERVAL, FAILURE_LEFT_OUT, FAILURE_NOTE,
+                           FAILURE_PROBABILITY, FAILURE_RUNS, FAILURES, INTERVAL_METHOD,
+                           LIMIT_STATE, REALIZATION, RELIABILITY_INDEX, SOLVER_RUNS, STATISTIC,
+                           STATISTIC_CI_HIGH, STATISTIC_CI_LOW, STATISTIC_MEAN, STATISTIC_STD,
+                           STATISTIC_STDERR, STATISTIC_VARIANCE, STATUS, STATUS_PENDING)
 from uqflow.methods.base import (MethodOptions, PropagationMethod, failure_warning,
                                  finish_statistics, make_design, ok_mask, output_names,
                                  register_method)
@@ -57,6 +79,9 @@ class SampleStatisticsOptions(MethodOptions):
     confidence: float = Field(0.95, gt=0, lt=1, description="level of the mean's interval")
     target_rel_stderr: float | None = Field(
         None, gt=0, description="stop once stderr/|mean| of every output is below this")
+    target_cov: float | None = Field(
+        None, gt=0, description="stop once the estimated coefficient of variation of every "
+                                "limit state's P[failure] is at most this ([[limit_states]])")
     min_samples: int = Field(32, ge=2, description="never stop on target before this many")
     trace_points: int = Field(25, ge=2, description="sample counts in the convergence trace")
 
@@ -128,6 +153,7 @@ class MonteCarlo(PropagationMethod):
     """Monte Carlo sampling (random, LHS, scrambled Sobol or Halton) with error estimates."""
 
     Options = MonteCarloOptions
+    uses_limit_states = True
 
     @property
     def control(self) -> str:
@@ -142,8 +168,19 @@ class MonteCarlo(PropagationMethod):
     def check_solver(self, solver, outputs, parameter_names):
         cv.check_solver(self.control, solver, outputs, parameter_names)
 
+    def check_limit_states(self, limit_states):
+        super().check_limit_states(limit_states)
+        self._check_target_cov()
+
+    def _check_target_cov(self):
+        if self.limit_states is None and getattr(self.options, "target_cov", None) is not None:
+            raise StudyError("target_cov is a target for P[failure] of the limit states, and "
+                             "the study has no [[limit_states]]: add them, or drop the key",
+                             key="method.target_cov")
+
     def plan(self, space, fields, seed):
         self.check(space, fields)
+        self._check_target_cov()
         rule, n = self.options.rule, self.options.samples
         if rule in QUASI_RANDOM_RULES:
             r = self.options.replicates
@@ -165,8 +202,12 @@ class MonteCarlo(PropagationMethod):
             return None
         return int(design.attrs.get("replicates", getattr(self.options, "replicates", 0)))
 
+    def _targets(self) -> bool:
+        return self.options.target_rel_stderr is not None or \
+            getattr(self.options, "target_cov", None) is not None
+
     def stop_points(self, n_planned):
-        if self.options.target_rel_stderr is None:
+        if not self._targets():
             return np.zeros(0, dtype=np.int64)
         # The control realizations open the design; the counts are over the samples after
         # them, so a study stops at the same samples with and without a control.
@@ -186,9 +227,9 @@ class MonteCarlo(PropagationMethod):
         return np.unique(np.minimum(counts, n_samples)) + control
 
     def enough(self, design, runs):
-        target = self.options.target_rel_stderr
-        if target is None:
+        if not self._targets():
             return False
+        target = self.options.target_rel_stderr
         r = self._replicates(design)
         _, samples = cv.sample_part(design, runs)
         count = samples.sizes[REALIZATION]
@@ -200,6 +241,16 @@ class MonteCarlo(PropagationMethod):
         ok = ok_mask(samples)[:count]
         if ok.sum() < self.options.min_samples:
             return False
+        target_cov = getattr(self.options, "target_cov", None)
+        if target_cov is not None:
+            prefix = samples.isel({REALIZATION: slice(0, count)})
+            covs = [e.cov for e in failure_estimates(self.limit_states, prefix, r,
+                                                     self.options.confidence)]
+            # NaN (no estimate of the error yet) is not below any target
+            if not all(c <= target_cov for c in covs):
+                return False
+        if target is None:
+            return True
         surrogates = self._surrogates(design, runs, quiet=True)
         for out in output_names(runs):
             if surrogates:
@@ -292,6 +343,12 @@ class MonteCarlo(PropagationMethod):
         if surrogates:
             coords.update(plain_statistic=["mean", "variance", "stderr"],
                           surrogate_statistic=["mean", "variance"])
+        if self.limit_states is not None:
+            estimates = failure_estimates(self.limit_states, samples, r, opts.confidence)
+            data.update(failure_variables(estimates))
+            coords.update({LIMIT_STATE: list(self.limit_states.names),
+                           BOUND: [BOUND_LOW, BOUND_HIGH]})
+            warnings.extend(e.warning for e in estimates if e.warning)
         stats = xr.Dataset(data, coords=coords)
         stats = stats.assign_coords({d: runs[d] for d in runs.coords
                                      if d not in (REALIZATION,) and d in stats.dims})
@@ -305,6 +362,11 @@ class MonteCarlo(PropagationMethod):
             stats.attrs["replicates"] = r
         if cv.control_count(design):
             stats.attrs.update(cv.control_attrs(design, samples, surrogates is not None))
+        if self.limit_states is not None:
+            stats.attrs.update({
+                INTERVAL_METHOD: probability.CLOPPER_PEARSON if r is None
+                else probability.REPLICATE_T,
+                FAILURE_NOTE: _failure_note(rule, r, estimates, opts.confidence)})
         return stats
 
     @classmethod
@@ -319,8 +381,8 @@ class MonteCarlo(PropagationMethod):
             runs_are_draws=True,
             columns=[_interval_column(stats)] if STATISTIC_CI_LOW in stats[STATISTIC].values
             else [],
-            notes=sample_notes(view) + cv.report_lines(stats, view.outputs, view.focus,
-                                                       view.where),
+            notes=sample_notes(view) + failure_lines(stats)
+            + cv.report_lines(stats, view.outputs, view.focus, view.where),
             cost_details=[f"rule {rule}"] if rule else [],
             figures=[FigureSpec("convergence", convergence_figure)])
 
@@ -350,6 +412,128 @@ class MonteCarlo(PropagationMethod):
         block = np.stack([mean, np.sqrt(var), np.sqrt(var / c)], axis=1)
         return (("trace_samples", "trace_statistic", *dims), block,
                 {"long_name": "running estimates against sample count"}), counts
+
+
+@dataclass(frozen=True)
+class FailureEstimate:
+    """P[failure] of one limit state from the realizations of a Monte Carlo design.
+
+    ``failures`` among ``runs`` realizations that ran ok; ``left_out`` did not (neither
+    failure nor safe). ``warning`` says why the interval is NaN, if it is."""
+
+    failures: int
+    runs: int
+    left_out: int
+    probability: float
+    interval: probability.ProbabilityInterval
+    cov: float
+    warning: str = ""
+
+
+def failure_estimates(limit_states, samples, replicates, confidence) -> list[FailureEstimate]:
+    """Each limit state's estimate from ``samples`` (the draws of the design: realizations in
+    design order, a control variate's control runs left out). Independent points
+    (``replicates`` None): k / n, Clopper–Pearson, c.o.v. sqrt((1 - p) / (n p)). Randomized
+    QMC: realization i is in replicate i mod R; the mean of the replicates' fractions, a t
+    interval over their spread, c.o.v. their standard error / p."""
+    ok = ok_mask(samples)
+    margins = limit_states.margins(samples).transpose(REALIZATION, LIMIT_STATE).values
+    failed = np.asarray(limit_states.failures(samples).transpose(REALIZATION, LIMIT_STATE)
+                        .values, dtype=bool)
+    # A realization that did not run ok counts as neither failure nor safe, whatever a
+    # margin computed from its (NaN) outputs says.
+    judged = ok[:, None] & np.isfinite(margins)
+    failed &= judged
+    replicate = np.arange(ok.size) % replicates if replicates else None
+    found = []
+    for j, name in enumerate(limit_states.names):
+        k, n = int(failed[:, j].sum()), int(judged[:, j].sum())
+        if replicates is None:
+            interval = probability.clopper_pearson(k, n, confidence)
+            p = k / n if n else np.nan
+            cov = probability.binomial_cov(p, n)
+        else:
+            fractions = [failed[judged[:, j] & (replicate == q), j].mean()
+                         if np.any(judged[:, j] & (replicate == q)) else np.nan
+                         for q in range(replicates)]
+            p, stderr, interval = probability.replicate_interval(fractions, confidence)
+            cov = stderr / p if p > 0 and not interval.reason else \
+                (np.inf if p == 0 else np.nan)
+        warning = f"limit state '{name}': no interval of P[failure]: {interval.reason}" \
+            if interval.reason else ""
+        found.append(FailureEstimate(k, n, ok.size - n, float(p), interval, float(cov),
+                                     warning))
+    return found
+
+
+def failure_variables(estimates: list[FailureEstimate]) -> dict:
+    """The statistics variables (dim ``limit_state``) of the estimates."""
+    def column(values, what, dtype=float):
+        return (LIMIT_STATE,), np.array(values, dtype=dtype), {"long_name": what}
+
+    p = np.array([e.probability for e in estimates])
+    return {
+        FAILURES: column([e.failures for e in estimates], "failure events among the "
+                         "realizations that ran ok", np.int64),
+        FAILURE_RUNS: column([e.runs for e in estimates], "realizations that ran ok, over "
+                             "which P[failure] is estimated", np.int64),
+        FAILURE_LEFT_OUT: column([e.left_out for e in estimates], "realizations that did not "
+                                 "run ok: neither failure nor safe, left out", np.int64),
+        FAILURE_PROBABILITY: column(p, "estimated probability of failure"),
+        FAILURE_INTERVAL: ((LIMIT_STATE, BOUND),
+                           np.array([[e.interval.low, e.interval.high] for e in estimates],
+                                    dtype=float).reshape(-1, 2),
+                           {"long_name": "interval of the probability of failure"}),
+        FAILURE_COV: column([e.cov for e in estimates], "coefficient of variation of the "
+                            "estimate of P[failure]"),
+        RELIABILITY_INDEX: column(probability.reliability_index(p),
+                                  "reliability index -Phi^-1(P[failure])"),
+    }
+
+
+def _failure_note(rule, replicates, estimates, confidence) -> str:
+    """How P[failure] and its interval were estimated, and what was left out, in words."""
+    level = f"{100 * confidence:g} %"
+    if replicates is not None:
+        how = (f"mean of the failure fractions of {replicates} independently scrambled {rule} "
+               f"replicates; {level} Student t interval over their spread; c.o.v. = their "
+               f"standard error / P")
+    else:
+        how = (f"failures / realizations that ran ok; {level} Clopper-Pearson (exact "
+               f"binomial) interval; c.o.v. = sqrt((1 - P) / (n P))")
+        if rule == "lhs":
+            how += ("; Latin hypercube points are not independent: the binomial interval is "
+                    "conservative up to N/(N-1) in variance (Owen 1997)")
+    left_out = max((e.left_out for e in estimates), default=0)
+    if left_out:
+        how += (f"; {left_out} realization(s) did not run ok and are left out, counted neither "
+                f"as failures nor as safe (P[failure] is biased if solver errors depend on "
+                f"the inputs)")
+    return how
+
+
+def failure_lines(stats) -> list[str]:
+    """One report line per limit state: P[failure], its interval, c.o.v., beta, counts."""
+    if FAILURE_PROBABILITY not in stats:
+        return []
+    level = f"{100 * float(stats.attrs.get(CONFIDENCE, 0.95)):g} %"
+    lines = []
+    for name in stats[LIMIT_STATE].values:
+        at = {LIMIT_STATE: name}
+        low, high = (float(stats[FAILURE_INTERVAL].sel(at).sel({BOUND: b}))
+                     for b in (BOUND_LOW, BOUND_HIGH))
+        left_out = int(stats[FAILURE_LEFT_OUT].sel(at))
+        lines.append(
+            f"P[failure of {name}] = {number(float(stats[FAILURE_PROBABILITY].sel(at)))} "
+            f"({level} interval {number(low)} .. {number(high)}), c.o.v. "
+            f"{number(float(stats[FAILURE_COV].sel(at)))}, beta = "
+            f"{number(float(stats[RELIABILITY_INDEX].sel(at)))}; "
+            f"{int(stats[FAILURES].sel(at))} failures in {int(stats[FAILURE_RUNS].sel(at))} "
+            f"runs" + (f", {left_out} not run ok and left out" if left_out else ""))
+    note = stats.attrs.get(FAILURE_NOTE)
+    if note:
+        lines.append(f"P[failure]: {note}")
+    return lines
 
 
 def _description(stats) -> str:

@@ -1,0 +1,372 @@
+"""Monte Carlo for probabilities (issue 18, point 2): the intervals of uqflow.probability against
+their closed forms and their coverage, and P[failure] per limit state from monte-carlo with
+each rule, realizations that did not run ok left out, and the target_cov stopping rule.
+
+The analytic model is y = x1 + x2 + x3 with xi ~ N(0, 1), so y ~ N(0, 3) and
+P[y > t] = Phi(-t / sqrt(3)) exactly; t = 2.85 gives p ~ 0.0497.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import xarray as xr
+from scipy import stats as sps
+
+from uqflow.errors import StudyError
+from uqflow.inputs import InputSpace, RandomInput
+from uqflow.methods.monte_carlo import MonteCarlo, failure_lines
+from uqflow.probability import (binomial_cov, clopper_pearson, reliability_index,
+                                replicate_interval, wilson)
+from uqflow.realization import evaluate_design
+from solvers.analytic import AnalyticSolver
+
+from mc_cases import uniform
+
+EPS = np.finfo(float).eps
+THRESHOLD = 2.85
+EXACT_P = float(sps.norm.sf(THRESHOLD / math.sqrt(3)))
+LINEAR3 = {"model": "linear", "coefficients": [1.0, 1.0, 1.0]}
+
+
+class ExceedanceStates:
+    """A stand-in following the LimitStates interface of uqflow.limit_states: limit state
+    ``name`` fails where ``variable`` (an output, or column ``column`` of the inputs) exceeds
+    its threshold; margins NaN where the realization did not run ok, unless ``honest`` is
+    False (then a margin from the inputs is finite for every realization, to show that the
+    method masks non-ok runs itself)."""
+
+    def __init__(self, states, honest=True):
+        self.states = states          # name -> (variable, column or None, threshold)
+        self.names = list(states)
+        self.honest = honest
+
+    def margins(self, runs):
+        columns = []
+        for variable, column, threshold in self.states.values():
+            y = runs[variable].values if column is None else runs[variable].values[:, column]
+            columns.append(threshold - y)
+        g = np.stack(columns, axis=1).astype(float)
+        if self.honest:
+            g[runs["status"].values != "ok"] = np.nan
+        return xr.DataArray(g, dims=("realization", "limit_state"),
+                            coords={"limit_state": self.names})
+
+    def failures(self, runs):
+        return self.margins(runs) <= 0
+
+
+def normal(name):
+    return RandomInput.from_spec({"name": name, "distribution": "normal", "mean": 0.0,
+                                  "std": 1.0})
+
+
+def linear_space():
+    return InputSpace([normal(f"x{i}") for i in (1, 2, 3)])
+
+
+def run_with_states(scene, space, states, seed=0, **options):
+    method = MonteCarlo(**options)
+    method.check_limit_states(states)
+    design = method.plan(space, None, np.random.SeedSequence(seed))
+    runs = evaluate_design(AnalyticSolver.from_scene(scene), design)
+    return method, design, runs, method.analyze(design, runs)
+
+
+def y_exceeds(threshold=THRESHOLD, name="y_high"):
+    return ExceedanceStates({name: ("y", None, threshold)})
+
+
+# ----------------------------------------------------------------------------- intervals
+
+@pytest.mark.parametrize("n", [1, 7, 1000, 10**6])
+def test_clopper_pearson_closed_forms_at_zero_and_all(n):
+    """k = 0: [0, 1 - (alpha/2)^(1/n)]; k = n: [(alpha/2)^(1/n), 1]."""
+    alpha = 0.05
+    # -expm1(log(a)/n) is the closed form without the cancellation of 1 - x near x = 1
+    upper = -math.expm1(math.log(alpha / 2) / n)
+    none, every = clopper_pearson(0, n, 0.95), clopper_pearson(n, n, 0.95)
+    assert none.low == 0.0 and every.high == 1.0
+    # scipy's incomplete-beta inverse is accurate to ~1e-15 relative (Boost's ibeta_inv);
+    # 1e-12 leaves three decades for libm differences in the few operations around it
+    assert none.high == pytest.approx(upper, rel=1e-12)
+    assert every.low == pytest.approx((alpha / 2) ** (1 / n), rel=1e-12)
+    assert not none.reason and not every.reason
+
+
+@pytest.mark.parametrize("k, n", [(1, 10), (3, 50), (50, 1000), (999, 1000)])
+def test_clopper_pearson_bounds_have_tails_alpha_over_two(k, n):
+    """The defining property: P[X >= k | low] = alpha/2 = P[X <= k | high], X ~ Bin(n, p);
+    and scipy's own exact interval."""
+    ci = clopper_pearson(k, n, 0.95)
+    # the bounds' relative error (~1e-15) times d ln(tail) / d ln(p) <= n = 1000
+    assert sps.binom.sf(k - 1, n, ci.low) == pytest.approx(0.025, rel=1e-9)
+    assert sps.binom.cdf(k, n, ci.high) == pytest.approx(0.025, rel=1e-9)
+    ref = sps.binomtest(k, n).proportion_ci(0.95, method="exact")
+    # same beta quantiles: a few ulp apart at most
+    assert (ci.low, ci.high) == pytest.approx((ref.low, ref.high), rel=1e-13)
+
+
+@pytest.mark.parametrize("k, n", [(0, 5), (1, 10), (3, 50), (50, 1000), (1000, 1000)])
+def test_wilson_bounds_are_the_score_roots(k, n):
+    """(k/n - p)^2 = z^2 p (1 - p) / n at both bounds; scipy's Wilson interval agrees."""
+    ci = wilson(k, n, 0.95)
+    z2 = sps.norm.ppf(0.975) ** 2
+    for p in (ci.low, ci.high):
+        lhs, rhs = (k / n - p) ** 2, z2 * p * (1 - p) / n
+        # a quadratic's roots: residual ~ eps times the terms' size (z^2/n scale)
+        assert lhs == pytest.approx(rhs, abs=64 * EPS * (1 + z2 / n))
+    ref = sps.binomtest(k, n).proportion_ci(0.95, method="wilson")
+    # two roundings of the same closed form
+    assert (ci.low, ci.high) == pytest.approx((ref.low, ref.high), rel=1e-13, abs=1e-15)
+    assert (ci.low == 0.0) == (k == 0) and (ci.high == 1.0) == (k == n)
+
+
+@pytest.mark.parametrize("interval", [clopper_pearson, wilson])
+def test_no_runs_gives_nan_with_a_reason_and_bad_counts_are_refused(interval):
+    empty = interval(0, 0, 0.95)
+    assert math.isnan(empty.low) and math.isnan(empty.high) and "n = 0" in empty.reason
+    for k, n, level in ((3, 2, 0.95), (-1, 5, 0.95), (1.5, 5, 0.95), (1, 5, 1.0)):
+        with pytest.raises(ValueError):
+            interval(k, n, level)
+
+
+def exact_coverage(interval, n, p, level):
+    """P[p in interval(K, n)] for K ~ Bin(n, p), by summing the binomial pmf."""
+    pmf = sps.binom.pmf(np.arange(n + 1), n, p)
+    covers = np.array([interval(k, n, level).low <= p <= interval(k, n, level).high
+                       for k in range(n + 1)])
+    return float(pmf[covers].sum()), covers
+
+
+@pytest.mark.parametrize("n, p", [(10, 0.5), (50, 0.3), (100, 0.01), (200, 0.05),
+                                  (1000, 0.05)])
+def test_clopper_pearson_covers_at_least_its_level(n, p):
+    """A theorem for the exact interval, for every n and p (the summation of <= 1001 pmf
+    terms errs by ~1e-13, far below the margin the test needs)."""
+    coverage, _ = exact_coverage(clopper_pearson, n, p, 0.95)
+    assert coverage >= 0.95
+
+
+@pytest.mark.parametrize("interval", [clopper_pearson, wilson])
+def test_coverage_over_binomial_draws_is_within_its_binomial_band(interval):
+    """4000 draws of K ~ Bin(1000, 0.05): the fraction of intervals covering p is
+    Binomial(M, c)/M around the interval's exact coverage c; 4 of its standard deviations
+    (sqrt(c (1 - c) / M) ~ 0.0034) miss with probability 6e-5. c itself is within the band
+    of the nominal 95 % at this M (Clopper-Pearson at or above it, by the theorem)."""
+    n, p, level, draws = 1000, 0.05, 0.95, 4000
+    coverage, covers = exact_coverage(interval, n, p, level)
+    k = np.random.default_rng(18).binomial(n, p, size=draws)
+    seen = covers[k].mean()
+    assert abs(seen - coverage) <= 4 * math.sqrt(coverage * (1 - coverage) / draws)
+    nominal_band = 4 * math.sqrt(level * (1 - level) / draws)
+    assert abs(coverage - level) <= nominal_band
+    assert abs(seen - level) <= 2 * nominal_band
+    if interval is clopper_pearson:
+        assert coverage >= level
+
+
+def test_replicate_interval_is_a_t_interval_over_the_replicates():
+    fractions = np.array([0.04, 0.06, 0.05, 0.03, 0.07, 0.05, 0.06, 0.04, np.nan])
+    mean, stderr, ci = replicate_interval(fractions, 0.95)
+    used = fractions[:8]
+    assert mean == pytest.approx(used.mean(), rel=4 * EPS)
+    assert stderr == pytest.approx(used.std(ddof=1) / math.sqrt(8), rel=16 * EPS)
+    half = sps.t.ppf(0.975, 7) * stderr
+    assert (ci.low, ci.high) == pytest.approx((mean - half, mean + half), rel=16 * EPS)
+    # clipped to [0, 1]: a wide spread around a small p
+    _, _, wide = replicate_interval([0.0, 0.0, 0.0, 0.2], 0.95)
+    assert wide.low == 0.0 and 0 < wide.high < 1
+    # no spread: no error estimate, a reason instead
+    p, stderr, none = replicate_interval([0.0] * 8, 0.95)
+    assert p == 0.0 and stderr == 0.0 and math.isnan(none.low) and "spread is zero" in \
+        none.reason
+    _, _, one = replicate_interval([0.1, np.nan], 0.95)
+    assert math.isnan(one.high) and "one replicate" in one.reason
+
+
+def test_reliability_index_and_cov():
+    # ndtri is accurate to a few ulp; dbeta/dp * p / beta = p / (phi(beta) beta) < 1 here
+    assert reliability_index(sps.norm.cdf(-4.75)) == pytest.approx(4.75, rel=1e-13)
+    assert reliability_index(0.5) == 0.0
+    assert reliability_index(0.0) == math.inf and reliability_index(1.0) == -math.inf
+    assert math.isnan(reliability_index(math.nan))
+    np.testing.assert_array_equal(reliability_index(np.array([0.0, 1.0])), [np.inf, -np.inf])
+    assert binomial_cov(0.05, 1000) == pytest.approx(math.sqrt(0.95 / 50), rel=4 * EPS)
+    assert binomial_cov(0.0, 1000) == math.inf and binomial_cov(1.0, 10) == 0.0
+    assert math.isnan(binomial_cov(0.0, 0))
+
+
+# ----------------------------------------------------------------------------- monte-carlo
+
+@pytest.mark.parametrize("rule", ["random", "lhs", "sobol", "halton"])
+def test_failure_probability_per_rule_covers_the_exact_value(rule):
+    """P[y > 2.85] ~ 0.0497 from 2048 realizations: the count, the estimate, its interval
+    (Clopper-Pearson for random and LHS, the replicate t interval for RQMC) covering
+    Phi(-t / sqrt 3), its c.o.v. and beta."""
+    n = 2048
+    states = ExceedanceStates({"y_high": ("y", None, THRESHOLD),
+                               "x1_low": ("inputs", 0, 1.0)})   # P[x1 > 1] = Phi(-1)
+    _, _, runs, stats = run_with_states(LINEAR3, linear_space(), states, seed=5, samples=n,
+                                        rule=rule)
+    y, x1 = runs["y"].values, runs["inputs"].values[:, 0]
+    for name, failing, exact in (("y_high", y > THRESHOLD, EXACT_P),
+                                 ("x1_low", x1 > 1.0, float(sps.norm.sf(1.0)))):
+        at = stats.sel(limit_state=name)
+        k = int(failing.sum())
+        assert int(at["failures"]) == k and int(at["failure_probability_runs"]) == n
+        assert int(at["failure_probability_left_out"]) == 0
+        p = float(at["failure_probability"])
+        low, high = at["failure_probability_interval"].values
+        assert low <= exact <= high, (rule, name, low, exact, high)
+        if rule in ("random", "lhs"):
+            assert p == k / n
+            ci = clopper_pearson(k, n, 0.95)
+            assert (low, high) == (ci.low, ci.high)
+            assert float(at["failure_probability_cov"]) == binomial_cov(p, n)
+            # i.i.d.: within 4 binomial standard errors (LHS: no larger, Owen 1997)
+            assert abs(p - exact) <= 4 * math.sqrt(exact * (1 - exact) / n)
+        else:
+            fractions = failing.reshape(-1, 8).mean(axis=0)   # realization j*8 + r
+            mean, stderr, ci = replicate_interval(fractions, 0.95)
+            assert p == mean and (low, high) == (ci.low, ci.high)
+            assert float(at["failure_probability_cov"]) == stderr / mean
+        assert float(at["reliability_index"]) == -sps.norm.ppf(p)
+    expected = "clopper-pearson" if rule in ("random", "lhs") else "replicate-t"
+    assert stats.attrs["interval_method"] == expected
+    assert ("Owen" in stats.attrs["failure_probability_note"]) == (rule == "lhs")
+    # the moments of y are those without limit states, bit for bit
+    plain = MonteCarlo(samples=n, rule=rule)
+    design = plain.plan(linear_space(), None, np.random.SeedSequence(5))
+    without = plain.analyze(design, evaluate_design(AnalyticSolver.from_scene(LINEAR3),
+                                                    design))
+    assert "limit_state" not in without.dims and "failure_probability" not in without
+    xr.testing.assert_identical(without["y"], stats["y"])
+
+
+def test_realizations_that_did_not_run_ok_are_not_failures():
+    """x ~ U(-2, 2), the solver raises above 1.5: those realizations are left out of every
+    limit state, even of one whose margin (from the inputs) the stand-in computes for them."""
+    n = 1000
+    states = ExceedanceStates({"y_high": ("y", None, 1.0), "x_high": ("inputs", 0, 1.0)},
+                              honest=False)
+    _, _, runs, stats = run_with_states({"model": "faulty", "raise_above": 1.5},
+                                        InputSpace([uniform("x", -2.0, 2.0)]), states,
+                                        seed=3, samples=n)
+    x = runs["inputs"].values[:, 0]
+    broken = x > 1.5
+    assert np.array_equal(runs["status"].values == "failed", broken) and broken.any()
+    for name in ("y_high", "x_high"):
+        at = stats.sel(limit_state=name)
+        assert int(at["failures"]) == int(((x > 1.0) & ~broken).sum())
+        assert int(at["failure_probability_left_out"]) == int(broken.sum())
+        assert int(at["failure_probability_runs"]) == n - int(broken.sum())
+        p = float(at["failure_probability"])
+        # P[x > 1 | x <= 1.5] = 0.5 / 3.5, within 4 binomial standard errors
+        assert abs(p - 1 / 7) <= 4 * math.sqrt(1 / 7 * 6 / 7 / (n - broken.sum()))
+    note = stats.attrs["failure_probability_note"]
+    assert f"{int(broken.sum())} realization(s) did not run ok and are left out" in note
+    lines = failure_lines(stats)
+    assert any(f"{int(broken.sum())} not run ok and left out" in line for line in lines)
+
+
+def test_no_failure_seen():
+    """k = 0: p = 0, beta = inf, c.o.v. inf; Clopper-Pearson [0, 1 - 0.025^(1/n)]; the
+    replicate interval has no spread to go on and says so."""
+    _, _, _, stats = run_with_states(LINEAR3, linear_space(), y_exceeds(50.0), samples=64)
+    at = stats.sel(limit_state="y_high")
+    assert int(at["failures"]) == 0 and float(at["failure_probability"]) == 0.0
+    assert float(at["reliability_index"]) == math.inf
+    assert float(at["failure_probability_cov"]) == math.inf
+    # closed form against beta.ppf(0.975, 1, 64): see the Clopper-Pearson test's bound
+    assert at["failure_probability_interval"].values == pytest.approx(
+        [0.0, -math.expm1(math.log(0.025) / 64)], rel=1e-12)
+    _, _, _, rqmc = run_with_states(LINEAR3, linear_space(), y_exceeds(50.0), samples=64,
+                                    rule="sobol")
+    assert np.isnan(rqmc["failure_probability_interval"].values).all()
+    assert float(rqmc["failure_probability_cov"].sel(limit_state="y_high")) == math.inf
+    assert "limit state 'y_high': no interval of P[failure]" in rqmc.attrs["warnings"]
+
+
+def run_until_enough(method, design, runs):
+    """What the executor does: ask ``enough`` on each stop point's prefix, stop at the
+    first yes (the count run)."""
+    for count in method.stop_points(design.sizes["realization"]):
+        prefix = dict(realization=slice(0, int(count)))
+        if method.enough(design.isel(prefix), runs.isel(prefix)):
+            return int(count)
+    return design.sizes["realization"]
+
+
+@pytest.mark.parametrize("rule", ["random", "sobol"])
+def test_target_cov_stops_at_the_first_stop_point_that_reaches_it(rule):
+    """target_cov 0.15 at p ~ 0.05: n ~ (1 - p) / (p 0.15^2) ~ 850 for independent points.
+    The stop is the first stop point whose prefix has c.o.v. <= target (computed here by
+    hand), the same on a second plan from the same seed, and never before min_samples."""
+    target, samples = 0.15, 4096
+    method, design, runs, _ = run_with_states(LINEAR3, linear_space(), y_exceeds(), seed=11,
+                                              samples=samples, rule=rule, target_cov=target)
+    stop = run_until_enough(method, design, runs)
+    y = runs["y"].values
+    failing = y > THRESHOLD
+
+    def cov(count):
+        if rule == "random":
+            return binomial_cov(failing[:count].mean(), count)
+        mean, stderr, ci = replicate_interval(failing[:count].reshape(-1, 8).mean(axis=0))
+        return stderr / mean if mean > 0 and not ci.reason else math.inf
+
+    points = [int(c) for c in method.stop_points(samples)]
+    expected = next(c for c in points if cov(c) <= target)
+    assert stop == expected < samples
+    if rule == "random":
+        # stopping at n needs p_hat >= 1 / (1 + n 0.15^2): 0.129 at n = 300, 6 binomial
+        # standard errors above p; at 2500 p_hat <= 0.0178 is 7 below it
+        assert 300 < stop < 2500
+    else:
+        # whole balanced prefixes of the 8 replicates, from min_samples on
+        assert stop >= 32 and stop % 8 == 0 and (stop // 8) & (stop // 8 - 1) == 0
+    again, design2, runs2, _ = run_with_states(LINEAR3, linear_space(), y_exceeds(),
+                                               seed=11, samples=samples, rule=rule,
+                                               target_cov=target)
+    assert run_until_enough(again, design2, runs2) == stop
+    # both targets: the stop waits for the later one
+    both = MonteCarlo(samples=samples, rule=rule, target_cov=target, target_rel_stderr=1e-9)
+    both.check_limit_states(y_exceeds())
+    assert run_until_enough(both, design, runs) == samples
+
+
+def test_target_cov_needs_limit_states():
+    method = MonteCarlo(samples=100, target_cov=0.1)
+    with pytest.raises(StudyError) as err:
+        method.check_limit_states(None)
+    assert err.value.key == "method.target_cov"
+    with pytest.raises(StudyError):
+        MonteCarlo(samples=100, target_cov=0.1).plan(linear_space(), None,
+                                                     np.random.SeedSequence(0))
+    MonteCarlo(samples=100).check_limit_states(None)      # no target: fine
+    assert MonteCarlo.uses_limit_states
+
+
+def test_report_lines_give_p_interval_cov_and_beta():
+    _, _, _, stats = run_with_states(LINEAR3, linear_space(), y_exceeds(), seed=5,
+                                     samples=512)
+    at = stats.sel(limit_state="y_high")
+    lines = failure_lines(stats)
+    low, high = at["failure_probability_interval"].values
+    assert lines[0] == (
+        f"P[failure of y_high] = {float(at['failure_probability']):.6g} (95 % interval "
+        f"{low:.6g} .. {high:.6g}), c.o.v. {float(at['failure_probability_cov']):.6g}, "
+        f"beta = {float(at['reliability_index']):.6g}; {int(at['failures'])} failures in 512 "
+        f"runs")
+    assert "Clopper-Pearson" in lines[-1]
+    stats_plain = MonteCarlo(samples=8).analyze(*_plain_design())
+    assert failure_lines(stats_plain) == []
+
+
+def _plain_design():
+    method = MonteCarlo(samples=8)
+    design = method.plan(linear_space(), None, np.random.SeedSequence(0))
+    return design, evaluate_design(AnalyticSolver.from_scene(LINEAR3), design)

@@ -1,0 +1,136 @@
+"""Estimates of a probability from sampled events: intervals, coefficient of variation, β.
+
+A Monte Carlo estimate of a failure probability is a count: k failures among n realizations
+that ran. For independent draws k is binomial, and two intervals for p follow from that alone:
+
+* Clopper–Pearson ("exact"): the p whose binomial tail probabilities of k are α/2, from the
+  beta quantiles B(α/2; k, n − k + 1) and B(1 − α/2; k + 1, n − k). Its coverage is at least
+  the confidence level for every p and n (it is conservative), which makes it the default.
+* Wilson (score): the p for which |k/n − p| ≤ z sqrt(p(1 − p)/n); shorter, its coverage
+  oscillates around the level (Brown, Cai & DasGupta 2001), not always above it.
+
+Randomized quasi-Monte Carlo points are not independent, so neither applies: its estimate is
+the mean of R independent replicates' fractions, its interval a Student t with R − 1 degrees
+of freedom over their spread (``replicate_interval``).
+
+Where an interval cannot be given (no realization ran, replicates that all saw the same
+fraction) its bounds are NaN and ``reason`` says why.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats as sps
+
+CLOPPER_PEARSON, WILSON, REPLICATE_T = "clopper-pearson", "wilson", "replicate-t"
+
+
+@dataclass(frozen=True)
+class ProbabilityInterval:
+    """An interval [low, high] of a probability at ``confidence``, by ``method``; the bounds
+    are NaN where none can be given, and ``reason`` then says why."""
+
+    low: float
+    high: float
+    method: str
+    confidence: float
+    reason: str = ""
+
+
+def _check_count(k, n, confidence) -> tuple[int, int]:
+    if not 0 < confidence < 1:
+        raise ValueError(f"confidence must lie in (0, 1), got {confidence!r}")
+    if int(k) != k or int(n) != n:
+        raise ValueError(f"k and n must be whole counts, got k = {k!r}, n = {n!r}")
+    k, n = int(k), int(n)
+    if not 0 <= k <= n:
+        raise ValueError(f"need 0 <= k <= n, got k = {k}, n = {n}")
+    return k, n
+
+
+def _no_runs(method, confidence) -> ProbabilityInterval:
+    return ProbabilityInterval(math.nan, math.nan, method, confidence,
+                               "no realization ran: n = 0 gives no estimate")
+
+
+def clopper_pearson(k: int, n: int, confidence: float = 0.95) -> ProbabilityInterval:
+    """The exact (Clopper–Pearson) interval of a binomial p from k successes in n trials.
+
+    At k = 0 the lower bound is 0 and the upper 1 − (α/2)^(1/n); at k = n the lower bound is
+    (α/2)^(1/n) and the upper 1 (the beta quantiles in closed form)."""
+    k, n = _check_count(k, n, confidence)
+    if n == 0:
+        return _no_runs(CLOPPER_PEARSON, confidence)
+    tail = (1 - confidence) / 2
+    low = 0.0 if k == 0 else float(sps.beta.ppf(tail, k, n - k + 1))
+    high = 1.0 if k == n else float(sps.beta.ppf(1 - tail, k + 1, n - k))
+    return ProbabilityInterval(low, high, CLOPPER_PEARSON, confidence)
+
+
+def wilson(k: int, n: int, confidence: float = 0.95) -> ProbabilityInterval:
+    """The Wilson score interval of a binomial p from k successes in n trials: the roots of
+    (k/n − p)² = z² p (1 − p) / n, with z the normal quantile of 1 − α/2."""
+    k, n = _check_count(k, n, confidence)
+    if n == 0:
+        return _no_runs(WILSON, confidence)
+    z2 = sps.norm.ppf(0.5 + confidence / 2) ** 2
+    centre = (k + z2 / 2) / (n + z2)
+    half = math.sqrt(z2) / (n + z2) * math.sqrt(k * (n - k) / n + z2 / 4)
+    # At k = 0 (k = n) the lower (upper) root is 0 (1) exactly; the formula leaves rounding.
+    low = 0.0 if k == 0 else max(centre - half, 0.0)
+    high = 1.0 if k == n else min(centre + half, 1.0)
+    return ProbabilityInterval(low, high, WILSON, confidence)
+
+
+def replicate_interval(estimates, confidence: float = 0.95) -> tuple[float, float,
+                                                                     ProbabilityInterval]:
+    """Mean, standard error and Student t interval (R − 1 degrees of freedom, clipped to
+    [0, 1]) of a probability from R independent replicate estimates (randomized QMC).
+
+    NaN estimates (replicates without a realization that ran) are left out. Below two
+    replicates, or when every replicate gave the same fraction (all 0 for a rare event), the
+    spread says nothing about the error: the interval is NaN with the reason."""
+    if not 0 < confidence < 1:
+        raise ValueError(f"confidence must lie in (0, 1), got {confidence!r}")
+    values = np.asarray(estimates, dtype=float).ravel()
+    values = values[np.isfinite(values)]
+    count = values.size
+    if count == 0:
+        return math.nan, math.nan, _no_runs(REPLICATE_T, confidence)
+    mean = float(values.mean())
+    if count < 2:
+        return mean, math.nan, ProbabilityInterval(
+            math.nan, math.nan, REPLICATE_T, confidence,
+            "one replicate ran: its spread cannot be estimated")
+    if np.all(values == values[0]):
+        # Exactly equal fractions (typically no failure in any replicate): a zero spread is
+        # no error estimate.
+        return float(values[0]), 0.0, ProbabilityInterval(
+            math.nan, math.nan, REPLICATE_T, confidence,
+            f"every replicate gave the fraction {values[0]:.6g}: their spread is zero and "
+            f"bounds nothing (run more samples)")
+    stderr = float(values.std(ddof=1) / math.sqrt(count))
+    half = float(sps.t.ppf(0.5 + confidence / 2, count - 1)) * stderr
+    return mean, stderr, ProbabilityInterval(max(mean - half, 0.0), min(mean + half, 1.0),
+                                             REPLICATE_T, confidence)
+
+
+def reliability_index(p):
+    """β = −Φ⁻¹(p): +inf at p = 0, −inf at p = 1, NaN for NaN (arrays element-wise)."""
+    beta = -sps.norm.ppf(np.asarray(p, dtype=float))
+    return float(beta) if np.ndim(beta) == 0 else beta
+
+
+def binomial_cov(p, n):
+    """Coefficient of variation of the fraction of n independent draws estimating p:
+    sqrt((1 − p) / (n p)); +inf at p = 0 (no failure seen: no relative accuracy), 0 at p = 1,
+    NaN for n = 0."""
+    p = np.asarray(p, dtype=float)
+    n = np.asarray(n, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cov = np.where(n > 0, np.sqrt((1 - p) / (n * p)), np.nan)
+    cov = np.where((n > 0) & (p == 0), np.inf, cov)
+    return float(cov) if cov.ndim == 0 else cov
