@@ -370,3 +370,68 @@ def _plain_design():
     method = MonteCarlo(samples=8)
     design = method.plan(linear_space(), None, np.random.SeedSequence(0))
     return design, evaluate_design(AnalyticSolver.from_scene(LINEAR3), design)
+
+
+# ----------------------------------------------------------------------------- a study file
+
+STUDY = """name = "linear-pf"
+solver = "analytic"
+scene = {{ model = "linear", coefficients = [1.0, 1.0, 1.0] }}
+{inputs}
+[method]
+kind = "monte-carlo"
+samples = 4096
+rule = "{rule}"
+target_cov = 0.2
+
+[execution]
+workers = 0
+
+[output]
+path = "out/{rule}.nc"
+figures = false
+
+[[limit_states]]
+name = "y_high"
+output = "y"
+exceeds = {threshold}
+"""
+
+
+@pytest.mark.parametrize("rule", ["random", "sobol"])
+def test_a_study_with_limit_states_stops_on_target_cov_and_reports_p(rule, tmp_path,
+                                                                     monkeypatch, capsys):
+    """The real [[limit_states]] of a study file, run twice by the command line: the same
+    stop, the statistics of the in-process run at that count, and the report's line."""
+    from uqflow import cli
+    from uqflow.store import open_result
+
+    inputs = "".join(f'\n[[inputs]]\nname = "x{i}"\ndistribution = "normal"\nmean = 0.0\n'
+                     f'std = 1.0\n' for i in (1, 2, 3))
+    path = tmp_path / "study.toml"
+    path.write_text(STUDY.format(inputs=inputs, rule=rule, threshold=THRESHOLD),
+                    encoding="utf-8")
+    monkeypatch.chdir(tmp_path)
+    stats = []
+    for again in (False, True):
+        assert cli.main(["run", str(path), "--quiet", "--no-figures"]
+                        + (["--force"] if again else [])) == 0
+        with open_result(tmp_path / "out" / f"{rule}.nc") as tree:
+            stats.append(tree["statistics"].to_dataset().load())
+    first, second = stats
+    for name in ("failures", "failure_probability", "failure_probability_interval",
+                 "failure_probability_cov", "y"):
+        xr.testing.assert_identical(first[name].variable, second[name].variable)
+    count = first.attrs["solver_runs"]
+    assert count < 4096 and float(first["failure_probability_cov"].item()) <= 0.2
+    # the stop of the in-process executor stand-in, on the design of the same seed
+    from uqflow.study import load_study
+    study = load_study(path)
+    design = study.method.plan(study.space, None,
+                               np.random.SeedSequence(study.spec.execution.seed))
+    runs = evaluate_design(AnalyticSolver.from_scene(LINEAR3), design)
+    assert run_until_enough(study.method, design, runs) == count
+    capsys.readouterr()
+    assert cli.main(["report", str(tmp_path / "out" / f"{rule}.nc"), "--no-figures"]) == 0
+    text = capsys.readouterr().out
+    assert f"P[failure of y_high] = {float(first['failure_probability'].item()):.6g}" in text
