@@ -281,13 +281,14 @@ def test_refuses_several_limit_states_a_system_and_none(tmp_path):
     assert error.value.key == "limit_states" and "\n" not in str(error.value)
 
 
-def test_a_failed_start_is_reported_not_raised(tmp_path):
-    outcome, _ = run(tmp_path, CURVED, [(0.0, 1.0)] * 2, BELOW_ZERO, {"kind": "form"})
+@pytest.mark.parametrize("kind", ["form", "sorm"])
+def test_a_failed_start_is_reported_not_raised(tmp_path, kind):
+    outcome, _ = run(tmp_path, CURVED, [(0.0, 1.0)] * 2, BELOW_ZERO, {"kind": kind})
     runs = outcome.runs.copy(deep=True)
     runs[STATUS].values[0] = STATUS_FAILED
     runs[MESSAGE].values[0] = "diverged"
     runs["y"].values[0] = np.nan
-    method = load_study(tmp_path / "form.toml").method
+    method = load_study(tmp_path / "form.toml").method  # a fresh one: analyze needs no plan
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", AccuracyWarning)
         stats = method.analyze(runs, runs)
@@ -308,3 +309,24 @@ def test_report_gives_beta_design_point_and_importance_bars(tmp_path):
     assert "importance factor alpha²" in text
     written = [p.name for p in write_figures(tree, tmp_path / "figures")]
     assert "y_sensitivities.png" in written
+
+
+def test_sorm_finds_unequal_curvatures_along_axes_of_their_own(tmp_path):
+    # g = beta - w + (k1 v1^2 + k2 v2^2) / 2 with v1, v2 turned by 0.5 rad about w: the
+    # curvatures' axes are neither the coordinate axes nor the basis SORM rotates to, so the
+    # mixed second differences carry them
+    beta, kappas, turn = 2.5, np.array([0.3, -0.15]), 0.5
+    w = np.array([1.0, 1.0, 0.0]) / math.sqrt(2)
+    a, b = np.array([1.0, -1.0, 0.0]) / math.sqrt(2), np.array([0.0, 0.0, 1.0])
+    v1 = math.cos(turn) * a + math.sin(turn) * b
+    v2 = -math.sin(turn) * a + math.cos(turn) * b
+    q = 0.5 * (kappas[0] * np.outer(v1, v1) + kappas[1] * np.outer(v2, v2))
+    scene = {"model": "quadratic", "offset": beta, "coefficients": (-w).tolist(),
+             "quadratic": q.tolist()}
+    outcome, raised = run(tmp_path, scene, [(0.0, 1.0)] * 3, BELOW_ZERO, {"kind": "sorm"})
+    stats = outcome.statistics
+    # exact to the rounding of the second differences (4 eps |g| / h^2 ~ 1e-13)
+    assert np.allclose(stats["curvatures"].values, np.sort(kappas), rtol=0, atol=1e-9)
+    breitung = stats["sorm_failure_probability"].values[0][0]
+    assert breitung == pytest.approx(sps.norm.sf(beta) / math.sqrt(np.prod(1 + beta * kappas)),
+                                     rel=1e-9)

@@ -40,8 +40,9 @@ from scipy import stats as sps
 
 from uqflow.errors import AccuracyWarning, StudyError
 from uqflow.layout import (FAILURE_PROBABILITY, INPUT_CORRELATION, INPUT_STD, INPUTS,
-                           LIMIT_STATE, PARAMETER, RELIABILITY_INDEX, REALIZATION, ROUND,
-                           SOLVER_RUNS, STATISTIC, UNITS, ok_mask, output_names)
+                           LIMIT_STATE, PARAMETER, PARAMETER_UNITS, RELIABILITY_INDEX,
+                           REALIZATION, ROUND, SOLVER_RUNS, STATISTIC, UNITS, ok_mask,
+                           output_names)
 from uqflow.limit_states import LimitStateSystem
 from uqflow.methods.base import (MethodOptions, PropagationMethod, finish_statistics,
                                  make_design, register_method)
@@ -69,6 +70,11 @@ STAGE_SEARCH, STAGE_CURVATURE = "search", "curvature"
 STANDARD_NORMAL, STENCIL_OFFSET, STAGE = "standard_normal", "stencil_offset", "stage"
 #: labels of the outputs' statistics: each output at the inputs' medians (u = 0) and at u*
 AT_MEDIANS, AT_DESIGN_POINT = "at_medians", "at_design_point"
+#: the method's statistics besides the layout's p_f and beta
+FORM_INDEX, FORM_PROBABILITY = "form_reliability_index", "form_failure_probability"
+SORM_PROBABILITY, CURVATURES = "sorm_failure_probability", "curvatures"
+DESIGN_POINT, DESIGN_POINT_U = "design_point", "design_point_standard_normal"
+IMPORTANCE = "importance_factor"
 #: SORM formulas, in the order of the statistics' ``sorm_formula`` dim
 SORM_FORMULAS = ("breitung", "hohenbichler-rackwitz", "tvedt")
 
@@ -120,6 +126,14 @@ def moving_axes(stds: np.ndarray, lower: np.ndarray) -> np.ndarray:
     """The axes of u that move some input: u_k enters the inputs j with L_jk != 0, and moves
     them only if they have a spread."""
     return np.flatnonzero(((lower != 0) & (stds[:, None] > 0)).any(axis=0))
+
+
+def rotated_basis(search, stds: np.ndarray, lower: np.ndarray):
+    """The basis (columns, within the moving axes) whose last vector is alpha at the search's
+    point, and those axes."""
+    axes = moving_axes(stds, lower)
+    gradient = search.point.gradient[axes]
+    return householder_basis(-gradient / np.linalg.norm(gradient)), axes
 
 
 def householder_basis(alpha: np.ndarray) -> np.ndarray:
@@ -290,7 +304,7 @@ class Form(PropagationMethod):
         """The curvature round: u* + h (+-b_i) and u* + h (+-b_i +-b_j) for the basis vectors
         b_i orthogonal to alpha (within the moving axes)."""
         space = self._space
-        basis, axes = self.rotated_basis(search)
+        basis, axes = rotated_basis(search, space.stds, cholesky_of(space.correlation))
         h = self.options.curvature_step
         coefficients = []
         m = basis.shape[1] - 1
@@ -311,14 +325,6 @@ class Form(PropagationMethod):
         offsets = np.zeros_like(u)
         offsets[:, axes] = coefficients
         return self.rows(u, offsets, round_, STAGE_CURVATURE)
-
-    def rotated_basis(self, search: Search):
-        """The basis (columns, within the moving axes) whose last vector is alpha."""
-        lower = cholesky_of(self._space.correlation)
-        axes = moving_axes(self._space.stds, lower)
-        gradient = search.point.gradient[axes]
-        alpha = -gradient / np.linalg.norm(gradient)
-        return householder_basis(alpha), axes
 
     def rows(self, u, offsets, round_, stage) -> xr.Dataset:
         n = u.shape[0]
@@ -449,19 +455,19 @@ class Form(PropagationMethod):
         data = {
             RELIABILITY_INDEX: ((LIMIT_STATE,), [beta], {"long_name": "reliability index "
                                                          "beta = -Phi^-1(p_f)", UNITS: "1"}),
-            "form_reliability_index": ((LIMIT_STATE,), [beta], {
+            FORM_INDEX: ((LIMIT_STATE,), [beta], {
                 "long_name": "FORM reliability index alpha . u*", UNITS: "1"}),
-            "form_failure_probability": ((LIMIT_STATE,), [form_pf], {
+            FORM_PROBABILITY: ((LIMIT_STATE,), [form_pf], {
                 "long_name": "FORM failure probability Phi(-beta)", UNITS: "1"}),
             FAILURE_PROBABILITY: ((LIMIT_STATE,), [form_pf], {
                 "long_name": "failure probability", UNITS: "1"}),
-            "design_point": ((LIMIT_STATE, PARAMETER), [x_star], {
+            DESIGN_POINT: ((LIMIT_STATE, PARAMETER), [x_star], {
                 "long_name": "design point in the inputs' units"}),
-            "design_point_standard_normal": ((LIMIT_STATE, PARAMETER), [u_star], {
+            DESIGN_POINT_U: ((LIMIT_STATE, PARAMETER), [u_star], {
                 "long_name": "design point u* in standard normal space", UNITS: "1"}),
             "alpha": ((LIMIT_STATE, PARAMETER), [alpha], {
                 "long_name": "unit vector alpha = -grad g / |grad g| at u*", UNITS: "1"}),
-            "importance_factor": ((LIMIT_STATE, PARAMETER), [importance], {
+            IMPORTANCE: ((LIMIT_STATE, PARAMETER), [importance], {
                 "long_name": "importance factor gamma^2 (alpha^2 for independent inputs)",
                 UNITS: "1"}),
         }
@@ -487,7 +493,8 @@ class Form(PropagationMethod):
             pywarnings.warn(message, AccuracyWarning, stacklevel=2)
         stats = finish_statistics(stats, design, runs, self.name, warnings)
         state = self.limit_states[self.limit_state]
-        stats.attrs.update(limit_state=self.limit_state, limit_state_output=state.output,
+        stats.attrs[LIMIT_STATE] = self.limit_state
+        stats.attrs.update(limit_state_output=state.output,
                            limit_state_event=state.describe(),
                            converged=int(search.converged), stop_reason=search.stopped,
                            iterations=len(search.iterations), step=self.options.step,
@@ -530,12 +537,13 @@ class Form(PropagationMethod):
         """The curvature round's Hessian, the principal curvatures and the SORM p_f."""
         warnings = []
         rows = np.flatnonzero(runs[STAGE].values == STAGE_CURVATURE)
-        m = max(len(moving_axes(self._space.stds, cholesky_of(self._space.correlation))) - 1,
-                0)
+        stds = np.asarray(runs[INPUT_STD].values, dtype=float)
+        lower = cholesky_of(np.asarray(runs[INPUT_CORRELATION].values, dtype=float))
+        m = max(len(moving_axes(stds, lower)) - 1, 0)
         kappa = np.full(m, np.nan)
         if search.point is not None and rows.size:
             g = self.margins(runs)
-            _, axes = self.rotated_basis(search)
+            _, axes = rotated_basis(search, stds, lower)
             coefficients = runs[STENCIL_OFFSET].values[rows][:, axes]
             centre = float(search.point.g)
             hessian = np.full((m, m), np.nan)
@@ -583,9 +591,9 @@ class Form(PropagationMethod):
                             f"{SORM_AGREEMENT:.0%} ({', '.join(f'{p:.3g}' for p in finite)}); "
                             f"check with a sampling method")
         chosen = probabilities[2]
-        stats["curvatures"] = (("curvature",), kappa, {
+        stats[CURVATURES] = (("curvature",), kappa, {
             "long_name": "principal curvatures of the limit state at u*", UNITS: "1"})
-        stats["sorm_failure_probability"] = ((LIMIT_STATE, "sorm_formula"), [probabilities], {
+        stats[SORM_PROBABILITY] = ((LIMIT_STATE, "sorm_formula"), [probabilities], {
             "long_name": "SORM failure probability", UNITS: "1"})
         stats = stats.assign_coords(sorm_formula=list(SORM_FORMULAS))
         stats[FAILURE_PROBABILITY].values[:] = chosen
@@ -601,40 +609,38 @@ class Form(PropagationMethod):
         framework draws their bar chart); the runs are search points, not draws."""
         stats = view.stats
         attrs = stats.attrs
-        name = str(attrs.get("limit_state", "?"))
+        name = str(attrs.get(LIMIT_STATE, "?"))
         converged = bool(int(attrs.get("converged", 0)))
         runs = int(attrs.get(SOLVER_RUNS, 0))
         beta = float(stats[RELIABILITY_INDEX].values[0]) if RELIABILITY_INDEX in stats \
             else math.nan
         pf = float(stats[FAILURE_PROBABILITY].values[0]) if FAILURE_PROBABILITY in stats \
             else math.nan
-        kind = "SORM" if "sorm_failure_probability" in stats else "FORM"
+        kind = "SORM" if SORM_PROBABILITY in stats else "FORM"
         notes = [f"{kind}, limit state '{name}': beta = {number(beta)}, p_f = {number(pf)}"
                  + ("" if converged else f" (NOT converged: {attrs.get('stop_reason', '')})")
                  + f"; {int(attrs.get('iterations', 0))} search rounds"]
-        if "sorm_failure_probability" in stats:
-            values = stats["sorm_failure_probability"].values[0]
+        if SORM_PROBABILITY in stats:
+            values = stats[SORM_PROBABILITY].values[0]
             notes.append("SORM p_f: " + ", ".join(
                 f"{f} {number(v)}" for f, v in zip(SORM_FORMULAS, values))
-                + f"; FORM {number(float(stats['form_failure_probability'].values[0]))}")
+                + f"; FORM {number(float(stats[FORM_PROBABILITY].values[0]))}")
             notes.append("principal curvatures: " + ", ".join(
-                number(k) for k in stats["curvatures"].values))
-        if "design_point" in stats:
-            units = [str(u) for u in stats[PARAMETER].coords.get(
-                "parameter_units", xr.DataArray([""] * stats.sizes[PARAMETER])).values] \
-                if "parameter_units" in stats.coords else [""] * stats.sizes[PARAMETER]
+                number(k) for k in stats[CURVATURES].values))
+        if DESIGN_POINT in stats:
+            units = [str(u) for u in stats[PARAMETER_UNITS].values] \
+                if PARAMETER_UNITS in stats.coords else [""] * stats.sizes[PARAMETER]
             notes.append("design point: " + ", ".join(
                 f"{p} = {number(v)}{(' ' + u) if u else ''}" for p, v, u in zip(
-                    stats[PARAMETER].values, stats["design_point"].values[0], units)))
+                    stats[PARAMETER].values, stats[DESIGN_POINT].values[0], units)))
         output = str(attrs.get("limit_state_output", ""))
 
         def importance(out):
-            if "importance_factor" not in stats or (output and out != output):
+            if IMPORTANCE not in stats or (output and out != output):
                 return None
-            values = stats["importance_factor"].isel({LIMIT_STATE: 0}).expand_dims(
+            values = stats[IMPORTANCE].isel({LIMIT_STATE: 0}).expand_dims(
                 {"index": ["importance factor alpha²"]}, axis=1)
-            return Sensitivity(title=f"{kind}: importance factors at the design point of "
-                                     f"'{name}'", values=values,
+            return Sensitivity(title=f"{kind} importance factors of '{name}'", values=values,
                                quantity="share of beta² (sums to 1)",
                                note="" if converged else "FORM did not converge")
 
