@@ -122,6 +122,7 @@ def test_form_is_exact_for_a_linear_limit_state_in_correlated_normals(tmp_path, 
     assert float(stats[FAILURE_PROBABILITY].values[0]) == pytest.approx(sps.norm.sf(beta),
                                                                         rel=1e-8)
     design = np.array(MEANS) + sigma @ C * beta / sd_y
+    # u* errs by the gradient's rounding (1e-13 relative) times beta ~ 3, scaled by stds < 1
     assert np.allclose(stats["design_point"].values[0], design, rtol=0, atol=1e-9)
     # the importance factors of correlated inputs (Der Kiureghian's gamma^2): (s_k c_k)^2 / sum
     share = (np.array(STDS) * C) ** 2
@@ -147,6 +148,7 @@ def test_sorm_within_a_few_per_cent_of_an_exact_paraboloid_where_form_is_not(tmp
     assert np.allclose(stats["design_point"].values[0], [beta / math.sqrt(2)] * 2 + [0.0],
                        rtol=0, atol=1e-9)
     breitung, hohenbichler, tvedt = stats["sorm_failure_probability"].values[0]
+    # kappa errs by 1e-13 (above), so 1 + beta kappa by 1e-13 relative
     assert breitung == pytest.approx(sps.norm.sf(beta) / (1 + beta * kappa), rel=1e-9)
     # the asymptotic formulas are not exact for a paraboloid; their error is second order in
     # kappa beta = 0.6 and 1/beta: within a few per cent for Tvedt and Hohenbichler-Rackwitz
@@ -166,10 +168,13 @@ def test_sorm_formulas_against_their_closed_forms():
     # the origin in the failure domain: 1 - P[safe] with the safe side's index and curvatures
     got, _ = sorm_probabilities(-2.0, np.array([0.1, -0.2]))
     safe, _ = sorm_probabilities(2.0, np.array([-0.1, 0.2]))
+    # the same arithmetic on both sides: only the subtraction 1 - safe rounds (eps / p)
     assert np.allclose(got, 1 - safe, rtol=1e-14)
     # Hohenbichler-Rackwitz: psi = phi(beta) / Phi(-beta) in place of beta
     psi = sps.norm.pdf(3.0) / sps.norm.sf(3.0)
     got, why = sorm_probabilities(3.0, np.array([0.2, -0.1]))
+    # psi from exp(logpdf - logsf) and from pdf / sf differ by a few ulp of log terms ~ 5:
+    # 1e-15 relative, and the product of two square roots adds a few eps
     assert got[1] == pytest.approx(sps.norm.sf(3.0) / math.sqrt((1 + 0.2 * psi) *
                                                                 (1 - 0.1 * psi)), rel=1e-13)
     assert why == []
@@ -328,5 +333,6 @@ def test_sorm_finds_unequal_curvatures_along_axes_of_their_own(tmp_path):
     # exact to the rounding of the second differences (4 eps |g| / h^2 ~ 1e-13)
     assert np.allclose(stats["curvatures"].values, np.sort(kappas), rtol=0, atol=1e-9)
     breitung = stats["sorm_failure_probability"].values[0][0]
+    # the curvatures' 1e-13 error (above) moves 1 + beta kappa by 1e-13 relative
     assert breitung == pytest.approx(sps.norm.sf(beta) / math.sqrt(np.prod(1 + beta * kappas)),
                                      rel=1e-9)
