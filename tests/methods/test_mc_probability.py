@@ -435,3 +435,19 @@ def test_a_study_with_limit_states_stops_on_target_cov_and_reports_p(rule, tmp_p
     assert cli.main(["report", str(tmp_path / "out" / f"{rule}.nc"), "--no-figures"]) == 0
     text = capsys.readouterr().out
     assert f"P[failure of y_high] = {float(first['failure_probability'].item()):.6g}" in text
+
+
+@pytest.mark.parametrize("rule", ["random", "halton"])
+def test_every_realization_failing_gives_nan_with_the_reason(rule):
+    states = ExceedanceStates({"y_high": ("y", None, 0.0)})
+    _, _, _, stats = run_with_states({"model": "faulty", "raise_above": -10.0},
+                                     InputSpace([uniform("x", -2.0, 2.0)]), states,
+                                     samples=16, rule=rule)
+    at = stats.sel(limit_state="y_high")
+    assert int(at["failures"]) == 0 and int(at["failure_probability_runs"]) == 0
+    assert int(at["failure_probability_left_out"]) == 16
+    for name in ("failure_probability", "failure_probability_cov", "reliability_index"):
+        assert math.isnan(float(at[name])), name
+    assert np.isnan(at["failure_probability_interval"].values).all()
+    assert "limit state 'y_high': no interval of P[failure]: no realization ran" in \
+        stats.attrs["warnings"]
