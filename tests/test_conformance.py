@@ -98,6 +98,9 @@ METHODS = {
                     "costs": [1.0, 4.0]}, {"levels": [4, 16], "random_plan": True}),
     "multifidelity": ({"target_rel_rmse": 0.05, "pilot": 4, "max_rounds": 1,
                        "costs": [1.0, 4.0]}, {"levels": [4, 16], "random_plan": True}),
+    # the tiny y is about 5 m with a std near 1 m: a limit state about one std away
+    "form": ({}, {"limit_states": [{"name": "high", "output": "y", "exceeds": 6.0}]}),
+    "sorm": ({}, {"limit_states": [{"name": "high", "output": "y", "exceeds": 6.0}]}),
 }
 
 

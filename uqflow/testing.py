@@ -559,8 +559,10 @@ def _toml_value(value) -> str:
 class _MethodCase:
     """What the method checks share: the tiny study, its loaded form, one run's result."""
 
-    def __init__(self, method_class, options, levels, fields, seed, random_plan, folder):
+    def __init__(self, method_class, options, levels, fields, seed, random_plan, folder,
+                 limit_states=None):
         self.method_class, self.options = method_class, dict(options or {})
+        self.limit_states = list(limit_states or [])
         self.levels, self.fields, self.seed = levels, fields, seed
         self.random_plan = random_plan
         self._folder = None if folder is None else Path(folder)
@@ -592,6 +594,9 @@ class _MethodCase:
         if self.fields:
             lines += ["[[fields]]", 'name = "x1"', "correlation_length = 1.0", "modes = 2",
                       ""]
+        for table in self.limit_states:
+            lines += ["[[limit_states]]"] + [f"{k} = {_toml_value(v)}"
+                                             for k, v in table.items()] + [""]
         if self.levels:
             lines += ["[levels]", 'key = "resolution"',
                       f"values = {_toml_value(list(self.levels))}", ""]
@@ -836,18 +841,20 @@ METHOD_CHECKS: dict[str, Callable[[_MethodCase], None]] = {
 
 def method_checks(method_class: type[PropagationMethod], options: Mapping | None = None, *,
                   levels: list | None = None, fields: bool = False, seed: int = 20240501,
-                  random_plan: bool | None = None, folder: str | Path | None = None
+                  random_plan: bool | None = None, folder: str | Path | None = None,
+                  limit_states: list[dict] | None = None
                   ) -> Iterator[tuple[str, Callable[[], None]]]:
     """The method checks as ``(name, callable)``; arguments as ``check_method``."""
-    case = _MethodCase(method_class, options, levels, fields, seed, random_plan, folder)
+    case = _MethodCase(method_class, options, levels, fields, seed, random_plan, folder,
+                       limit_states)
     for name, check in METHOD_CHECKS.items():
         yield name, (lambda check=check: check(case))
 
 
 def check_method(method_class: type[PropagationMethod], options: Mapping | None = None, *,
                  levels: list | None = None, fields: bool = False, seed: int = 20240501,
-                 random_plan: bool | None = None, folder: str | Path | None = None
-                 ) -> dict[str, str]:
+                 random_plan: bool | None = None, folder: str | Path | None = None,
+                 limit_states: list[dict] | None = None) -> dict[str, str]:
     """Run every method check on a tiny study of ``TinyModel``; raise ``ConformanceError``
     listing the failures.
 
@@ -856,9 +863,12 @@ def check_method(method_class: type[PropagationMethod], options: Mapping | None 
     (e.g. ``[4, 16]``). ``fields``: add a random field on ``x1`` (a method with
     ``accepts_fields`` that needs one). ``random_plan``: True for a method whose design is
     random (then another seed must give another design), False or None to skip that half.
+    ``limit_states``: ``[[limit_states]]`` tables of the tiny study (its outputs are ``y`` [m],
+    about 5, and ``profile`` [Pa] over ``s``) for a method that needs one.
     """
     return _run_all(method_checks(method_class, options, levels=levels, fields=fields,
-                                  seed=seed, random_plan=random_plan), "check_method")
+                                  seed=seed, random_plan=random_plan,
+                                  limit_states=limit_states), "check_method")
 
 
 def checks(subject, *args, **kwargs) -> Iterator[tuple[str, Callable[[], None]]]:
