@@ -451,3 +451,17 @@ def test_every_realization_failing_gives_nan_with_the_reason(rule):
     assert np.isnan(at["failure_probability_interval"].values).all()
     assert "limit state 'y_high': no interval of P[failure]: no realization ran" in \
         stats.attrs["warnings"]
+
+
+def test_kl_weibull_reports_the_failure_lines_it_inherits():
+    """kl-weibull's statistics are Monte Carlo's, P[failure] included: its report hook
+    prints the same lines."""
+    from types import SimpleNamespace
+
+    from uqflow.methods.kl_weibull import KLWeibull
+
+    _, _, _, stats = run_with_states(LINEAR3, linear_space(), y_exceeds(), seed=5,
+                                     samples=256)
+    notes = KLWeibull.report(SimpleNamespace(stats=stats)).notes
+    assert [n for n in notes if "failure" in n] == failure_lines(stats)
+    assert KLWeibull.uses_limit_states
