@@ -465,3 +465,20 @@ def test_kl_weibull_reports_the_failure_lines_it_inherits():
     notes = KLWeibull.report(SimpleNamespace(stats=stats)).notes
     assert [n for n in notes if "failure" in n] == failure_lines(stats)
     assert KLWeibull.uses_limit_states
+
+
+def test_a_control_variates_control_runs_are_not_draws():
+    """control = "taylor-local" opens the design with a run at the means: it is no draw from
+    the inputs, so it is neither a failure nor counted; with a threshold every draw
+    exceeds, P[failure] = 1 exactly over the samples alone."""
+    _, design, runs, stats = run_with_states(LINEAR3, linear_space(), y_exceeds(-100.0),
+                                             samples=64, control="taylor-local")
+    assert runs.sizes["realization"] == 65
+    at = stats.sel(limit_state="y_high")
+    assert int(at["failures"]) == 64 and int(at["failure_probability_runs"]) == 64
+    assert int(at["failure_probability_left_out"]) == 0
+    assert float(at["failure_probability"]) == 1.0 and float(at["failure_probability_cov"]) == 0
+    assert float(at["reliability_index"]) == -math.inf
+    # Clopper-Pearson at k = n: [(alpha/2)^(1/n), 1]; see the closed-form test's bound
+    assert at["failure_probability_interval"].values == pytest.approx(
+        [0.025 ** (1 / 64), 1.0], rel=1e-12)
