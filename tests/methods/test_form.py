@@ -42,11 +42,13 @@ def toml(value) -> str:
 
 
 def study(tmp_path, scene, inputs, limit_states, method, correlation=None, seed=1,
-          name="form"):
-    """Load a study of the analytic model ``scene`` with normal ``inputs`` [(mean, std)]."""
+          name="form", execution=None):
+    """Load a study of the analytic model ``scene`` with normal ``inputs`` [(mean, std)] named
+    x1, x2, ... (or [(name, mean, std)])."""
     lines = [f'name = "{name}"', 'solver = "analytic"', f"scene = {toml(scene)}", ""]
-    for k, (mean, std) in enumerate(inputs):
-        lines += ["[[inputs]]", f'name = "x{k + 1}"', 'distribution = "normal"',
+    for k, spec in enumerate(inputs):
+        label, mean, std = spec if len(spec) == 3 else (f"x{k + 1}", *spec)
+        lines += ["[[inputs]]", f'name = "{label}"', 'distribution = "normal"',
                   f"mean = {mean!r}", f"std = {std!r}", 'units = "m"', ""]
     if correlation is not None:
         lines += ["[correlation]", f'inputs = {toml([f"x{k + 1}" for k in range(len(inputs))])}',
@@ -54,7 +56,9 @@ def study(tmp_path, scene, inputs, limit_states, method, correlation=None, seed=
     for table in limit_states:
         lines += ["[[limit_states]]"] + [f"{k} = {toml(v)}" for k, v in table.items()] + [""]
     lines += ["[method]"] + [f"{k} = {toml(v)}" for k, v in method.items()]
-    lines += ["", "[execution]", "workers = 0", f"seed = {seed}", "", "[output]",
+    lines += ["", "[execution]", "workers = 0", f"seed = {seed}"]
+    lines += [f"{k} = {toml(v)}" for k, v in (execution or {}).items()]
+    lines += ["", "[output]",
               f'path = "{name}.nc"', "figures = false", ""]
     path = tmp_path / f"{name}.toml"
     path.write_text("\n".join(lines))
@@ -336,3 +340,32 @@ def test_sorm_finds_unequal_curvatures_along_axes_of_their_own(tmp_path):
     # the curvatures' 1e-13 error (above) moves 1 + beta kappa by 1e-13 relative
     assert breitung == pytest.approx(sps.norm.sf(beta) / math.sqrt(np.prod(1 + beta * kappas)),
                                      rel=1e-9)
+
+
+def test_failed_runs_are_rejected_trials_and_reported(tmp_path):
+    # the solver diverges just past the design point x* = 2: every full step's stencil fails,
+    # the line search halves it, and the search creeps up to x* without converging
+    outcome, raised = run(tmp_path, {"model": "faulty", "raise_above": 2.005},
+                          [("x", 0.0, 1.0)], [{"name": "high", "output": "y", "exceeds": 2.0}],
+                          {"kind": "form", "max_iterations": 8},
+                          execution={"max_failure_fraction": 0.9})
+    stats = outcome.statistics
+    assert stats.attrs["converged"] == 0 and stats.attrs["failed_runs"] > 0
+    steps = stats["iteration_step"].values
+    accepted = stats["iteration_accepted"].values
+    assert list(accepted[:4]) == [1, 0, 1, 0] and list(steps[:4]) == [1.0, 1.0, 0.5, 1.0]
+    assert any("treated as one the line search rejects" in w for w in raised)
+    points = stats["iteration_point"].values[:, 0]
+    assert np.all(points[accepted == 1] < 2.0)
+
+
+def test_sorm_of_one_moving_input_is_form(tmp_path):
+    # x2 has no spread: u has one moving axis, the limit state is a point, no curvature round
+    outcome, raised = run(tmp_path, {"model": "linear", "coefficients": [1.0, 2.0]},
+                          [(0.0, 1.0), (3.0, 0.0)],
+                          [{"name": "high", "output": "y", "exceeds": 9.0}], {"kind": "sorm"})
+    stats = outcome.statistics
+    assert raised == [] and outcome.runs.sizes["realization"] == 2 * 3
+    # linear: rounding alone (eps |g| / step ~ 1e-13)
+    assert np.allclose(stats["sorm_failure_probability"].values[0], sps.norm.sf(3.0),
+                       rtol=1e-9)

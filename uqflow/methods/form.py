@@ -346,7 +346,9 @@ class Form(PropagationMethod):
         following = search.next_point()
         if following is not None:
             return self.search_rows(following, rounds + 1)
-        if self.curvatures and search.converged and \
+        # one moving axis has no curvature to measure: SORM is FORM there
+        curved = len(moving_axes(self._space.stds, cholesky_of(self._space.correlation))) > 1
+        if self.curvatures and search.converged and curved and \
                 not np.any(runs[STAGE].values == STAGE_CURVATURE):
             return self.curvature_rows(search, rounds + 1)
         return None
@@ -541,7 +543,13 @@ class Form(PropagationMethod):
         lower = cholesky_of(np.asarray(runs[INPUT_CORRELATION].values, dtype=float))
         m = max(len(moving_axes(stds, lower)) - 1, 0)
         kappa = np.full(m, np.nan)
-        if search.point is not None and rows.size:
+        if search.point is None or not search.converged:
+            warnings.append("SORM needs a converged design point; it is not computed")
+        elif m == 0:
+            kappa = np.zeros(0)  # one moving axis: the limit state is a point, not curved
+        elif not rows.size:
+            warnings.append("the curvature round did not run: SORM is undefined")
+        else:
             g = self.margins(runs)
             _, axes = rotated_basis(search, stds, lower)
             coefficients = runs[STENCIL_OFFSET].values[rows][:, axes]
@@ -572,13 +580,7 @@ class Form(PropagationMethod):
                     search.point.gradient)
             else:
                 warnings.append("a run of the curvature round failed: SORM is undefined")
-        elif search.point is not None and search.converged:
-            warnings.append("the curvature round did not run: SORM is undefined")
-        else:
-            warnings.append("SORM needs a converged design point; it is not computed")
-        if m == 0 and search.converged:
-            probabilities, why = sorm_probabilities(beta, kappa)
-        elif np.all(np.isfinite(kappa)) and kappa.size == m:
+        if search.converged and np.all(np.isfinite(kappa)):
             probabilities, why = sorm_probabilities(beta, kappa)
         else:
             probabilities, why = np.full(3, np.nan), []
