@@ -17,6 +17,7 @@ from scipy import stats as sps
 
 from uqflow.errors import StudyError
 from uqflow.inputs import InputSpace, RandomInput
+from uqflow.limit_states import LimitStates
 from uqflow.methods.monte_carlo import MonteCarlo, failure_lines
 from uqflow.probability import (binomial_cov, clopper_pearson, reliability_index,
                                 replicate_interval, wilson)
@@ -32,7 +33,8 @@ LINEAR3 = {"model": "linear", "coefficients": [1.0, 1.0, 1.0]}
 
 
 class ExceedanceStates:
-    """A stand-in following the LimitStates interface of uqflow.limit_states: limit state
+    """A stand-in following the LimitStates interface of uqflow.limit_states, for what a
+    study's limit states cannot express (an input beyond a threshold): limit state
     ``name`` fails where ``variable`` (an output, or column ``column`` of the inputs) exceeds
     its threshold; margins NaN where the realization did not run ok, unless ``honest`` is
     False (then a margin from the inputs is finite for every realization, to show that the
@@ -76,7 +78,9 @@ def run_with_states(scene, space, states, seed=0, **options):
 
 
 def y_exceeds(threshold=THRESHOLD, name="y_high"):
-    return ExceedanceStates({name: ("y", None, threshold)})
+    """The study's [[limit_states]] { name, output = "y", exceeds = threshold }."""
+    return LimitStates.from_tables([{"name": name, "output": "y", "exceeds": threshold}],
+                                   AnalyticSolver.from_scene(LINEAR3).outputs(), "test")
 
 
 # ----------------------------------------------------------------------------- intervals
