@@ -6,6 +6,9 @@ realizations that did not run ok, a one-line error naming the key for every malf
 from __future__ import annotations
 
 import math
+import re
+import tomllib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -419,3 +422,49 @@ def test_a_limit_state_threshold_can_be_set_from_the_command_line(
     assert study.limit_states["end_high"].threshold == 0.25
     with pytest.raises(StudyError, match=r"limit_states\[0\]\.exceeds: must be a finite"):
         load_study(write_study(tmp_path), overrides={"limit_states.0.exceeds": math.inf})
+
+
+# ----------------------------------------------------------------------------- the page
+PAGE = Path(__file__).resolve().parents[1] / "docs" / "reliability.md"
+
+
+def test_the_page_states_the_coordinate_tolerance_and_the_rounding_it_covers():
+    from uqflow import limit_states
+    text = " ".join(PAGE.read_text(encoding="utf-8").split())
+    tolerance, time, written = re.search(
+        r"within (\S+) of the coordinate's largest magnitude.*the 100th output time of 0\.5 µs "
+        r"is (\S+), and `time = (\S+)` names it", text).groups()
+    assert float(tolerance) == limit_states._COORD_RTOL
+    stored = 0.5e-6 * np.arange(201)          # the MPM scene's output times (interval * i)
+    assert repr(float(stored[100])) == time and float(written) != stored[100]
+    template = xr.Dataset({"u": (("time",), np.full(201, np.nan))}, coords={"time": stored})
+    ls = LimitStates.from_tables([{"name": "g", "output": "u", "exceeds": 0.0,
+                                   "reduce": {"at": {"time": float(written)}}}], template)
+    assert ls["g"].reduce.labels == (("time", (stored[100],)),)
+
+
+def test_the_error_line_the_page_shows_is_what_uqflow_says(tmp_path,
+                                                           monte_carlo_uses_limit_states):
+    text = PAGE.read_text(encoding="utf-8")
+    block = re.search(r"```toml\n(# invalid: [^\n]*\n.*?)```\n\nsays\n\n```\n(.*?)\n```", text,
+                      re.S)
+    fragment, line = tomllib.loads(block.group(1)), block.group(2)
+    study = STUDY.format(kind="monte-carlo", options="samples = 4\n", limit_states="").replace(
+        '{ model = "exponential_decay", t = { start = 0.0, stop = 2.0, num = 3 } }',
+        '{ model = "exponential_decay" }')
+    assert fragment["scene"] == {"model": "exponential_decay"}
+    (tmp_path / "study.toml").write_text(study + "\n" + block.group(1).split("\n", 2)[2],
+                                         encoding="utf-8")
+    with pytest.raises(StudyError) as caught:
+        load_study(tmp_path / "study.toml")
+    assert str(caught.value).replace(str(tmp_path) + "/", "") == line
+
+
+def test_stored_runs_can_stand_for_the_template():
+    """A report rebuilds the limit states of a result from its study text and its runs: the
+    runs' outputs are the outputs, the framework's columns are not."""
+    ls = LimitStates.from_tables([{"name": "g", "output": "y", "reduce": {"at": {"probe": "I"}},
+                                   "below": 2}], runs())
+    assert ls.margins(runs()).values[:2, 0].tolist() == [1 - 2, 1 - 2]
+    with pytest.raises(StudyError, match=r"no output 'status' \(it has y, s, by_probe\)"):
+        LimitStates.from_tables([{"name": "g", "output": "status", "exceeds": 0}], runs())

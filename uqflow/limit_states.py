@@ -34,7 +34,7 @@ import numpy as np
 import xarray as xr
 
 from uqflow.errors import StudyError
-from uqflow.layout import LIMIT_STATE, REALIZATION, UNITS, ok_mask
+from uqflow.layout import LIMIT_STATE, REALIZATION, UNITS, ok_mask, output_names
 
 EXCEEDS, BELOW = ">", "<"
 SERIES, PARALLEL = "series", "parallel"
@@ -119,7 +119,7 @@ class LimitState:
 
     def describe(self) -> str:
         """"max of y > 2 m": the event in words."""
-        unit = f" {self.units}" if self.units else ""
+        unit = f" {self.units}" if self.units not in ("", "1") else ""   # "1": no unit
         return f"{self.reduce.describe(self.output)} {self.comparison} {self.threshold:g}{unit}"
 
 
@@ -305,7 +305,9 @@ def _state(table: dict, at: str, name: str, template: xr.Dataset) -> LimitState:
         raise StudyError("required key is missing (or write a system with series = [...] or "
                          "parallel = [...])", key=f"{at}.output")
     output = _text(table["output"], f"{at}.output", "an output's name")
-    outputs = [str(v) for v in template.data_vars]
+    # runs as the template: their outputs, not the framework's columns (status, inputs, ...)
+    outputs = output_names(template) if REALIZATION in template.dims else \
+        [str(v) for v in template.data_vars]
     if output not in outputs:
         raise StudyError(f"the study has no output '{output}' (it has "
                          f"{', '.join(outputs) or 'none'})", key=f"{at}.output")
