@@ -313,7 +313,7 @@ def test_report_gives_beta_design_point_and_importance_bars(tmp_path):
                      {"kind": "sorm"})
     tree = open_result(outcome.path)
     text = summary_table(tree)
-    assert "SORM, limit state 'negative': beta = " in text
+    assert "SORM, limit state 'negative' (y < 0): beta = " in text
     assert "design point: x1 = 2.12132 m, x2 = 2.12132 m, x3 = 0 m" in text
     assert "importance factor alpha²" in text
     written = [p.name for p in write_figures(tree, tmp_path / "figures")]

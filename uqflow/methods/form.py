@@ -619,7 +619,9 @@ class Form(PropagationMethod):
         pf = float(stats[FAILURE_PROBABILITY].values[0]) if FAILURE_PROBABILITY in stats \
             else math.nan
         kind = "SORM" if SORM_PROBABILITY in stats else "FORM"
-        notes = [f"{kind}, limit state '{name}': beta = {number(beta)}, p_f = {number(pf)}"
+        event = f" ({attrs['limit_state_event']})" if attrs.get("limit_state_event") else ""
+        notes = [f"{kind}, limit state '{name}'{event}: beta = {number(beta)}, "
+                 f"p_f = {number(pf)}"
                  + ("" if converged else f" (NOT converged: {attrs.get('stop_reason', '')})")
                  + f"; {int(attrs.get('iterations', 0))} search rounds"]
         if SORM_PROBABILITY in stats:
