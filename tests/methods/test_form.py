@@ -47,6 +47,9 @@ def study(tmp_path, scene, inputs, limit_states, method, correlation=None, seed=
     x1, x2, ... (or [(name, mean, std)])."""
     lines = [f'name = "{name}"', 'solver = "analytic"', f"scene = {toml(scene)}", ""]
     for k, spec in enumerate(inputs):
+        if isinstance(spec, dict):  # any distribution, as its table
+            lines += ["[[inputs]]"] + [f"{key} = {toml(v)}" for key, v in spec.items()] + [""]
+            continue
         label, mean, std = spec if len(spec) == 3 else (f"x{k + 1}", *spec)
         lines += ["[[inputs]]", f'name = "{label}"', 'distribution = "normal"',
                   f"mean = {mean!r}", f"std = {std!r}", 'units = "m"', ""]
@@ -369,3 +372,21 @@ def test_sorm_of_one_moving_input_is_form(tmp_path):
     # linear: rounding alone (eps |g| / step ~ 1e-13)
     assert np.allclose(stats["sorm_failure_probability"].values[0], sps.norm.sf(3.0),
                        rtol=1e-9)
+
+
+def test_form_maps_a_lognormal_input_through_the_copula(tmp_path):
+    # x = exp(mu + sigma u): "x exceeds t" fails beyond u* = (ln t - mu) / sigma, reached by
+    # HL-RF (Newton's method in one dimension) whatever the finite-difference error of g'
+    mu, sigma, threshold = 0.2, 0.3, 3.0
+    outcome, raised = run(tmp_path, {"model": "power", "p": 1.0},
+                          [{"name": "x", "distribution": "lognormal", "mu": mu,
+                            "sigma": sigma}],
+                          [{"name": "high", "output": "y", "exceeds": threshold}],
+                          {"kind": "form", "u_tolerance": 1e-10, "g_tolerance": 1e-10})
+    stats = outcome.statistics
+    beta = (math.log(threshold) - mu) / sigma
+    assert raised == [] and stats.attrs["converged"] == 1
+    # stopped with the next Newton step below 1e-10; Phi(u) near 1 - 6e-3 rounds u by
+    # eps / phi(u) ~ 1e-14 in the inverse map: 1e-9 bounds both
+    assert float(stats[RELIABILITY_INDEX].values[0]) == pytest.approx(beta, abs=1e-9)
+    assert float(stats["design_point"].values[0, 0]) == pytest.approx(threshold, rel=1e-8)
