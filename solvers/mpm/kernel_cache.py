@@ -79,11 +79,11 @@ def dependencies(path) -> list[Path]:
     """``path`` and every module of its registered package it imports, transitively, sorted."""
     path = Path(path).resolve()
     folder, package = _package_of(path)
-    seen, todo = {path}, [path]
-    while todo:
-        for f in _imported_files(todo.pop(), folder, package) - seen:
+    seen, pending = {path}, [path]
+    while pending:
+        for f in _imported_files(pending.pop(), folder, package) - seen:
             seen.add(f)
-            todo.append(f)
+            pending.append(f)
     return sorted(seen)
 
 

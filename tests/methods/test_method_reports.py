@@ -282,10 +282,10 @@ class MirroredPairs(PropagationMethod):
     it installed either)."""
 
     def plan(self, space, fields, seed):
-        raise NotImplementedError
+        raise AssertionError("reporting a stored result never plans")
 
     def analyze(self, design, runs):
-        raise NotImplementedError
+        raise AssertionError("reporting a stored result never analyzes")
 
 
 def test_a_method_without_a_hook_still_reports():
