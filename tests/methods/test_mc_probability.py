@@ -486,3 +486,29 @@ def test_a_control_variates_control_runs_are_not_draws():
     # Clopper-Pearson at k = n: [(alpha/2)^(1/n), 1]; see the closed-form test's bound
     assert at["failure_probability_interval"].values == pytest.approx(
         [0.025 ** (1 / 64), 1.0], rel=1e-12)
+
+
+# ----------------------------------------------------------------------------- exceedance figure
+
+def test_exceedance_log_figure_draws_the_curve_band_threshold_and_p_on_a_log_axis():
+    from uqflow.report.framework_figures import exceedance_log_figure
+
+    fig = exceedance_log_figure([1e-3, 2e-3, 3e-3], [0.5, 0.1, 0.0], [0.3, 0.05, 0.0],
+                                [0.7, 0.2, 0.01], threshold=2e-3, failure_probability=0.1,
+                                failure_interval=(0.05, 0.2), units="m", name="tip",
+                                curve_label="fraction of runs", band_label="95 % band")
+    ax = fig.axes[0]
+    assert ax.get_yscale() == "log" and ax.get_ylabel() == "P[Y > y]"
+    assert ax.get_xlabel() == "y: tip [mm]"
+    # the floor is a tenth of the smallest positive number drawn (the band's 0.01)
+    assert ax.get_ylim()[0] == pytest.approx(1e-3, rel=1e-12)
+    threshold = [line for line in ax.lines if line.get_label().startswith("threshold")]
+    assert len(threshold) == 1 and np.allclose(threshold[0].get_xdata(), 2.0)
+    marker = [c for c in ax.containers if c.get_label().startswith("p_f = 0.1 (0.05 .. 0.2)")]
+    assert len(marker) == 1
+    np.testing.assert_allclose(marker[0].lines[0].get_xydata(), [[2.0, 0.1]])
+    # the curve leaves out P = 0 (no place on a log axis), the band keeps it at the floor
+    curve = next(line for line in ax.lines if line.get_label() == "fraction of runs")
+    assert np.isnan(curve.get_ydata()[2]) and curve.get_ydata()[1] == 0.1
+    assert exceedance_log_figure([1.0], [0.0], [0.0], [0.0], threshold=1.0,
+                                 failure_probability=0.0) is None

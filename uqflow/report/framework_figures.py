@@ -8,6 +8,9 @@ and ``write_figures``, which adds the figures the result's method draws (its ``M
 - ``<output>_histogram.png``, ``<output>_exceedance.png``: a scalar output's runs, and
   P[Y > y] with a pointwise 95 % Clopper-Pearson band (runs that are draws only).
 - ``<output>_sensitivities.png``: where the method gives a ``Sensitivity``.
+
+``exceedance_log_figure`` draws a limit state's exceedance curve on a log probability axis
+from arrays (levels, estimate, band, threshold, p_f): for any method's report hook.
 """
 
 from __future__ import annotations
@@ -285,6 +288,83 @@ def exceedance_figure(view: ResultView, output: str):
     ax.set_ylabel("P[Y > y]")
     ax.set_ylim(-0.02, 1.02)
     ax.set_title(_title(view, output, "exceedance probability"))
+    ax.legend(loc="best", fontsize="small")
+    return fig
+
+
+def exceedance_log_figure(levels, probability, lower, upper, *, threshold: float,
+                          failure_probability: float, failure_interval=(math.nan, math.nan),
+                          comparison: str = ">", name: str = "y", units: str = "",
+                          curve_label: str = "estimate", band_label: str = "band",
+                          title: str = "", steps: bool = True):
+    """The exceedance curve of a limit state's quantity on a log probability axis, for any
+    method that estimates one (sampling, subset levels, weighted samples): arrays, no view.
+
+    ``levels`` (increasing, in ``units``, SI) and at each the estimate ``probability`` of
+    P[Y > y] (``comparison`` ">") or P[Y < y] ("<") with its band ``lower`` .. ``upper``
+    (NaN: no band there); ``threshold`` is the limit state's, marked by a vertical line, and
+    ``failure_probability`` with its ``failure_interval`` by a horizontal line and an error
+    bar at the threshold. ``steps``: an empirical curve (constant between levels: after each
+    level for ">", before it for "<") rather than a line through the points. Probabilities
+    of 0 have no place on a log axis: the curve leaves them out and the band's lower bound
+    is drawn at the axis' floor, a tenth of the smallest positive number shown. None when
+    nothing positive is left to draw."""
+    levels, probability, lower, upper = (np.asarray(a, dtype=float).ravel()
+                                         for a in (levels, probability, lower, upper))
+    low_pf, high_pf = (float(b) for b in failure_interval)
+    shown = np.concatenate([probability, lower, upper, [failure_probability, low_pf,
+                                                        high_pf]])
+    positive = shown[np.isfinite(shown) & (shown > 0)]
+    if positive.size == 0 or levels.size == 0:
+        return None
+    floor = 0.1 * float(positive.min())
+    scale, shown_units = display_units(np.append(levels, threshold), units)
+    x = levels * scale
+    where = "post" if comparison == ">" else "pre"
+    if steps:
+        # the last step (">": after the largest level; "<": before the smallest) gets a width
+        width = 0.05 * max(float(np.ptp(x)), abs(float(x[0])), 1e-300)
+        if comparison == ">":
+            x, probability, lower, upper = (np.append(a, a[-1]) for a in
+                                            (x, probability, lower, upper))
+            x[-1] += width
+        else:
+            x, probability, lower, upper = (np.insert(a, 0, a[0]) for a in
+                                            (x, probability, lower, upper))
+            x[0] -= width
+    drawstyle = {"step": where} if steps else {}
+    fig, ax = new_figure()
+    finite_band = np.isfinite(lower) & np.isfinite(upper)
+    if finite_band.any():
+        ax.fill_between(x, np.where(finite_band, np.maximum(lower, floor), np.nan),
+                        np.where(finite_band, upper, np.nan), color=BAND_COLOR, alpha=0.55,
+                        linewidth=0, label=band_label, **drawstyle)
+    with np.errstate(invalid="ignore"):
+        curve = np.where(probability > 0, probability, np.nan)
+    if steps:
+        ax.step(x, curve, where=where, color=MEAN_COLOR, linewidth=1.8, label=curve_label)
+    else:
+        ax.plot(x, curve, color=MEAN_COLOR, linewidth=1.8, marker="o", markersize=3,
+                label=curve_label)
+    ax.axvline(threshold * scale, color="#c0392b", linestyle="--", linewidth=1.2,
+               label=f"threshold {threshold * scale:.4g} {shown_units}".rstrip())
+    if np.isfinite(failure_probability) and failure_probability > 0:
+        ax.axhline(failure_probability, color="#7b2d26", linestyle=":", linewidth=1.2)
+        errors = None
+        if np.isfinite(low_pf) and np.isfinite(high_pf):
+            errors = [[failure_probability - max(low_pf, floor)],
+                      [high_pf - failure_probability]]
+        ax.errorbar([threshold * scale], [failure_probability], yerr=errors, fmt="o",
+                    color="#7b2d26", capsize=4, zorder=5,
+                    label=f"p_f = {failure_probability:.3g}" + (
+                        f" ({low_pf:.3g} .. {high_pf:.3g})" if errors is not None else ""))
+    ax.set_yscale("log")
+    ax.set_ylim(floor, min(1.5, 2.0 * float(positive.max())))
+    ax.set_xlabel(quantity_label(f"y: {name}", shown_units))
+    ax.set_ylabel(f"P[Y {comparison} y]")
+    ax.grid(True, which="major", axis="y", linewidth=0.4, alpha=0.5)
+    if title:
+        ax.set_title(title)
     ax.legend(loc="best", fontsize="small")
     return fig
 
