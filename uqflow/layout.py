@@ -93,6 +93,24 @@ FAILURE_RUNS, FAILURE_LEFT_OUT = "failure_probability_runs", "failure_probabilit
 #: attribute: how P[failure] and its interval were estimated and what was left out, in words
 FAILURE_NOTE = "failure_probability_note"
 
+# monte-carlo (and the sampling methods after it): each limit state's exceedance curve
+#: dim of the levels of each limit state's exceedance curve (each has its own levels: NaN
+#: pads the shorter curves)
+EXCEEDANCE_POINT = "exceedance_point"
+#: (limit_state, exceedance_point): the levels y, increasing, in EXCEEDANCE_UNITS
+EXCEEDANCE_LEVEL = "exceedance_level"
+#: (limit_state, exceedance_point): P[Y >= y] or P[Y <= y] (EXCEEDANCE_COMPARISON); at the
+#: threshold it is P[failure]
+EXCEEDANCE_PROBABILITY = "exceedance_probability"
+#: (limit_state, exceedance_point, bound): the pointwise interval of each level's probability
+EXCEEDANCE_INTERVAL = "exceedance_probability_interval"
+#: (limit_state): the quantity Y in words ("max of y", a system's margin), its comparison
+#: (">=" or "<="), the limit state's threshold and the units of Y
+EXCEEDANCE_QUANTITY, EXCEEDANCE_COMPARISON = "exceedance_quantity", "exceedance_comparison"
+EXCEEDANCE_THRESHOLD, EXCEEDANCE_UNITS = "exceedance_threshold", "exceedance_units"
+#: attribute: how the curve and its band were estimated, in words
+EXCEEDANCE_NOTE = "exceedance_note"
+
 # ----------------------------------------------------------------------------- root attributes
 STUDY_NAME, SOLVER = "study_name", "solver"
 COMPLETE, STOPPED_EARLY, ELAPSED_TIME = "complete", "stopped_early", "elapsed_time"
