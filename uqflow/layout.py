@@ -111,6 +111,22 @@ EXCEEDANCE_THRESHOLD, EXCEEDANCE_UNITS = "exceedance_threshold", "exceedance_uni
 #: attribute: how the curve and its band were estimated, in words
 EXCEEDANCE_NOTE = "exceedance_note"
 
+# subset-simulation (uqflow.methods.subset_simulation): its rows, levels and error bounds
+#: design coordinates of a row: its subset level, its Markov chain (-1 at level 0, whose
+#: rows are independent draws) and its step along the chain (the proposal of that step)
+SUBSET_LEVEL, CHAIN, CHAIN_STEP = "subset_level", "chain", "chain_step"
+#: (subset_level): the threshold of g that ends each level (0 at the last), the conditional
+#: probability of the next level's event, the chains' correlation factor gamma (Au & Beck),
+#: the acceptance rate of the proposals, the scale lambda after the level, the level's
+#: c.o.v. delta_j, the samples that ran ok and the runs that failed
+LEVEL_THRESHOLD, LEVEL_CONDITIONAL_PROBABILITY = "level_threshold", "level_probability"
+LEVEL_CORRELATION_FACTOR, LEVEL_ACCEPTANCE = "level_gamma", "level_acceptance_rate"
+LEVEL_SCALE, LEVEL_COV = "level_scale", "level_cov"
+LEVEL_SAMPLES, LEVEL_FAILED_RUNS = "level_samples", "level_failed_runs"
+#: (limit_state): the c.o.v. of P[failure] were the levels' estimates fully correlated
+#: (sum of delta_j; FAILURE_COV takes them uncorrelated, sqrt of the sum of delta_j^2)
+FAILURE_COV_CORRELATED = "failure_probability_cov_correlated"
+
 # ----------------------------------------------------------------------------- root attributes
 STUDY_NAME, SOLVER = "study_name", "solver"
 COMPLETE, STOPPED_EARLY, ELAPSED_TIME = "complete", "stopped_early", "elapsed_time"
