@@ -119,10 +119,10 @@ SUBSET_LEVEL, CHAIN, CHAIN_STEP = "subset_level", "chain", "chain_step"
 #: probability of the next level's event, the chains' correlation factor gamma (Au & Beck),
 #: the acceptance rate of the proposals, the scale lambda after the level, the level's
 #: c.o.v. delta_j, the samples that ran ok and the runs that failed
-LEVEL_THRESHOLD, LEVEL_CONDITIONAL_PROBABILITY = "level_threshold", "level_probability"
-LEVEL_CORRELATION_FACTOR, LEVEL_ACCEPTANCE = "level_gamma", "level_acceptance_rate"
-LEVEL_SCALE, LEVEL_COV = "level_scale", "level_cov"
-LEVEL_SAMPLES, LEVEL_FAILED_RUNS = "level_samples", "level_failed_runs"
+SUBSET_THRESHOLD, SUBSET_PROBABILITY = "subset_threshold", "subset_probability"
+SUBSET_GAMMA, SUBSET_ACCEPTANCE = "subset_gamma", "subset_acceptance_rate"
+SUBSET_SCALE, SUBSET_COV = "subset_scale", "subset_cov"
+SUBSET_SAMPLES, SUBSET_FAILED_RUNS = "subset_samples", "subset_failed_runs"
 #: (limit_state): the c.o.v. of P[failure] were the levels' estimates fully correlated
 #: (sum of delta_j; FAILURE_COV takes them uncorrelated, sqrt of the sum of delta_j^2)
 FAILURE_COV_CORRELATED = "failure_probability_cov_correlated"
