@@ -93,6 +93,23 @@ FAILURE_RUNS, FAILURE_LEFT_OUT = "failure_probability_runs", "failure_probabilit
 #: attribute: how P[failure] and its interval were estimated and what was left out, in words
 FAILURE_NOTE = "failure_probability_note"
 
+# --------------------------------------------------------- discrete outcomes (limit states)
+#: output attributes (CF): a 0/1 outcome's values and their meanings ("intact broken");
+#: a limit state may say ``is = true`` of it
+FLAG_VALUES, FLAG_MEANINGS = "flag_values", "flag_meanings"
+#: output attribute ``output_values = DISCRETE_VALUES``: the output takes discrete values (a
+#: count, a cycle, a value on the loading's grid): a limit state on it has a discrete margin
+OUTPUT_VALUES, DISCRETE_VALUES = "output_values", "discrete"
+#: output attribute of an event's time (a cycle, an applied strain): the value it takes when
+#: the event did not happen within the loading (finite: outputs hold no inf or NaN)
+NOT_WITHIN_LOADING = "not_within_loading"
+#: output attribute: the 0/1 outcome whose 1 leaves this output without value (a broken bar
+#: has no later loops): a study storing it keeps such realizations failed
+UNDEFINED_WHEN = "undefined_when"
+#: attribute of a solver's run: why some of its outputs have no value (NaN), for the
+#: message of a realization that stores one of them
+NO_VALUE_REASON = "no_value_reason"
+
 # monte-carlo (and the sampling methods after it): each limit state's exceedance curve
 #: dim of the levels of each limit state's exceedance curve (each has its own levels: NaN
 #: pads the shorter curves)
