@@ -157,6 +157,7 @@ def test_estimate_without_weights_is_the_plain_fraction():
     estimate = importance_estimate(failed, np.zeros(50), 0.95)
     assert isinstance(estimate, ImportanceEstimate)
     p = 7 / 50
+    # a mean of 50 zeros and ones: one rounding of the division
     assert estimate.probability == pytest.approx(p, rel=1e-15)
     # the sample standard deviation of 0/1 terms: sqrt(k (n - k) / (n (n - 1)))
     # 1e-14: a few roundings of a square root and a division
@@ -164,6 +165,7 @@ def test_estimate_without_weights_is_the_plain_fraction():
                                             rel=1e-14)
     assert estimate.effective_sample_size == pytest.approx(7.0, rel=1e-14)
     z = sps.norm.ppf(0.975)
+    # the same few roundings on both sides (p - z s.e., s.e. / p): 1e-14 relative
     assert estimate.low == pytest.approx(p - z * estimate.stderr, rel=1e-14)
     assert estimate.cov == pytest.approx(estimate.stderr / p, rel=1e-14)
     none = importance_estimate(np.zeros(5, bool), np.zeros(5), 0.95)
