@@ -468,3 +468,118 @@ def test_stored_runs_can_stand_for_the_template():
     assert ls.margins(runs()).values[:2, 0].tolist() == [1 - 2, 1 - 2]
     with pytest.raises(StudyError, match=r"no output 'status' \(it has y, s, by_probe\)"):
         LimitStates.from_tables([{"name": "g", "output": "status", "exceeds": 0}], runs())
+
+
+# ----------------------------------------------------------------------------- discrete outcomes
+# A solver's outcomes as the gamut bar declares them: a 0/1 flag, the cycle of the event
+# (21 = not within the 20 cycles of the loading), a continuous output, one a break leaves
+# without value, and a count with no declaration at all.
+OUTCOMES = xr.Dataset({
+    "broken": ((), NAN, {"units": "1", "flag_values": np.array([0, 1], dtype=np.int8),
+                         "flag_meanings": "intact broken"}),
+    "break_cycle": ((), NAN, {"units": "1", "output_values": "discrete",
+                              "not_within_loading": 21.0}),
+    "failure_strain": ((), NAN, {"units": "1"}),
+    "n_prime": ((), NAN, {"units": "1", "undefined_when": "broken"}),
+    "count": ((), NAN, {"units": "1"})})
+
+
+def outcome_runs(broken, cycle, status=None):
+    n = len(broken)
+    status = np.array(["ok"] * n if status is None else status, dtype=object)
+    return xr.Dataset({"broken": ("realization", np.asarray(broken, dtype=float)),
+                       "break_cycle": ("realization", np.asarray(cycle, dtype=float)),
+                       "failure_strain": ("realization", np.full(n, 0.1)),
+                       "count": ("realization", np.asarray(broken, dtype=float)),
+                       "status": ("realization", status)},
+                      coords={"realization": np.arange(n)})
+
+
+def outcome_states(*tables, template=OUTCOMES.drop_vars("n_prime")) -> LimitStates:
+    return LimitStates.from_tables([dict(t) for t in tables], template, "study.toml")
+
+
+def test_an_outcome_is_true_or_false_with_margins_plus_and_minus_one():
+    ls = outcome_states({"name": "b", "output": "broken", "is": True},
+                        {"name": "intact", "output": "broken", "is": False},
+                        {"name": "half", "output": "broken", "exceeds": 0.5})
+    # realization 3 failed (its stored 1 is no event), realization 4 holds 2: no outcome
+    data = outcome_runs([0, 1, 1, 1, 2], [21, 3, 4, 4, 21], ["ok", "ok", "ok", "failed", "ok"])
+    g = ls.margins(data)
+    assert g.sel(limit_state="b").values.tolist()[:3] == [1.0, -1.0, -1.0]
+    assert g.sel(limit_state="intact").values.tolist()[:3] == [-1.0, 1.0, 1.0]
+    assert g.sel(limit_state="half").values.tolist()[:3] == [0.5, -0.5, -0.5]
+    assert np.isnan(g.values[3]).all() and np.isnan(g.sel(limit_state="b").values[4])
+    assert ls.failures(data).sel(limit_state="b").values.tolist() == \
+        [False, True, True, False, False]
+    assert ls["b"].describe() == "broken is true" and \
+        ls["intact"].describe() == "broken is false"
+
+
+def test_an_event_cycle_below_n_counts_the_events_by_cycle_n_and_never_the_survivors():
+    ls = outcome_states({"name": "early", "output": "break_cycle", "below": 4},
+                        {"name": "late", "output": "break_cycle", "exceeds": 21})
+    data = outcome_runs([1, 1, 1, 0], [3, 4, 5, 21])
+    # a value at the threshold fails: cycles 3 and 4 are "by cycle 4", 21 is never below
+    assert ls.failures(data).sel(limit_state="early").values.tolist() == \
+        [True, True, False, False]
+    # exceeds = 21 (the value "not within the loading"): the survivors, whose break lies past
+    assert ls.failures(data).sel(limit_state="late").values.tolist() == \
+        [False, False, False, True]
+
+
+def test_discrete_limit_states_are_told_apart_and_refused_by_a_gradient_method():
+    ls = outcome_states({"name": "b", "output": "broken", "is": True},
+                        {"name": "half", "output": "broken", "exceeds": 0.5},
+                        {"name": "early", "output": "break_cycle", "below": 4},
+                        {"name": "strain", "output": "failure_strain", "below": 0.05},
+                        {"name": "count", "output": "count", "exceeds": 0.5},
+                        {"name": "either", "series": ["strain", "b"]},
+                        {"name": "both", "parallel": ["strain", "count"]})
+    assert [ls.is_discrete(n) for n in ls.names] == [True, True, True, False, False, True,
+                                                     False]
+    ls.require_continuous("strain", "form")
+    ls.require_continuous("both", "form")
+    with pytest.raises(StudyError) as caught:
+        ls.require_continuous("either", "subset-simulation")
+    assert caught.value.key == "method.limit_state" and "\n" not in str(caught.value)
+    assert "'either' has a discrete margin" in caught.value.reason and \
+        "subset-simulation needs a continuous one" in caught.value.reason
+
+
+DISCRETE_MALFORMED = {   # id: (table, key, words of the reason)
+    "is-a-number": ({"output": "broken", "is": 1}, "limit_states[0].is", "true or false"),
+    "is-on-a-continuous-output": ({"output": "failure_strain", "is": True},
+                                  "limit_states[0].is", "not a 0/1 outcome"),
+    "is-and-exceeds": ({"output": "broken", "is": True, "exceeds": 0.5},
+                       "limit_states[0].is", "not both (exceeds and is)"),
+    "all-three": ({"output": "broken", "is": True, "exceeds": 0.5, "below": 0.5},
+                  "limit_states[0].is", "not all three"),
+    "below-the-not-within-loading-value": ({"output": "break_cycle", "below": 21},
+                                           "limit_states[0].below",
+                                           "would count those realizations as failures"),
+    "exceeds-past-it": ({"output": "break_cycle", "exceeds": 21.5},
+                        "limit_states[0].exceeds", "would count those realizations as safe"),
+}
+
+
+@pytest.mark.parametrize("case", list(DISCRETE_MALFORMED), ids=list(DISCRETE_MALFORMED))
+def test_every_malformed_outcome_limit_state_is_one_line(case):
+    table, key, says = DISCRETE_MALFORMED[case]
+    with pytest.raises(StudyError) as caught:
+        outcome_states(dict(table, name="g"))
+    assert (caught.value.file, caught.value.key) == ("study.toml", key), str(caught.value)
+    assert says in caught.value.reason and "\n" not in str(caught.value)
+
+
+def test_a_study_storing_what_an_outcome_leaves_without_value_is_refused_naming_outputs():
+    """n' has no value for a broken bar, so a study storing it keeps broken bars failed: a
+    limit state on the break would silently leave out every break."""
+    with pytest.raises(StudyError) as caught:
+        outcome_states({"name": "b", "output": "broken", "is": True}, template=OUTCOMES)
+    assert caught.value.key == "outputs" and "'n_prime'" in caught.value.reason
+    assert "where 'broken' is 1" in caught.value.reason
+    # a limit state on n' itself judges the bars that have it: no refusal
+    ls = outcome_states({"name": "soft", "output": "n_prime", "below": 0.05},
+                        template=OUTCOMES)
+    assert ls.names == ["soft"] and not ls.is_discrete("soft")

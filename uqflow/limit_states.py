@@ -21,6 +21,16 @@ Reductions of an output with dims (one number per realization):
 
 Dims that ``final`` or ``at`` leave are covered by their worst point: the largest value for
 ``exceeds``, the smallest for ``below`` (the event happens at any of them).
+
+Discrete outcomes. A 0/1 output (its solver declares ``flag_values = [0, 1]``: the gamut
+bar's ``broken``) takes ``is = true`` (failure when it is 1) or ``is = false``; that margin
+is +1 (safe) or -1 (failure), read as ``exceeds = 0.5`` (``below = 0.5`` for false). An
+event's time with a value meaning "not within the loading" (``not_within_loading``: the bar's
+``break_cycle``, the composite's ``debonding_onset_strain``) takes ``below`` only below that
+value and ``exceeds`` only up to it: beyond, the scene cannot answer. A limit state on a discrete output
+(a flag, a count, a cycle, a value on the loading's grid) is ``discrete``: its margin is a
+step function of the inputs, which FORM, SORM and subset simulation cannot use
+(``LimitStates.require_continuous``).
 """
 
 from __future__ import annotations
@@ -34,7 +44,9 @@ import numpy as np
 import xarray as xr
 
 from uqflow.errors import StudyError
-from uqflow.layout import LIMIT_STATE, REALIZATION, UNITS, ok_mask, output_names
+from uqflow.layout import (DISCRETE_VALUES, FLAG_VALUES, LIMIT_STATE, NOT_WITHIN_LOADING,
+                           OUTPUT_VALUES, REALIZATION, UNDEFINED_WHEN, UNITS, ok_mask,
+                           output_names)
 
 EXCEEDS, BELOW = ">", "<"
 SERIES, PARALLEL = "series", "parallel"
@@ -42,7 +54,10 @@ SERIES, PARALLEL = "series", "parallel"
 WORD_REDUCTIONS = ("max", "min", "final")
 #: the reductions written as a table, with labels of some dims
 TABLE_REDUCTIONS = ("at", "max_over")
-_STATE_KEYS = ("name", "output", "reduce", "exceeds", "below")
+_STATE_KEYS = ("name", "output", "reduce", "exceeds", "below", "is")
+#: ``is = true`` reads as ``exceeds = OUTCOME_THRESHOLD`` (``is = false`` as ``below``): between
+#: the two values of a 0/1 outcome, so a value exactly 0 or 1 is never at the threshold
+OUTCOME_THRESHOLD = 0.5
 _SYSTEM_KEYS = ("name", SERIES, PARALLEL)
 # A coordinate computed as start + i*step (or interval*i, linspace) differs from the decimal
 # a user writes by a few ulp (2.2e-16) of the grid's largest value, and by at most ~1e-10 of
@@ -111,14 +126,31 @@ class LimitState:
     comparison: str            # EXCEEDS ">" or BELOW "<"
     threshold: float           # in the output's SI unit
     units: str = ""            # the output's unit, for reports
+    #: ``is = true``/``false`` on a 0/1 outcome: the margin is +1 (safe) or -1 (failure)
+    outcome: bool = False
+    #: the output takes discrete values (a flag, a count, a cycle; ``output_values``)
+    discrete_output: bool = False
+
+    @property
+    def discrete(self) -> bool:
+        """Whether the margin is a step function of the inputs (an outcome or a discrete
+        output): no gradient or design point to find, only events to count."""
+        return self.outcome or self.discrete_output
 
     def margin(self, values: xr.DataArray) -> np.ndarray:
         """g (realization,) of the output's ``values`` (realization, *dims)."""
         y = np.asarray(self.reduce.apply(values, self.comparison).values, dtype=float)
-        return self.threshold - y if self.comparison == EXCEEDS else y - self.threshold
+        g = self.threshold - y if self.comparison == EXCEEDS else y - self.threshold
+        if self.outcome:
+            # +1 safe, -1 failure; a value that is neither 0 nor 1 is no outcome: no margin
+            g = np.where((y == 0) | (y == 1), np.sign(g), np.nan)
+        return g
 
     def describe(self) -> str:
-        """"max of y > 2 m": the event in words."""
+        """"max of y > 2 m", "broken is true": the event in words."""
+        if self.outcome:
+            return f"{self.reduce.describe(self.output)} is " \
+                   f"{'true' if self.comparison == EXCEEDS else 'false'}"
         unit = f" {self.units}" if self.units not in ("", "1") else ""   # "1": no unit
         return f"{self.reduce.describe(self.output)} {self.comparison} {self.threshold:g}{unit}"
 
@@ -158,6 +190,24 @@ class LimitStates:
 
     def __repr__(self) -> str:
         return f"LimitStates({', '.join(self.names)})"
+
+    def is_discrete(self, name: str) -> bool:
+        """Whether limit state or system ``name`` has a discrete margin (a system: when any
+        member has)."""
+        item = self[name]
+        if isinstance(item, LimitStateSystem):
+            return any(self.is_discrete(m) for m in item.members)
+        return item.discrete
+
+    def require_continuous(self, name: str, method: str) -> None:
+        """Refuse, in one line naming ``method.limit_state``, a discrete limit state for a
+        method that follows the margin's gradient (FORM, SORM) or its level sets (subset
+        simulation): a step function has no design point and no intermediate levels."""
+        if self.is_discrete(name):
+            raise StudyError(f"limit state '{name}' has a discrete margin (a 0/1 outcome or "
+                             f"an output with discrete values): {method} needs a continuous "
+                             f"one; use monte-carlo, or a limit state on a continuous output",
+                             key="method.limit_state")
 
     def margins(self, runs: xr.Dataset) -> xr.DataArray:
         """g (realization, limit_state): > 0 safe, <= 0 failure, in each output's unit
@@ -222,6 +272,10 @@ class LimitStates:
                 seen[name] = i
             except StudyError as exc:
                 raise StudyError(exc.reason, file=where or None, key=exc.key) from None
+        try:
+            _lost_outcomes(states, template)
+        except StudyError as exc:
+            raise StudyError(exc.reason, file=where or None, key=exc.key) from None
         return cls(states, systems)
 
 
@@ -311,23 +365,94 @@ def _state(table: dict, at: str, name: str, template: xr.Dataset) -> LimitState:
     if output not in outputs:
         raise StudyError(f"the study has no output '{output}' (it has "
                          f"{', '.join(outputs) or 'none'})", key=f"{at}.output")
-    if ("exceeds" in table) == ("below" in table):
+    given = [word for word in ("exceeds", "below", "is") if word in table]
+    if len(given) != 1:
+        extra = f", not both ({' and '.join(given)})" if len(given) == 2 else \
+            ", not all three" if given else ""
         raise StudyError("give exactly one of exceeds = <threshold> (failure when the value "
-                         "is above it) or below = <threshold>" +
-                         (", not both" if "exceeds" in table else ""),
-                         key=f"{at}.below" if "exceeds" in table else f"{at}.exceeds")
-    word = "exceeds" if "exceeds" in table else "below"
-    threshold = table[word]
-    if isinstance(threshold, bool) or not isinstance(threshold, (int, float)):
-        raise StudyError(f"must be a number (in the output's unit), got {_shown(threshold)}",
-                         key=f"{at}.{word}")
-    if not math.isfinite(threshold):
-        raise StudyError(f"must be a finite number, got {threshold!r}", key=f"{at}.{word}")
-    comparison = EXCEEDS if word == "exceeds" else BELOW
+                         "is above it), below = <threshold>, or is = true/false (a 0/1 "
+                         "outcome)" + extra,
+                         key=f"{at}.{given[-1]}" if given else f"{at}.exceeds")
+    word = given[0]
     values = template[output]
+    if word == "is":
+        comparison, threshold = _outcome(table["is"], values, f"{at}.is")
+    else:
+        threshold = table[word]
+        if isinstance(threshold, bool) or not isinstance(threshold, (int, float)):
+            raise StudyError(f"must be a number (in the output's unit), got "
+                             f"{_shown(threshold)}", key=f"{at}.{word}")
+        if not math.isfinite(threshold):
+            raise StudyError(f"must be a finite number, got {threshold!r}",
+                             key=f"{at}.{word}")
+        comparison = EXCEEDS if word == "exceeds" else BELOW
+        _within_loading(values, comparison, float(threshold), f"{at}.{word}")
     reduce = _reduction(table.get("reduce"), "reduce" in table, values, f"{at}.reduce")
+    discrete = str(values.attrs.get(OUTPUT_VALUES, "")) == DISCRETE_VALUES or \
+        _is_flag(values)
     return LimitState(name=name, output=output, reduce=reduce, comparison=comparison,
-                      threshold=float(threshold), units=str(values.attrs.get(UNITS, "")))
+                      threshold=float(threshold), units=str(values.attrs.get(UNITS, "")),
+                      outcome=word == "is", discrete_output=discrete)
+
+
+def _is_flag(values: xr.DataArray) -> bool:
+    """Whether the solver declares ``values`` a 0/1 outcome (``flag_values = [0, 1]``)."""
+    flags = np.atleast_1d(np.asarray(values.attrs.get(FLAG_VALUES, []), dtype=float))
+    return flags.size == 2 and set(flags.tolist()) == {0.0, 1.0}
+
+
+def _outcome(value, values: xr.DataArray, key: str) -> tuple[str, float]:
+    """The comparison and threshold of ``is = value`` on a 0/1 outcome."""
+    if not isinstance(value, bool):
+        raise StudyError(f"must be true or false (a 0/1 outcome is or is not), got "
+                         f"{_shown(value)}", key=key)
+    if not _is_flag(values):
+        raise StudyError(f"output '{values.name}' is not a 0/1 outcome (its solver declares no "
+                         f"{FLAG_VALUES} = [0, 1]): compare it with exceeds = <threshold> or "
+                         f"below = <threshold>", key=key)
+    return (EXCEEDS if value else BELOW), OUTCOME_THRESHOLD
+
+
+def _within_loading(values: xr.DataArray, comparison: str, threshold: float,
+                    key: str) -> None:
+    """Refuse a threshold on an event's time beyond its "not within the loading" value:
+    realizations without the event have that value, and would be miscounted."""
+    if NOT_WITHIN_LOADING not in values.attrs:
+        return
+    # A value at the threshold fails: below = t fails y <= t, exceeds = t fails y >= t; a
+    # realization without the event has y = beyond, and its event lies somewhere past it.
+    beyond = float(np.asarray(values.attrs[NOT_WITHIN_LOADING]).reshape(-1)[0])
+    if comparison == BELOW and threshold >= beyond:
+        raise StudyError(f"output '{values.name}' is {beyond:g} where the event did not "
+                         f"happen within the loading, so below = {threshold:g} would count "
+                         f"those realizations as failures: the scene answers thresholds below "
+                         f"{beyond:g}", key=key)
+    if comparison == EXCEEDS and threshold > beyond:
+        raise StudyError(f"output '{values.name}' is {beyond:g} where the event did not "
+                         f"happen within the loading, so exceeds = {threshold:g} would count "
+                         f"those realizations as safe: the scene answers thresholds up to "
+                         f"{beyond:g}", key=key)
+
+
+def _lost_outcomes(states: list[LimitState], template: xr.Dataset) -> None:
+    """Refuse limit states that would lose the realizations of an outcome: outputs the study
+    stores without value when the outcome happens (a broken bar's later loops) make those
+    realizations failed, and a limit state on an output they do have would leave them out."""
+    missing_when: dict[str, list[str]] = {}
+    for name in template.data_vars:
+        flag = template[name].attrs.get(UNDEFINED_WHEN)
+        if flag:
+            missing_when.setdefault(str(flag), []).append(str(name))
+    for state in states:
+        own = template[state.output].attrs.get(UNDEFINED_WHEN)
+        for flag, outputs in missing_when.items():
+            if own == flag:
+                continue               # the limit state's own output has no value there
+            raise StudyError(f"the study stores {', '.join(map(repr, outputs))}, which have no "
+                             f"value where '{flag}' is 1: those realizations would be failed, "
+                             f"and limit state '{state.name}' would leave them out instead of "
+                             f"judging them; list only the outputs the study needs in "
+                             f"outputs = [...]", key="outputs")
 
 
 def _dims(values: xr.DataArray) -> list[str]:
