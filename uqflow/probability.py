@@ -15,6 +15,10 @@ of freedom over their spread (``replicate_interval``).
 
 Where an interval cannot be given (no realization ran, replicates that all saw the same
 fraction) its bounds are NaN and ``reason`` says why.
+
+The exceedance curve (``exceedance_curve``) is the same estimate at many thresholds at once:
+the fraction of values at or beyond each level, with the interval of each fraction (a
+pointwise band: each level's interval has its coverage, the curve as a whole less).
 """
 
 from __future__ import annotations
@@ -26,6 +30,11 @@ import numpy as np
 from scipy import stats as sps
 
 CLOPPER_PEARSON, WILSON, REPLICATE_T = "clopper-pearson", "wilson", "replicate-t"
+#: the comparisons of an exceedance curve: the fraction of values >= a level (a limit state
+#: "exceeds", whose failure is y >= threshold) or <= it ("below": y <= threshold)
+AT_OR_ABOVE, AT_OR_BELOW = ">=", "<="
+#: the most levels an exceedance curve keeps (the threshold comes on top)
+MAX_CURVE_LEVELS = 200
 
 
 @dataclass(frozen=True)
@@ -134,3 +143,93 @@ def binomial_cov(p, n):
         cov = np.where(n > 0, np.sqrt((1 - p) / (n * p)), np.nan)
     cov = np.where((n > 0) & (p == 0), np.inf, cov)
     return float(cov) if cov.ndim == 0 else cov
+
+
+def binomial_interval(k: int, n: int, method: str = CLOPPER_PEARSON,
+                      confidence: float = 0.95) -> ProbabilityInterval:
+    """The interval ``method`` (CLOPPER_PEARSON or WILSON) of a binomial p from k in n."""
+    if method == CLOPPER_PEARSON:
+        return clopper_pearson(k, n, confidence)
+    if method == WILSON:
+        return wilson(k, n, confidence)
+    raise ValueError(f"no binomial interval {method!r}: {CLOPPER_PEARSON!r} or {WILSON!r}")
+
+
+@dataclass(frozen=True)
+class ExceedanceCurve:
+    """P[Y >= y] (``comparison`` AT_OR_ABOVE) or P[Y <= y] (AT_OR_BELOW) at ``levels``
+    (increasing), each with its own interval ``low`` .. ``high`` at ``confidence`` by
+    ``method`` (NaN where none can be given); ``runs``: the values it is estimated from."""
+
+    levels: np.ndarray
+    probability: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+    comparison: str
+    method: str
+    confidence: float
+    runs: int
+
+
+def curve_levels(values, threshold: float, comparison: str,
+                 max_levels: int = MAX_CURVE_LEVELS) -> np.ndarray:
+    """The levels of an exceedance curve: the distinct finite ``values`` and ``threshold``,
+    the values thinned to at most ``max_levels``. Counted from the failure side (the largest
+    value for AT_OR_ABOVE), the j-th distinct value is kept for j on a geometric grid from 1
+    to their number: every value of the tail, where the curve is small and matters, and
+    fewer where it is near 1. The threshold is always a level (at it the curve is the
+    failure probability)."""
+    distinct = np.unique(np.asarray(values, dtype=float)[np.isfinite(values)])
+    if distinct.size > max_levels:
+        tail = distinct[::-1] if comparison == AT_OR_ABOVE else distinct
+        ranks = np.unique(np.round(np.geomspace(1, distinct.size, max_levels)).astype(int))
+        distinct = tail[ranks - 1]
+    levels = np.append(distinct, threshold) if np.isfinite(threshold) else distinct
+    return np.unique(levels)
+
+
+def exceedance_curve(values, threshold: float, comparison: str,
+                     method: str = CLOPPER_PEARSON, confidence: float = 0.95,
+                     replicate=None, replicates: int | None = None,
+                     max_levels: int = MAX_CURVE_LEVELS) -> ExceedanceCurve:
+    """The exceedance curve of ``values`` (NaN: left out) at ``curve_levels``.
+
+    Independent values: at each level the count k of the n values at or beyond it gives k/n
+    and the binomial interval ``method`` (the estimate and interval of a failure probability
+    with that level as threshold, exactly). Randomized QMC (``replicates`` R, ``replicate``
+    the replicate of each value): the mean over the replicates of their fractions and the
+    Student t interval over their spread (``replicate_interval``), level by level."""
+    if comparison not in (AT_OR_ABOVE, AT_OR_BELOW):
+        raise ValueError(f"comparison must be {AT_OR_ABOVE!r} or {AT_OR_BELOW!r}, got "
+                         f"{comparison!r}")
+    values = np.asarray(values, dtype=float).ravel()
+    finite = np.isfinite(values)
+    levels = curve_levels(values, threshold, comparison, max_levels)
+    y = values[finite]
+
+    def counts_beyond(sample):
+        # values at or beyond each level (the failure event at that threshold), by sorting
+        ordered = np.sort(sample)
+        if comparison == AT_OR_ABOVE:
+            return ordered.size - np.searchsorted(ordered, levels, side="left")
+        return np.searchsorted(ordered, levels, side="right")
+
+    probability, low, high = (np.full(levels.size, math.nan) for _ in range(3))
+    if replicates is None:
+        method_used = method
+        for j, k in enumerate(counts_beyond(y)):
+            interval = binomial_interval(int(k), y.size, method, confidence)
+            probability[j] = k / y.size if y.size else math.nan
+            low[j], high[j] = interval.low, interval.high
+    else:
+        method_used = REPLICATE_T
+        which = np.asarray(replicate).ravel()[finite]
+        fractions = np.full((replicates, levels.size), math.nan)
+        for r in range(replicates):
+            if np.any(which == r):
+                fractions[r] = counts_beyond(y[which == r]) / np.count_nonzero(which == r)
+        for j in range(levels.size):
+            probability[j], _, interval = replicate_interval(fractions[:, j], confidence)
+            low[j], high[j] = interval.low, interval.high
+    return ExceedanceCurve(levels, probability, low, high, comparison, method_used,
+                           confidence, int(y.size))

@@ -424,8 +424,14 @@ def test_a_study_with_limit_states_stops_on_target_cov_and_reports_p(rule, tmp_p
             stats.append(tree["statistics"].to_dataset().load())
     first, second = stats
     for name in ("failures", "failure_probability", "failure_probability_interval",
-                 "failure_probability_cov", "y"):
+                 "failure_probability_cov", "y", "exceedance_level", "exceedance_probability",
+                 "exceedance_probability_interval", "exceedance_quantity"):
         xr.testing.assert_identical(first[name].variable, second[name].variable)
+    # the stored curve, read back from the file, passes through P[failure] at the threshold
+    at = first.sel(limit_state="y_high")
+    j = int(np.flatnonzero(at["exceedance_level"].values == THRESHOLD)[0])
+    assert float(at["exceedance_probability"][j]) == float(at["failure_probability"])
+    assert str(at["exceedance_comparison"].values) == ">="
     count = first.attrs["solver_runs"]
     assert count < 2048 and float(first["failure_probability_cov"].item()) <= 0.2
     # the stop of the in-process executor stand-in, on the design of the same seed
@@ -512,3 +518,147 @@ def test_exceedance_log_figure_draws_the_curve_band_threshold_and_p_on_a_log_axi
     assert np.isnan(curve.get_ydata()[2]) and curve.get_ydata()[1] == 0.1
     assert exceedance_log_figure([1.0], [0.0], [0.0], [0.0], threshold=1.0,
                                  failure_probability=0.0) is None
+
+
+# ----------------------------------------------------------------------------- exceedance curve
+
+def tied_samples(y, status=None):
+    """Samples of a scalar output y with ties (status "ok" unless given), as the runs."""
+    n = len(y)
+    return xr.Dataset({"y": ("realization", np.asarray(y, dtype=float)),
+                       "status": ("realization", np.array(status or ["ok"] * n, dtype=object))},
+                      coords={"realization": np.arange(n)})
+
+
+TIED = [0.0, 1.0, 1.0, 2.0, 3.0, 1.0, 5.0, -1.0, 2.0, 4.0]
+
+
+@pytest.mark.parametrize("interval", ["clopper-pearson", "wilson"])
+def test_exceedance_curve_counts_the_failure_event_at_every_level(interval):
+    """At each stored level y the curve is the fraction of runs that fail a limit state with
+    threshold y (y >= level for exceeds, <= for below: ties at the level count, as at the
+    threshold), and its band that fraction's binomial interval; at the threshold both are
+    P[failure] and its interval. A failed run is in no count; a system's curve is over its
+    margin."""
+    from uqflow.methods.monte_carlo import exceedance_variables, failure_estimates
+    from uqflow.probability import binomial_interval
+
+    samples = tied_samples(TIED + [9.0], ["ok"] * len(TIED) + ["failed"])
+    states = LimitStates.from_tables(
+        [{"name": "high", "output": "y", "exceeds": 1.0},
+         {"name": "low", "output": "y", "below": 1.0},
+         {"name": "either", "series": ["high", "low"]}], samples, "test")
+    curves = exceedance_variables(states, samples, None, 0.9, interval)
+    estimates = failure_estimates(states, samples, None, 0.9, interval)
+    y = np.array(TIED)
+    names = ["high", "low", "either"]
+    for j, (name, estimate) in enumerate(zip(names, estimates)):
+        levels = curves["exceedance_level"][1][j]
+        levels = levels[np.isfinite(levels)]
+        p = curves["exceedance_probability"][1][j][:levels.size]
+        band = curves["exceedance_probability_interval"][1][j][:levels.size]
+        if name == "either":
+            quantity = np.minimum(1.0 - y, y - 1.0)   # the series system's margin
+            counts = [(quantity <= m).sum() for m in levels]
+            threshold, comparison = 0.0, "<="
+        else:
+            quantity = y
+            counts = [(y >= m).sum() if name == "high" else (y <= m).sum() for m in levels]
+            threshold, comparison = 1.0, (">=" if name == "high" else "<=")
+        np.testing.assert_array_equal(levels, np.unique(np.append(quantity, threshold)))
+        np.testing.assert_array_equal(p * len(TIED), counts)
+        for k, (low, high) in zip(counts, band):
+            bounds = binomial_interval(int(k), len(TIED), interval, 0.9)
+            assert (low, high) == (bounds.low, bounds.high)
+        at = int(np.flatnonzero(levels == threshold)[0])
+        assert p[at] == estimate.probability
+        assert tuple(band[at]) == (estimate.interval.low, estimate.interval.high)
+        assert curves["exceedance_comparison"][1][j] == comparison
+        assert curves["exceedance_threshold"][1][j] == threshold
+    # y = 1 three times: "exceeds 1" fails at y >= 1, 8 of the 10 runs that ran ok
+    assert estimates[0].failures == 8 and estimates[0].runs == 10
+
+
+def test_exceedance_curve_of_randomized_qmc_is_the_replicate_mean_at_every_level():
+    """Sobol' replicates: at each level the mean of the replicates' fractions and the t
+    interval over them, as P[failure] at the threshold."""
+    _, _, runs, stats = run_with_states(LINEAR3, linear_space(), y_exceeds(), seed=2,
+                                        samples=256, rule="sobol")
+    at = stats.sel(limit_state="y_high")
+    levels = at["exceedance_level"].values
+    keep = np.isfinite(levels)
+    y = runs["y"].values
+    for level, p, (low, high) in zip(levels[keep], at["exceedance_probability"].values[keep],
+                                     at["exceedance_probability_interval"].values[keep]):
+        fractions = (y >= level).reshape(-1, 8).mean(axis=0)   # realization j*8 + r
+        mean, _, ci = replicate_interval(fractions, 0.95)
+        assert p == mean
+        np.testing.assert_array_equal([low, high], [ci.low, ci.high])
+    assert "replicates" in stats.attrs["exceedance_note"]
+
+
+def test_exceedance_curve_follows_the_exact_distribution():
+    """y = x1 + x2 + x3 ~ N(0, 3): over the stored levels, sup |curve - Phi(-y / sqrt 3)| is
+    within the DKW bound sqrt(ln(2 / 1e-6) / (2 n)) (exceeded with probability <= 1e-6)."""
+    n = 2048
+    _, _, _, stats = run_with_states(LINEAR3, linear_space(), y_exceeds(), seed=9,
+                                     samples=n)
+    at = stats.sel(limit_state="y_high")
+    levels = at["exceedance_level"].values
+    keep = np.isfinite(levels)
+    exact = sps.norm.sf(levels[keep] / math.sqrt(3))
+    dkw = math.sqrt(math.log(2 / 1e-6) / (2 * n))
+    assert np.max(np.abs(at["exceedance_probability"].values[keep] - exact)) <= dkw
+
+
+def test_exceedance_levels_are_thinned_keeping_the_tail_and_the_threshold():
+    from uqflow.probability import curve_levels
+
+    values = np.arange(10_000, dtype=float)
+    levels = curve_levels(values, 1234.5, ">=", max_levels=200)
+    assert levels.size <= 201 and 1234.5 in levels
+    assert np.all(np.diff(levels) > 0)
+    # the 20 largest values (the tail of P[Y >= y]) are all kept, and the smallest value
+    assert set(values[-20:]) <= set(levels) and 0.0 in levels
+    below = curve_levels(values, 1234.5, "<=", max_levels=200)
+    assert set(values[:20]) <= set(below) and 9999.0 in below
+
+
+def test_interval_option_wilson_and_its_refusals():
+    from uqflow.probability import WILSON
+
+    _, _, _, stats = run_with_states(LINEAR3, linear_space(), y_exceeds(), seed=5,
+                                     samples=512, interval="wilson")
+    at = stats.sel(limit_state="y_high")
+    ci = wilson(int(at["failures"]), 512, 0.95)
+    assert tuple(at["failure_probability_interval"].values) == (ci.low, ci.high)
+    assert stats.attrs["interval_method"] == WILSON
+    assert "Wilson score" in stats.attrs["failure_probability_note"]
+    assert "Wilson interval at each level" in stats.attrs["exceedance_note"]
+    with pytest.raises(ValueError, match=r"'interval' applies to independent points \(rule "
+                                         r"random or lhs\); rule 'sobol' is randomized QMC"):
+        MonteCarlo(samples=64, rule="sobol", interval="wilson")
+    method = MonteCarlo(samples=64, interval="clopper-pearson")
+    with pytest.raises(StudyError, match="no \\[\\[limit_states\\]\\]") as info:
+        method.check_limit_states(None)
+    assert info.value.key == "method.interval"
+
+
+def test_report_draws_each_limit_states_exceedance_curve():
+    from uqflow.report import ResultView
+
+    method, design, runs, stats = run_with_states(
+        LINEAR3, linear_space(), LimitStates.from_tables(
+            [{"name": "y_high", "output": "y", "exceeds": THRESHOLD},
+             {"name": "y_low", "output": "y", "below": -THRESHOLD}],
+            AnalyticSolver.from_scene(LINEAR3).outputs(), "test"), seed=1, samples=256)
+    tree = xr.DataTree.from_dict({"/": xr.Dataset(attrs={"study_name": "pf"}),
+                                  "design": design, "runs": runs, "statistics": stats})
+    specs = {f.kind: f for f in MonteCarlo.report(ResultView(tree)).figures}
+    assert {"failure_exceedance_y_high", "failure_exceedance_y_low"} <= set(specs)
+    assert not specs["failure_exceedance_y_low"].per_output   # one figure per limit state
+    ax = specs["failure_exceedance_y_low"].draw(ResultView(tree), None).axes[0]
+    assert ax.get_yscale() == "log" and ax.get_ylabel() == "P[Y ≤ y]"
+    assert any(c.get_label().startswith(
+        f"p_f = {float(stats['failure_probability'].sel(limit_state='y_low')):.3g}")
+        for c in ax.containers)

@@ -50,9 +50,13 @@ from scipy import stats as sps
 
 from uqflow import probability
 from uqflow.errors import AccuracyWarning, StudyError
+from uqflow.limit_states import EXCEEDS, LimitState, LimitStates
 
 from uqflow.methods import control_variate as cv
-from uqflow.layout import (BOUND, BOUND_HIGH, BOUND_LOW, CONFIDENCE, FAILURE_COV,
+from uqflow.layout import (BOUND, BOUND_HIGH, BOUND_LOW, CONFIDENCE, EXCEEDANCE_COMPARISON,
+                           EXCEEDANCE_INTERVAL, EXCEEDANCE_LEVEL, EXCEEDANCE_NOTE,
+                           EXCEEDANCE_POINT, EXCEEDANCE_PROBABILITY, EXCEEDANCE_QUANTITY,
+                           EXCEEDANCE_THRESHOLD, EXCEEDANCE_UNITS, FAILURE_COV,
                            FAILURE_INTERVAL, FAILURE_LEFT_OUT, FAILURE_NOTE,
                            FAILURE_PROBABILITY, FAILURE_RUNS, FAILURES, INTERVAL_METHOD,
                            LIMIT_STATE, REALIZATION, RELIABILITY_INDEX, SOLVER_RUNS, STATISTIC,
@@ -63,6 +67,7 @@ from uqflow.methods.base import (MethodOptions, PropagationMethod, failure_warni
                                  register_method)
 from uqflow.report import (Column, FigureSpec, MethodReport, axis_label, new_figure, number,
                            scientific_ticks)
+from uqflow.report.framework_figures import exceedance_log_figure
 from uqflow.sampling import QUASI_RANDOM_RULES, replicated_unit_hypercube, unit_hypercube
 
 #: ``stderr_kind`` of the statistics, per rule: which formula the standard error uses.
@@ -113,6 +118,9 @@ class MonteCarloOptions(SampleStatisticsOptions):
     # at most taylor.MAX_STEP (a std): Taylor refuses a wider stencil
     control_step: float = Field(0.1, gt=0, le=1.0, description="control = \"taylor\": the "
                                 "stencil step as a fraction of each input's std")
+    interval: Literal["clopper-pearson", "wilson"] = Field(
+        "clopper-pearson", description="interval of P[failure] and of each level of the "
+        "exceedance curve for independent points (random, lhs) ([[limit_states]])")
 
     @field_validator("samples")
     @classmethod
@@ -141,6 +149,13 @@ class MonteCarloOptions(SampleStatisticsOptions):
         return self.only_where("replicates", self.rule in QUASI_RANDOM_RULES,
                                f"rule sobol or halton only; rule '{self.rule}' has "
                                f"independent points")
+
+    @model_validator(mode="after")
+    def _interval_only_for_independent_points(self):
+        return self.only_where("interval", self.rule not in QUASI_RANDOM_RULES,
+                               f"independent points (rule random or lhs); rule '{self.rule}' "
+                               f"is randomized QMC, whose interval is the spread of its "
+                               f"replicates")
 
     @model_validator(mode="after")
     def _control_step_only_for_taylor(self):
@@ -177,6 +192,16 @@ class MonteCarlo(PropagationMethod):
             raise StudyError("target_cov is a target for P[failure] of the limit states, and "
                              "the study has no [[limit_states]]: add them, or drop the key",
                              key="method.target_cov")
+        if self.limit_states is None and "interval" in self.options.model_fields_set:
+            raise StudyError("interval is the interval of P[failure] of the limit states, and "
+                             "the study has no [[limit_states]]: add them, or drop the key",
+                             key="method.interval")
+
+    @property
+    def interval(self) -> str:
+        """The binomial interval of P[failure] for independent points (kl-weibull, which has
+        no ``interval`` option, Clopper-Pearson)."""
+        return getattr(self.options, "interval", probability.CLOPPER_PEARSON)
 
     def plan(self, space, fields, seed):
         self.check(space, fields)
@@ -245,7 +270,7 @@ class MonteCarlo(PropagationMethod):
         if target_cov is not None:
             prefix = samples.isel({REALIZATION: slice(0, count)})
             covs = [e.cov for e in failure_estimates(self.limit_states, prefix, r,
-                                                     self.options.confidence)]
+                                                     self.options.confidence, self.interval)]
             # NaN (no estimate of the error yet) is not below any target
             if not all(c <= target_cov for c in covs):
                 return False
@@ -344,8 +369,11 @@ class MonteCarlo(PropagationMethod):
             coords.update(plain_statistic=["mean", "variance", "stderr"],
                           surrogate_statistic=["mean", "variance"])
         if self.limit_states is not None:
-            estimates = failure_estimates(self.limit_states, samples, r, opts.confidence)
+            estimates = failure_estimates(self.limit_states, samples, r, opts.confidence,
+                                          self.interval)
             data.update(failure_variables(estimates))
+            data.update(exceedance_variables(self.limit_states, samples, r, opts.confidence,
+                                             self.interval))
             coords.update({LIMIT_STATE: list(self.limit_states.names),
                            BOUND: [BOUND_LOW, BOUND_HIGH]})
             warnings.extend(e.warning for e in estimates if e.warning)
@@ -364,9 +392,10 @@ class MonteCarlo(PropagationMethod):
             stats.attrs.update(cv.control_attrs(design, samples, surrogates is not None))
         if self.limit_states is not None:
             stats.attrs.update({
-                INTERVAL_METHOD: probability.CLOPPER_PEARSON if r is None
-                else probability.REPLICATE_T,
-                FAILURE_NOTE: _failure_note(rule, r, estimates, opts.confidence)})
+                INTERVAL_METHOD: self.interval if r is None else probability.REPLICATE_T,
+                FAILURE_NOTE: _failure_note(rule, r, estimates, opts.confidence,
+                                            self.interval),
+                EXCEEDANCE_NOTE: _exceedance_note(r, opts.confidence, self.interval)})
         return stats
 
     @classmethod
@@ -384,7 +413,8 @@ class MonteCarlo(PropagationMethod):
             notes=sample_notes(view) + failure_lines(stats)
             + cv.report_lines(stats, view.outputs, view.focus, view.where),
             cost_details=[f"rule {rule}"] if rule else [],
-            figures=[FigureSpec("convergence", convergence_figure)])
+            figures=[FigureSpec("convergence", convergence_figure)]
+            + failure_exceedance_figures(stats))
 
     def _trace(self, y, dims):
         """Running mean, std and standard error after the first n realizations, n log-spaced."""
@@ -430,10 +460,12 @@ class FailureEstimate:
     warning: str = ""
 
 
-def failure_estimates(limit_states, samples, replicates, confidence) -> list[FailureEstimate]:
+def failure_estimates(limit_states, samples, replicates, confidence,
+                      interval=probability.CLOPPER_PEARSON) -> list[FailureEstimate]:
     """Each limit state's estimate from ``samples`` (the draws of the design: realizations in
     design order, a control variate's control runs left out). Independent points
-    (``replicates`` None): k / n, Clopper–Pearson, c.o.v. sqrt((1 - p) / (n p)). Randomized
+    (``replicates`` None): k / n, the binomial ``interval`` (Clopper-Pearson or Wilson),
+    c.o.v. sqrt((1 - p) / (n p)). Randomized
     QMC: realization i is in replicate i mod R; the mean of the replicates' fractions, a t
     interval over their spread, c.o.v. their standard error / p."""
     ok = ok_mask(samples)
@@ -449,19 +481,19 @@ def failure_estimates(limit_states, samples, replicates, confidence) -> list[Fai
     for j, name in enumerate(limit_states.names):
         k, n = int(failed[:, j].sum()), int(judged[:, j].sum())
         if replicates is None:
-            interval = probability.clopper_pearson(k, n, confidence)
+            bounds = probability.binomial_interval(k, n, interval, confidence)
             p = k / n if n else np.nan
             cov = probability.binomial_cov(p, n)
         else:
             fractions = [failed[judged[:, j] & (replicate == q), j].mean()
                          if np.any(judged[:, j] & (replicate == q)) else np.nan
                          for q in range(replicates)]
-            p, stderr, interval = probability.replicate_interval(fractions, confidence)
-            cov = stderr / p if p > 0 and not interval.reason else \
+            p, stderr, bounds = probability.replicate_interval(fractions, confidence)
+            cov = stderr / p if p > 0 and not bounds.reason else \
                 (np.inf if p == 0 else np.nan)
-        warning = f"limit state '{name}': no interval of P[failure]: {interval.reason}" \
-            if interval.reason else ""
-        found.append(FailureEstimate(k, n, ok.size - n, float(p), interval, float(cov),
+        warning = f"limit state '{name}': no interval of P[failure]: {bounds.reason}" \
+            if bounds.reason else ""
+        found.append(FailureEstimate(k, n, ok.size - n, float(p), bounds, float(cov),
                                      warning))
     return found
 
@@ -491,7 +523,88 @@ def failure_variables(estimates: list[FailureEstimate]) -> dict:
     }
 
 
-def _failure_note(rule, replicates, estimates, confidence) -> str:
+def exceedance_variables(limit_states, samples, replicates, confidence,
+                         interval=probability.CLOPPER_PEARSON) -> dict:
+    """Each limit state's exceedance curve from ``samples`` (as ``failure_estimates``): the
+    statistics variables (limit_state, exceedance_point), NaN-padded.
+
+    A limit state on an output: Y its reduced output (what the threshold is compared with),
+    P[Y >= y] for ``exceeds`` and P[Y <= y] for ``below`` (the failure event with threshold y:
+    at the threshold, P[failure] and its interval exactly; for a continuous Y the same as
+    P[Y > y] and P[Y < y]). A system, or a limit state known only by its margins: Y its
+    margin g, P[G <= y], threshold 0. Independent points: the fraction and the binomial
+    ``interval`` at each level; randomized QMC: the mean of the replicates' fractions and
+    the t interval over their spread at each level."""
+    ok = ok_mask(samples)
+    margins = limit_states.margins(samples).transpose(REALIZATION, LIMIT_STATE)
+    replicate = np.arange(ok.size) % replicates if replicates else None
+    curves, quantities, comparisons, thresholds, units = [], [], [], [], []
+    for name in limit_states.names:
+        state = limit_states[name] if isinstance(limit_states, LimitStates) else None
+        if isinstance(state, LimitState):
+            y = np.asarray(state.reduce.apply(samples[state.output], state.comparison)
+                           .values, dtype=float)
+            comparison = probability.AT_OR_ABOVE if state.comparison == EXCEEDS \
+                else probability.AT_OR_BELOW
+            quantity, threshold, unit = (state.reduce.describe(state.output),
+                                         state.threshold, state.units)
+        else:
+            y = np.asarray(margins.sel({LIMIT_STATE: name}).values, dtype=float)
+            comparison, threshold, unit = probability.AT_OR_BELOW, 0.0, ""
+            quantity = f"margin g of {name}" + (f" ({state.describe()})" if state else "")
+        y = np.where(ok, y, np.nan)   # a realization that did not run ok is left out
+        curves.append(probability.exceedance_curve(y, threshold, comparison, interval,
+                                                   confidence, replicate, replicates))
+        quantities.append(quantity)
+        comparisons.append(comparison)
+        thresholds.append(threshold)
+        units.append(unit)
+    size = max((c.levels.size for c in curves), default=0)
+
+    def padded(arrays):
+        block = np.full((len(arrays), size), np.nan)
+        for j, a in enumerate(arrays):
+            block[j, :a.size] = a
+        return block
+
+    band = np.stack([padded([c.low for c in curves]), padded([c.high for c in curves])],
+                    axis=-1)
+    per_state = (LIMIT_STATE,)
+    return {
+        EXCEEDANCE_LEVEL: ((LIMIT_STATE, EXCEEDANCE_POINT), padded([c.levels for c in curves]),
+                           {"long_name": "levels y of the exceedance curve (NaN: padding)"}),
+        EXCEEDANCE_PROBABILITY: ((LIMIT_STATE, EXCEEDANCE_POINT),
+                                 padded([c.probability for c in curves]),
+                                 {"long_name": "P[Y >= y] (exceeds) or P[Y <= y] (below)"}),
+        EXCEEDANCE_INTERVAL: ((LIMIT_STATE, EXCEEDANCE_POINT, BOUND), band,
+                              {"long_name": "pointwise interval of the exceedance curve"}),
+        EXCEEDANCE_QUANTITY: (per_state, np.array(quantities, dtype=object),
+                              {"long_name": "the quantity Y of the exceedance curve"}),
+        EXCEEDANCE_COMPARISON: (per_state, np.array(comparisons, dtype=object),
+                                {"long_name": "the curve is P[Y >= y] or P[Y <= y]"}),
+        EXCEEDANCE_THRESHOLD: (per_state, np.array(thresholds, dtype=float),
+                               {"long_name": "the limit state's threshold on Y"}),
+        EXCEEDANCE_UNITS: (per_state, np.array(units, dtype=object),
+                           {"long_name": "units of Y and of the levels"}),
+    }
+
+
+def _exceedance_note(replicates, confidence, interval) -> str:
+    level = f"{100 * confidence:g} %"
+    if replicates is not None:
+        how = (f"mean of the {replicates} replicates' fractions at or beyond each level, "
+               f"{level} Student t interval over their spread at each level")
+    else:
+        name = "Clopper-Pearson" if interval == probability.CLOPPER_PEARSON else "Wilson"
+        how = (f"fraction of the realizations that ran ok at or beyond each level, {level} "
+               f"{name} interval at each level")
+    return (f"{how}: a pointwise band (each level covers at its level; the curve as a whole "
+            f"less); levels: the distinct values, at most {probability.MAX_CURVE_LEVELS} "
+            f"(every value of the tail, fewer towards P = 1), and the threshold")
+
+
+def _failure_note(rule, replicates, estimates, confidence,
+                  interval=probability.CLOPPER_PEARSON) -> str:
     """How P[failure] and its interval were estimated, and what was left out, in words."""
     level = f"{100 * confidence:g} %"
     if replicates is not None:
@@ -499,8 +612,10 @@ def _failure_note(rule, replicates, estimates, confidence) -> str:
                f"replicates; {level} Student t interval over their spread; c.o.v. = their "
                f"standard error / P")
     else:
-        how = (f"failures / realizations that ran ok; {level} Clopper-Pearson (exact "
-               f"binomial) interval; c.o.v. = sqrt((1 - P) / (n P))")
+        name = "Clopper-Pearson (exact binomial)" if interval == probability.CLOPPER_PEARSON \
+            else "Wilson score (shorter; its coverage dips below the level for small n P)"
+        how = (f"failures / realizations that ran ok; {level} {name} interval; c.o.v. = "
+               f"sqrt((1 - P) / (n P))")
         if rule == "lhs":
             how += ("; Latin hypercube points are not independent: the binomial interval is "
                     "conservative up to N/(N-1) in variance (Owen 1997)")
@@ -534,6 +649,45 @@ def failure_lines(stats) -> list[str]:
     if note:
         lines.append(f"P[failure]: {note}")
     return lines
+
+
+def failure_exceedance_figures(stats) -> list[FigureSpec]:
+    """A figure per limit state of the result: its stored exceedance curve on a log axis,
+    with its band, the threshold and P[failure] (``exceedance_log_figure``); saved as
+    ``failure_exceedance_<limit state>.png``. None without stored curves."""
+    if EXCEEDANCE_PROBABILITY not in stats:
+        return []
+    return [FigureSpec(f"failure_exceedance_{name}",
+                       lambda view, _, name=str(name): exceedance_figure_of(view.stats, name,
+                                                                           view.study),
+                       per_output=False)
+            for name in stats[LIMIT_STATE].values]
+
+
+def exceedance_figure_of(stats, name: str, study: str = ""):
+    """The exceedance figure of limit state ``name`` from the statistics."""
+    at = stats.sel({LIMIT_STATE: name})
+    levels = np.asarray(at[EXCEEDANCE_LEVEL].values, dtype=float)
+    keep = np.isfinite(levels)
+    band = np.asarray(at[EXCEEDANCE_INTERVAL].values, dtype=float)[keep]
+    comparison = str(at[EXCEEDANCE_COMPARISON].values)
+    pf_low, pf_high = np.asarray(at[FAILURE_INTERVAL].values, dtype=float)
+    note = str(stats.attrs.get(EXCEEDANCE_NOTE, ""))
+    how = "Student t over the replicates" if "replicates" in note else \
+        "Wilson" if "Wilson" in note else "Clopper-Pearson"
+    level = f"{100 * float(stats.attrs.get(CONFIDENCE, 0.95)):g} %"
+    runs = int(at[FAILURE_RUNS].values)
+    quantity = str(at[EXCEEDANCE_QUANTITY].values)
+    return exceedance_log_figure(
+        levels[keep], np.asarray(at[EXCEEDANCE_PROBABILITY].values, dtype=float)[keep],
+        band[:, 0], band[:, 1], threshold=float(at[EXCEEDANCE_THRESHOLD].values),
+        failure_probability=float(at[FAILURE_PROBABILITY].values),
+        failure_interval=(pf_low, pf_high), comparison=comparison, name=quantity,
+        units=str(at[EXCEEDANCE_UNITS].values),
+        curve_label=f"fraction of {runs} runs at or {'above' if comparison == '>=' else 'below'} y",
+        band_label=f"{level} pointwise band ({how})",
+        title=f"{study + ': ' if study else ''}limit state '{name}'\n"
+              f"exceedance of {quantity} (Monte Carlo)")
 
 
 def _description(stats) -> str:

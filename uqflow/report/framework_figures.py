@@ -292,6 +292,9 @@ def exceedance_figure(view: ResultView, output: str):
     return fig
 
 
+_SIGNS = {">=": "≥", "<=": "≤"}
+
+
 def exceedance_log_figure(levels, probability, lower, upper, *, threshold: float,
                           failure_probability: float, failure_interval=(math.nan, math.nan),
                           comparison: str = ">", name: str = "y", units: str = "",
@@ -301,11 +304,12 @@ def exceedance_log_figure(levels, probability, lower, upper, *, threshold: float
     method that estimates one (sampling, subset levels, weighted samples): arrays, no view.
 
     ``levels`` (increasing, in ``units``, SI) and at each the estimate ``probability`` of
-    P[Y > y] (``comparison`` ">") or P[Y < y] ("<") with its band ``lower`` .. ``upper``
+    P[Y > y] (``comparison`` ">"; ">=", "<", "<=" likewise) with its band ``lower`` .. ``upper``
     (NaN: no band there); ``threshold`` is the limit state's, marked by a vertical line, and
     ``failure_probability`` with its ``failure_interval`` by a horizontal line and an error
     bar at the threshold. ``steps``: an empirical curve (constant between levels: after each
-    level for ">", before it for "<") rather than a line through the points. Probabilities
+    level for ">" and "<=", before it for ">=" and "<") rather than a line through the
+    points. Probabilities
     of 0 have no place on a log axis: the curve leaves them out and the band's lower bound
     is drawn at the axis' floor, a tenth of the smallest positive number shown. None when
     nothing positive is left to draw."""
@@ -320,11 +324,12 @@ def exceedance_log_figure(levels, probability, lower, upper, *, threshold: float
     floor = 0.1 * float(positive.min())
     scale, shown_units = display_units(np.append(levels, threshold), units)
     x = levels * scale
-    where = "post" if comparison == ">" else "pre"
+    # P[Y > y] and P[Y <= y] hold their value after each level, P[Y >= y], P[Y < y] before
+    where = "post" if comparison in (">", "<=") else "pre"
     if steps:
-        # the last step (">": after the largest level; "<": before the smallest) gets a width
+        # the outer step on the side the curve holds its value gets a width too
         width = 0.05 * max(float(np.ptp(x)), abs(float(x[0])), 1e-300)
-        if comparison == ">":
+        if where == "post":
             x, probability, lower, upper = (np.append(a, a[-1]) for a in
                                             (x, probability, lower, upper))
             x[-1] += width
@@ -361,7 +366,7 @@ def exceedance_log_figure(levels, probability, lower, upper, *, threshold: float
     ax.set_yscale("log")
     ax.set_ylim(floor, min(1.5, 2.0 * float(positive.max())))
     ax.set_xlabel(quantity_label(f"y: {name}", shown_units))
-    ax.set_ylabel(f"P[Y {comparison} y]")
+    ax.set_ylabel(f"P[Y {_SIGNS.get(comparison, comparison)} y]")
     ax.grid(True, which="major", axis="y", linewidth=0.4, alpha=0.5)
     if title:
         ax.set_title(title)
