@@ -552,7 +552,10 @@ def exceedance_variables(limit_states, samples, replicates, confidence,
             y = np.asarray(margins.sel({LIMIT_STATE: name}).values, dtype=float)
             comparison, threshold, unit = probability.AT_OR_BELOW, 0.0, ""
             quantity = f"margin g of {name}" + (f" ({state.describe()})" if state else "")
-        y = np.where(ok, y, np.nan)   # a realization that did not run ok is left out
+        # a realization that did not run ok, or has no margin (an outcome neither 0 nor 1),
+        # is left out, as from P[failure]
+        judged = ok & np.isfinite(np.asarray(margins.sel({LIMIT_STATE: name}).values, float))
+        y = np.where(judged, y, np.nan)
         curves.append(probability.exceedance_curve(y, threshold, comparison, interval,
                                                    confidence, replicate, replicates))
         quantities.append(quantity)
