@@ -1,0 +1,429 @@
+"""uqflow's reliability methods against OpenTURNS on problems with exact answers (issue 18).
+
+Each problem of ``reliability_problems.py`` becomes a uqflow study (its margin as a solver by
+``uqflow.solver_from_function``, its inputs and copula as ``[[inputs]]`` and
+``[correlation]``, one ``[[limit_states]]`` "g below 0") run in this process through the
+executor, and the same event in OpenTURNS (``ThresholdEvent`` of a ``PythonFunction``). Both
+sides run the same budgets in the same run: the samples of Monte Carlo and importance
+sampling, the samples per level and level probability of subset simulation. A sampling
+method is repeated with seeds 0, 1, 2, ...: the mean p_f, its bias against the reference
+(``reliability_references.json``), the c.o.v. it reports (mean over repetitions), its
+empirical c.o.v. (the spread of p_f over the repetitions over the reference), the coverage
+of its reported 95 % interval, and the solver calls (mean). Only p_f, c.o.v. and calls are
+measured, never time: other processes on the machine change no figure here.
+
+    python benchmarks/reliability.py                   # every problem, 200 repetitions each;
+                                                       # BENCHMARKS.md "reliability"
+    python benchmarks/reliability.py --case-seconds 120   # stop a uqflow method's
+                                                       # repetitions after 2 minutes (stated)
+    python benchmarks/reliability.py --problems r_minus_s --repetitions 50
+    python benchmarks/reliability.py --quick           # smoke test: R - S at a toy size,
+                                                       # MC and FORM, no OpenTURNS, writes
+                                                       # nothing
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+from scipy import stats as sps
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _record import write_section  # noqa: E402
+from reliability_problems import PROBLEMS  # noqa: E402
+
+import uqflow  # noqa: E402
+from uqflow.errors import StudyError  # noqa: E402
+from uqflow.layout import (BOUND, BOUND_HIGH, BOUND_LOW, FAILURE_COV,  # noqa: E402
+                           FAILURE_INTERVAL, FAILURE_PROBABILITY, SOLVER_RUNS)
+
+REFERENCES = json.loads((Path(__file__).resolve().parent /
+                         "reliability_references.json").read_text())
+CONFIDENCE = 0.95
+LEVEL_PROBABILITY = 0.1
+
+#: calls of Monte Carlo and importance sampling, and subset simulation's samples per level
+BUDGETS = {
+    "r_minus_s": dict(samples=1000, per_level=500),
+    "four_branch_6": dict(samples=2000, per_level=500),
+    "four_branch_7": dict(samples=2000, per_level=500),
+    "linear_100": dict(samples=2000, per_level=1000),
+    "two_design_points": dict(samples=2000, per_level=500),
+    "correlated_lognormals": dict(samples=2000, per_level=500),
+}
+QUICK_BUDGET = dict(samples=100, per_level=100)
+QUICK_METHODS = ["monte-carlo", "form"]
+
+#: uqflow's methods: kind, options from the budget, whether repeated (sampling)
+UQFLOW_METHODS = {
+    "monte-carlo": (lambda b: {"samples": b["samples"]}, True),
+    "form": (lambda b: {}, False),
+    "sorm": (lambda b: {}, False),
+    "importance-sampling": (lambda b: {"samples": b["samples"]}, True),
+    "cross-entropy": (lambda b: {"samples": b["samples"]}, True),
+    "subset-simulation": (lambda b: {"samples_per_level": b["per_level"],
+                                     "level_probability": LEVEL_PROBABILITY}, True),
+}
+OT_METHODS = ("FORM", "SORM", "MC", "IS at FORM point", "SubsetSampling")
+
+
+def available_methods() -> list[str]:
+    """uqflow's methods of the table that this checkout registers (the rare-event ones land
+    one by one)."""
+    found = []
+    for kind in UQFLOW_METHODS:
+        try:
+            uqflow.get_method(kind)
+        except StudyError:
+            continue
+        found.append(kind)
+    return found
+
+
+# ------------------------------------------------------------------------------- uqflow
+
+def _toml(value) -> str:
+    if isinstance(value, str):
+        return json.dumps(value)
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(_toml(v) for v in value) + "]"
+    return repr(float(value)) if isinstance(value, (float, np.floating)) else repr(value)
+
+
+def register(problem) -> str:
+    """Register the problem's margin as a solver ``bench-<name>``, output g (units 1)."""
+    names = problem.names
+    margin = problem.margin
+
+    def run(**params):
+        return {"g": float(margin(np.array([[params[n] for n in names]]))[0])}
+
+    run.__name__ = f"margin_{problem.name}"
+    solver = uqflow.solver_from_function(run, outputs="g", units="1",
+                                         parameters={n: 0.0 for n in names},
+                                         long_names={"g": "limit-state margin"},
+                                         name=f"bench-{problem.name}")
+    uqflow.register_solver(f"bench-{problem.name}")(solver)
+    return f"bench-{problem.name}"
+
+
+def write_study(folder: Path, problem, kind: str, options: dict, seed: int) -> Path:
+    lines = [f'name = "{problem.name}-{kind}"', f'solver = "{register(problem)}"',
+             "scene = {}", 'outputs = ["g"]', ""]
+    for table in problem.inputs:
+        lines += ["[[inputs]]", *(f"{k} = {_toml(v)}" for k, v in table.items()), ""]
+    if problem.correlation is not None:
+        lines += ["[correlation]", f"inputs = {_toml(problem.names)}",
+                  f"matrix = {_toml(problem.correlation.tolist())}", ""]
+    lines += ["[[limit_states]]", 'name = "fails"', 'output = "g"', "below = 0.0", "",
+              "[method]", f'kind = "{kind}"', *(f"{k} = {_toml(v)}" for k, v in options.items()),
+              "", "[execution]", "workers = 0", f"seed = {seed}", "",
+              "[output]", f'path = "{problem.name}-{kind}.nc"', "figures = false", ""]
+    path = folder / f"{problem.name}-{kind}.toml"
+    path.write_text("\n".join(lines))
+    return path
+
+
+def run_uqflow(folder: Path, problem, kind: str, options: dict, seed: int) -> dict:
+    study = uqflow.load_study(write_study(folder, problem, kind, options, seed))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")     # the method's own warnings are in the result
+        outcome = uqflow.run_study(study, show_progress=False, force=True)
+    stats = outcome.statistics
+    got = {"p": float(stats[FAILURE_PROBABILITY].values[0]),
+           "calls": int(stats.attrs[SOLVER_RUNS]), "low": math.nan, "high": math.nan,
+           "cov": math.nan, "warnings": stats.attrs.get("warnings", "")}
+    if FAILURE_INTERVAL in stats:
+        bounds = stats[FAILURE_INTERVAL].isel({stats[FAILURE_INTERVAL].dims[0]: 0})
+        got["low"] = float(bounds.sel({BOUND: BOUND_LOW}))
+        got["high"] = float(bounds.sel({BOUND: BOUND_HIGH}))
+    if FAILURE_COV in stats:
+        got["cov"] = float(stats[FAILURE_COV].values[0])
+    return got
+
+
+# ---------------------------------------------------------------------------- OpenTURNS
+
+class OpenTurnsProblem:
+    """The problem's event in OpenTURNS, counting the margin's evaluations (its calls)."""
+
+    def __init__(self, problem):
+        import openturns as ot
+
+        ot.Log.Show(ot.Log.NONE)
+        self.ot, self.problem, self.calls = ot, problem, 0
+        marginals = [ot.Normal(t["mean"], t["std"]) if t["distribution"] == "normal" else
+                     ot.LogNormal(t["mu"], t["sigma"], 0.0) for t in problem.inputs]
+        if problem.correlation is None:
+            self.distribution = ot.JointDistribution(marginals)
+        else:
+            # OpenTURNS' NormalCopula takes the normal scores' correlation, as uqflow's
+            # [correlation] does
+            self.distribution = ot.JointDistribution(
+                marginals, ot.NormalCopula(ot.CorrelationMatrix(problem.correlation.tolist())))
+
+        def margin(x):
+            x = np.asarray(x)
+            self.calls += x.shape[0]
+            return problem.margin(x)[:, None]
+
+        function = ot.PythonFunction(problem.dimension, 1, func_sample=margin)
+        output = ot.CompositeRandomVector(function, ot.RandomVector(self.distribution))
+        self.event = ot.ThresholdEvent(output, ot.LessOrEqual(), 0.0)
+
+    def _counted(self, work) -> dict:
+        self.calls = 0
+        got = work()
+        got["calls"] = self.calls
+        return got
+
+    def _search(self):
+        algorithm = self.ot.AbdoRackwitz()
+        # from the medians, as uqflow's search starts (u = 0)
+        algorithm.setStartingPoint([0.0] * self.problem.dimension)
+        return algorithm
+
+    def form(self, seed: int) -> dict:
+        def work():
+            algorithm = self.ot.FORM(self._search(), self.event)
+            algorithm.run()
+            result = algorithm.getResult()
+            return {"p": result.getEventProbability(),
+                    "design_point": np.array(result.getStandardSpaceDesignPoint())}
+        return self._counted(work)
+
+    def sorm(self, seed: int) -> dict:
+        def work():
+            algorithm = self.ot.SORM(self._search(), self.event)
+            algorithm.run()
+            return {"p": algorithm.getResult().getEventProbabilityTvedt()}
+        return self._counted(work)
+
+    def _simulation(self, algorithm, samples: int) -> dict:
+        algorithm.setMaximumOuterSampling(1)
+        algorithm.setBlockSize(samples)
+        algorithm.setMaximumCoefficientOfVariation(-1.0)    # the whole budget, no early stop
+        algorithm.run()
+        return _simulation_result(algorithm.getResult())
+
+    def monte_carlo(self, seed: int, samples: int) -> dict:
+        self.ot.RandomGenerator.SetSeed(seed)
+        return self._counted(lambda: self._simulation(self.ot.ProbabilitySimulationAlgorithm(
+            self.event, self.ot.MonteCarloExperiment()), samples))
+
+    def importance_sampling(self, seed: int, samples: int, design_point) -> dict:
+        """Unit normal density centred on OpenTURNS' FORM design point (its calls are
+        counted with the sampling's)."""
+        self.ot.RandomGenerator.SetSeed(seed)
+        ot = self.ot
+        experiment = ot.ImportanceSamplingExperiment(
+            ot.Normal(ot.Point(design_point.tolist()), ot.CovarianceMatrix(len(design_point))))
+        return self._simulation(ot.ProbabilitySimulationAlgorithm(ot.StandardEvent(self.event),
+                                                                  experiment), samples)
+
+    def subset(self, seed: int, per_level: int) -> dict:
+        self.ot.RandomGenerator.SetSeed(seed)
+
+        def work():
+            algorithm = self.ot.SubsetSampling(self.event)
+            # a level's N samples: outer sampling x block size, one block of N (one call
+            # of the vectorized margin per step)
+            algorithm.setMaximumOuterSampling(1)
+            algorithm.setBlockSize(per_level)
+            algorithm.setConditionalProbability(LEVEL_PROBABILITY)
+            algorithm.run()
+            return _simulation_result(algorithm.getResult())
+        return self._counted(work)
+
+
+def _simulation_result(result) -> dict:
+    # OpenTURNS' interval: p -+ z sd, its normal approximation (getConfidenceLength)
+    p, sd = result.getProbabilityEstimate(), result.getStandardDeviation()
+    half = sps.norm.ppf(0.5 + CONFIDENCE / 2) * sd
+    return {"p": p, "cov": result.getCoefficientOfVariation(), "low": p - half,
+            "high": p + half}
+
+
+def run_openturns(problem, budget: dict, repetitions: int) -> dict:
+    side = OpenTurnsProblem(problem)
+    form = side.form(0)
+    out = {"FORM": [form], "SORM": [side.sorm(0)]}
+    out["MC"] = [side.monte_carlo(seed, budget["samples"]) for seed in range(repetitions)]
+    out["IS at FORM point"] = []
+    for seed in range(repetitions):
+        got = side._counted(lambda: side.importance_sampling(seed, budget["samples"],
+                                                             form["design_point"]))
+        got["calls"] += form["calls"]
+        out["IS at FORM point"].append(got)
+    out["SubsetSampling"] = [side.subset(seed, budget["per_level"])
+                             for seed in range(repetitions)]
+    return out
+
+
+# -------------------------------------------------------------------------- summaries
+
+def binomial_band(trials: int, level: float = CONFIDENCE) -> tuple[float, float, float]:
+    """The central 95 % range of the coverage fraction of ``trials`` intervals whose true
+    coverage is ``level``: binomial quantiles 2.5 % and 97.5 %, and the exact probability
+    of landing in it."""
+    low = sps.binom.ppf(0.025, trials, level)
+    high = sps.binom.ppf(0.975, trials, level)
+    mass = sps.binom.cdf(high, trials, level) - sps.binom.cdf(low - 1, trials, level)
+    return low / trials, high / trials, float(mass)
+
+
+def summarize(runs: list[dict], reference: float) -> dict:
+    p = np.array([r["p"] for r in runs], dtype=float)
+    calls = np.array([r["calls"] for r in runs], dtype=float)
+    out = {"repetitions": len(runs), "p_mean": float(np.mean(p)),
+           "bias": float(np.mean(p) / reference - 1), "calls": float(np.mean(calls))}
+    if len(runs) > 1:
+        out["cov_empirical"] = float(np.std(p, ddof=1) / reference)
+        # the mean's own standard error, to say whether a bias is real
+        out["bias_stderr"] = float(np.std(p, ddof=1) / math.sqrt(len(p)) / reference)
+    cov = np.array([r.get("cov", math.nan) for r in runs], dtype=float)
+    if np.isfinite(cov).any():
+        out["cov_reported"] = float(np.mean(cov[np.isfinite(cov)]))
+    low = np.array([r.get("low", math.nan) for r in runs], dtype=float)
+    high = np.array([r.get("high", math.nan) for r in runs], dtype=float)
+    if len(runs) > 1 and np.isfinite(low).all():
+        out["covered"] = int(np.sum((low <= reference) & (reference <= high)))
+    return out
+
+
+def run_problem(name: str, methods: list[str], repetitions: int, case_seconds: float,
+                folder: Path, with_openturns: bool, budget: dict) -> dict:
+    problem = PROBLEMS[name]
+    reference = REFERENCES[name]["p_f"]
+    result = {"reference": reference, "uqflow": {}, "openturns": {}, "warnings": {},
+              "stopped": {}}
+    for kind in methods:
+        options, repeated = UQFLOW_METHODS[kind]
+        runs, start = [], time.perf_counter()
+        for seed in range(repetitions if repeated else 1):
+            runs.append(run_uqflow(folder, problem, kind, options(budget), seed))
+            if time.perf_counter() - start > case_seconds and seed + 1 < repetitions:
+                result["stopped"][kind] = time.perf_counter() - start
+                break
+        result["uqflow"][kind] = summarize(runs, reference)
+        result["warnings"][kind] = runs[0]["warnings"]
+        print(f"{name} uqflow {kind}: {result['uqflow'][kind]} "
+              f"({time.perf_counter() - start:.0f} s)", flush=True)
+    if with_openturns:
+        for label, runs in run_openturns(problem, budget, repetitions).items():
+            result["openturns"][label] = summarize(runs, reference)
+            print(f"{name} OpenTURNS {label}: {result['openturns'][label]}", flush=True)
+    return result
+
+
+# ----------------------------------------------------------------------------- report
+
+def _cell(summary: dict, key: str, fmt: str) -> str:
+    value = summary.get(key)
+    return "" if value is None or not np.isfinite(value) else format(value, fmt)
+
+
+def _row(side: str, method: str, s: dict, band) -> str:
+    covered = ""
+    if "covered" in s:
+        fraction = s["covered"] / s["repetitions"]
+        low, high, _ = band(s["repetitions"])
+        mark = "" if low <= fraction <= high else " **(outside)**"
+        covered = f"{s['covered']}/{s['repetitions']} = {fraction:.3f}{mark}"
+    bias = _cell(s, "bias", "+.3f")
+    if "bias_stderr" in s:
+        bias += f" ± {s['bias_stderr']:.3f}"
+    return (f"| {side} | {method} | {s['calls']:.0f} | {s['p_mean']:.4g} | {bias} | "
+            f"{_cell(s, 'cov_reported', '.3f')} | {_cell(s, 'cov_empirical', '.3f')} | "
+            f"{covered} |\n")
+
+
+def report(results: dict, repetitions: int, case_seconds: float) -> str:
+    low, high, mass = binomial_band(repetitions)
+    body = (
+        "Each problem runs as a uqflow study (a `solver_from_function` margin, `[[inputs]]`, "
+        "`[correlation]`, one `[[limit_states]]` g below 0; workers = 0) and as the same "
+        "event in OpenTURNS "
+        f"{_openturns_version()}, at the same budgets in the same run (samples of MC and "
+        "IS; samples per level and p0 = 0.1 of subset simulation). Sampling methods run "
+        f"with seeds 0 … R − 1 (R = {repetitions} unless the row says fewer); 'calls' is "
+        "the mean number of margin evaluations (OpenTURNS' IS includes its FORM search), "
+        "'p_f' the mean estimate, 'bias' mean / reference − 1 ± its standard error, "
+        "'c.o.v. rep.' the mean reported c.o.v., 'c.o.v. emp.' the spread of p_f over the "
+        "repetitions / reference, 'coverage' how many reported 95 % intervals hold the "
+        "reference (uqflow's Monte Carlo: Clopper–Pearson, conservative by construction; "
+        "OpenTURNS: p ± 1.96 sd). "
+        f"Coverage band: for R = {repetitions} intervals of true coverage 0.95 the count "
+        f"lies in [{low:.3f}, {high:.3f}] with probability {mass:.3f} (binomial quantiles "
+        "2.5 % and 97.5 %); rows with fewer repetitions are judged against their own R. "
+        "Only p_f, c.o.v. and calls are figures here, no time: other load on the machine "
+        "changes none of them. References: `benchmarks/reliability_references.json` "
+        "(exact formulas or quadrature; 10⁸-sample numpy Monte Carlo checks beside them).\n")
+    if any(r["stopped"] for r in results.values()):
+        body += (f"\nA uqflow method's repetitions stop after {case_seconds:.0f} s of runs "
+                 "(`--case-seconds`); those rows say how many ran. The full "
+                 f"{repetitions}: `python benchmarks/reliability.py --case-seconds 1e9`.\n")
+    for name, res in results.items():
+        budget = BUDGETS[name]
+        body += (f"\n### {PROBLEMS[name].title}\n\nReference p_f = {res['reference']:.6g} "
+                 f"({REFERENCES[name]['how']}). Budget: {budget['samples']} samples, "
+                 f"{budget['per_level']} per subset level.\n\n"
+                 "| | method | calls | p_f | bias | c.o.v. rep. | c.o.v. emp. | coverage |\n"
+                 "|---|---|---|---|---|---|---|---|\n")
+        for kind, s in res["uqflow"].items():
+            body += _row("uqflow", kind, s, binomial_band)
+        for label, s in res["openturns"].items():
+            body += _row("OpenTURNS", label, s, binomial_band)
+        notes = [f"{k}: {w.splitlines()[0]}" for k, w in res["warnings"].items() if w]
+        if notes:
+            body += "\nuqflow warnings (first repetition): " + " / ".join(notes) + "\n"
+    return body
+
+
+def _openturns_version() -> str:
+    try:
+        import openturns as ot
+    except ImportError:
+        return "(not installed)"
+    return ot.__version__
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--problems", nargs="*", default=list(PROBLEMS))
+    ap.add_argument("--methods", nargs="*", default=None,
+                    help="uqflow methods (default: every one of the table registered)")
+    ap.add_argument("--repetitions", type=int, default=200)
+    ap.add_argument("--case-seconds", type=float, default=math.inf,
+                    help="stop a uqflow method's repetitions after this many seconds")
+    ap.add_argument("--no-openturns", action="store_true")
+    ap.add_argument("--quick", action="store_true")
+    args = ap.parse_args(argv)
+    methods = args.methods or (QUICK_METHODS if args.quick else available_methods())
+    problems = ["r_minus_s"] if args.quick else args.problems
+    repetitions = 2 if args.quick else args.repetitions
+    with_openturns = not (args.quick or args.no_openturns)
+    results = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in problems:
+            results[name] = run_problem(name, methods, repetitions, args.case_seconds,
+                                        Path(tmp), with_openturns,
+                                        QUICK_BUDGET if args.quick else BUDGETS[name])
+    if not args.quick:
+        write_section("reliability", "Reliability: uqflow against OpenTURNS on exact problems",
+                      report(results, repetitions, args.case_seconds))
+    return results
+
+
+if __name__ == "__main__":
+    main()
