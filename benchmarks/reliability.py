@@ -43,7 +43,7 @@ from reliability_problems import PROBLEMS  # noqa: E402
 import uqflow  # noqa: E402
 from uqflow.errors import StudyError  # noqa: E402
 from uqflow.layout import (BOUND, BOUND_HIGH, BOUND_LOW, FAILURE_COV,  # noqa: E402
-                           FAILURE_INTERVAL, FAILURE_PROBABILITY, SOLVER_RUNS)
+                           FAILURE_INTERVAL, FAILURE_PROBABILITY, SOLVER_RUNS, WARNINGS)
 
 REFERENCES = json.loads((Path(__file__).resolve().parent /
                          "reliability_references.json").read_text())
@@ -142,7 +142,7 @@ def run_uqflow(folder: Path, problem, kind: str, options: dict, seed: int) -> di
     stats = outcome.statistics
     got = {"p": float(stats[FAILURE_PROBABILITY].values[0]),
            "calls": int(stats.attrs[SOLVER_RUNS]), "low": math.nan, "high": math.nan,
-           "cov": math.nan, "warnings": stats.attrs.get("warnings", "")}
+           "cov": math.nan, "warnings": stats.attrs.get(WARNINGS, "")}
     if FAILURE_INTERVAL in stats:
         bounds = stats[FAILURE_INTERVAL].isel({stats[FAILURE_INTERVAL].dims[0]: 0})
         got["low"] = float(bounds.sel({BOUND: BOUND_LOW}))
@@ -306,15 +306,21 @@ def run_problem(name: str, methods: list[str], repetitions: int, case_seconds: f
     problem = PROBLEMS[name]
     reference = REFERENCES[name]["p_f"]
     result = {"reference": reference, "uqflow": {}, "openturns": {}, "warnings": {},
-              "stopped": {}}
+              "stopped": {}, "errors": {}}
     for kind in methods:
         options, repeated = UQFLOW_METHODS[kind]
         runs, start = [], time.perf_counter()
-        for seed in range(repetitions if repeated else 1):
-            runs.append(run_uqflow(folder, problem, kind, options(budget), seed))
-            if time.perf_counter() - start > case_seconds and seed + 1 < repetitions:
-                result["stopped"][kind] = time.perf_counter() - start
-                break
+        try:
+            for seed in range(repetitions if repeated else 1):
+                runs.append(run_uqflow(folder, problem, kind, options(budget), seed))
+                if time.perf_counter() - start > case_seconds and seed + 1 < repetitions:
+                    result["stopped"][kind] = time.perf_counter() - start
+                    break
+        except (StudyError, uqflow.SolverError, RuntimeError) as exc:
+            # a method that cannot run this problem says so in the table
+            result["errors"][kind] = f"{type(exc).__name__}: {exc}".splitlines()[0]
+            print(f"{name} uqflow {kind}: {result['errors'][kind]}", flush=True)
+            continue
         result["uqflow"][kind] = summarize(runs, reference)
         result["warnings"][kind] = runs[0]["warnings"]
         print(f"{name} uqflow {kind}: {result['uqflow'][kind]} "
@@ -384,6 +390,8 @@ def report(results: dict, repetitions: int, case_seconds: float) -> str:
             body += _row("uqflow", kind, s, binomial_band)
         for label, s in res["openturns"].items():
             body += _row("OpenTURNS", label, s, binomial_band)
+        for kind, error in res["errors"].items():
+            body += f"| uqflow | {kind} | | not run: {error} | | | | |\n"
         notes = [f"{k}: {w.splitlines()[0]}" for k, w in res["warnings"].items() if w]
         if notes:
             body += "\nuqflow warnings (first repetition): " + " / ".join(notes) + "\n"
