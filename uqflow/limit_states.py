@@ -27,10 +27,10 @@ bar's ``broken``) takes ``is = true`` (failure when it is 1) or ``is = false``; 
 is +1 (safe) or -1 (failure), read as ``exceeds = 0.5`` (``below = 0.5`` for false). An
 event's time with a value meaning "not within the loading" (``not_within_loading``: the bar's
 ``break_cycle``, the composite's ``debonding_onset_strain``) takes ``below`` only below that
-value and ``exceeds`` only up to it: beyond, the scene cannot answer. A limit state on a discrete output
-(a flag, a count, a cycle, a value on the loading's grid) is ``discrete``: its margin is a
-step function of the inputs, which FORM, SORM and subset simulation cannot use
-(``LimitStates.require_continuous``).
+value and ``exceeds`` only up to it: beyond, the scene cannot answer. A limit state on a
+discrete output (a flag, a count, a cycle, a value on the loading's grid) is ``discrete``:
+its margin is a step function of the inputs, which FORM, SORM and subset simulation cannot
+use (``LimitStates.require_continuous``).
 """
 
 from __future__ import annotations

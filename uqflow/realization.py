@@ -28,10 +28,10 @@ import xarray as xr
 from uqflow.errors import SolverError
 from uqflow.fields import FieldSample, field_value_variable, germ_variable
 from uqflow.layout import (CLIPPED_POINTS, COMPILE_TIME, GERM_PREFIX, INPUTS, LONG_NAME,
-                           MESSAGE, PARAMETER, PARAMETER_J, REALIZATION, REALIZATION_SEED,
-                           SENSITIVITY_COORD, SENSITIVITY_DIM, STATUS, STATUS_FAILED, STATUS_OK,
-                           STATUS_PENDING, UNITS, WALL_TIME, WITH_SENSITIVITIES,
-                           gradient_variable, hessian_variable, is_diagnostic,
+                           MESSAGE, NO_VALUE_REASON, PARAMETER, PARAMETER_J, REALIZATION,
+                           REALIZATION_SEED, SENSITIVITY_COORD, SENSITIVITY_DIM, STATUS,
+                           STATUS_FAILED, STATUS_OK, STATUS_PENDING, UNITS, WALL_TIME,
+                           WITH_SENSITIVITIES, gradient_variable, hessian_variable, is_diagnostic,
                            is_sensitivity_variable)
 
 #: the design's flag of sensitivity runs, by the name methods and benchmarks know it
@@ -193,6 +193,9 @@ def run_one(solver, params: dict, fields, outputs: list[str], seed: int | None =
         if bad:
             what = "derivative" if is_sensitivity_variable(bad[0]) else "output"
             status, message = STATUS_FAILED, f"non-finite {what} '{bad[0]}'"
+            # the solver may say why (a bar broken before its loops): keep it in the message
+            if result.attrs.get(NO_VALUE_REASON):
+                message += f": {result.attrs[NO_VALUE_REASON]}"
         else:
             status, message = STATUS_OK, ""
     except SolverError as exc:

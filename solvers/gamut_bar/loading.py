@@ -33,6 +33,25 @@ class CyclicPlan:
     def steps(self) -> int:       # recorded states, the unloaded start included
         return 1 + sum(self.ramps) + self.levels * self.repeats * 2 * self.per_half
 
+    @property
+    def cycles(self) -> int:      # loops in all: every level, each repeat
+        return self.levels * self.repeats
+
+    def cycle_of_step(self, step: int) -> int:
+        """The cycle (1 .. ``cycles``) that load step ``step`` (an index of ``forces``; 0 is
+        the unloaded start) belongs to. A level's ramp from the previous peak belongs to its
+        first cycle: the cycle that loads the bar to the new amplitude."""
+        end = 1                   # one past the last step of the part reached so far
+        for level, ramp in enumerate(self.ramps):
+            end += ramp
+            if step < end:
+                return level * self.repeats + 1
+            for repeat in range(self.repeats):
+                end += 2 * self.per_half
+                if step < end:
+                    return level * self.repeats + repeat + 1
+        raise ValueError(f"step {step} is past the {self.steps} steps of the protocol")
+
     @classmethod
     def for_amplitudes(cls, amplitudes, repeats, increment):
         per_half = int(round(2.0 / increment))

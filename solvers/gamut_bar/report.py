@@ -513,8 +513,8 @@ def _failure_table(idx: _Index) -> Table | None:
     if not any(not r.stochastic for r in idx.results):
         header, rows = _without(header, rows, DETERMINISTIC_FAILURE_COLUMNS)
         notes.append(NO_DETERMINISTIC_NOTE)
-    return Table("Failure: bar strain and stress at failure (cyclic: pulled to failure after "
-                 "the cycles)", header, rows, notes)
+    return Table("Failure: bar strain and stress at failure (cyclic: where the bar broke, in "
+                 "the cycles or in the pull after them)", header, rows, notes)
 
 
 #: Columns of the curve and failure tables that need a deterministic result, left out when

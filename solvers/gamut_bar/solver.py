@@ -18,7 +18,9 @@ from solvers.gamut_bar.network import (bond_weights, build_network, effective_si
 from solvers.gamut_bar.report import report as _report
 from solvers.gamut_bar.scene import parse_scene
 from uqflow.errors import SolverError
-from uqflow.layout import DIAGNOSTIC_KIND, LONG_NAME, OUTPUT_KIND, UNITS
+from uqflow.layout import (DIAGNOSTIC_KIND, DISCRETE_VALUES, FLAG_MEANINGS, FLAG_VALUES,
+                           LONG_NAME, NO_VALUE_REASON, NOT_WITHIN_LOADING, OUTPUT_KIND,
+                           OUTPUT_VALUES, UNDEFINED_WHEN, UNITS)
 from uqflow.solver import Solver, register_solver
 
 PARAMETERS = ("bar.E", "bar.R", "bar.w", "bar.rho", "bar.sigma_y", "bar.sigma_f", "bar.eps_f",
@@ -46,7 +48,18 @@ OUTPUT_LONG_NAMES = {
     "plastic_strain_amplitude": "plastic strain amplitude of each cyclic loop",
     "n_prime": "cyclic strain hardening exponent n'",
     "K_prime": "cyclic strength coefficient K'",
+    "broken": "whether the bar broke during the cycles (1) or survived them (0)",
+    "break_cycle": "cycle in which the bar broke (cycles + 1: not within the cycles, it broke "
+                   "in the pull after them)",
+    "break_bond": "local bond whose strain first passed the failure strain",
+    "break_position": "position of the midpoint of the bond that broke first",
 }
+#: cyclic outputs a bar broken during the cycles does not have: the path after the break,
+#: the loops it did not finish, n' and K' fitted over every level (NaN in its run)
+ABSENT_AFTER_BREAK = ("strain", "stress", "stress_amplitude", "strain_amplitude",
+                      "plastic_strain_amplitude", "n_prime", "K_prime")
+#: cyclic outputs that take discrete values: the outcome, the cycle, the bond and its place
+DISCRETE_OUTPUTS = ("break_cycle", "break_bond", "break_position")
 COORDINATE_LONG_NAMES = {"step": "load step", "point": "grid point", "bond": "local bond",
                          "loop": "cyclic loop (amplitude level)"}
 DIAGNOSTIC_OUTPUTS = {"load_steps": "load steps the run followed (not counting the bisection "
@@ -159,10 +172,22 @@ class GamutBarSolver(Solver):
                 "plastic_strain_amplitude": (("loop",), np.full(lv, nan), "1"),
                 "n_prime": ((), nan, "1"),
                 "K_prime": ((), nan, "Pa"),
+                "broken": ((), nan, "1"),
+                "break_cycle": ((), nan, "1"),
+                "break_bond": ((), nan, "1"),
+                "break_position": ((), nan, "m"),
             })
             coords["loop"] = np.arange(lv)
         ds = xr.Dataset({k: xr.Variable(d, v, {UNITS: u, LONG_NAME: OUTPUT_LONG_NAMES[k]})
                          for k, (d, v, u) in data.items()}, coords=coords)
+        if self.plan is not None:
+            ds["broken"].attrs.update({FLAG_VALUES: np.array([0, 1], dtype=np.int8),
+                                       FLAG_MEANINGS: "survived_the_cycles broken"})
+            for name in DISCRETE_OUTPUTS:
+                ds[name].attrs[OUTPUT_VALUES] = DISCRETE_VALUES
+            ds["break_cycle"].attrs[NOT_WITHIN_LOADING] = float(self.plan.cycles + 1)
+            for name in ABSENT_AFTER_BREAK:
+                ds[name].attrs[UNDEFINED_WHEN] = "broken"
         for dim in coords:
             ds[dim].attrs[LONG_NAME] = COORDINATE_LONG_NAMES[dim]
         for name, long in DIAGNOSTIC_OUTPUTS.items():
@@ -242,10 +267,13 @@ class GamutBarSolver(Solver):
         out["bond_strain"] = np.diff(sim.u) / net.seg
         out.update(load_steps=sim.steps, newton_iterations=sim.iterations,
                    factorisations=sim.factorisations)
+        reason = out.pop(NO_VALUE_REASON, None)
         for name, value in out.items():
             var = ds.variables[name]
             var.values = np.asarray(value, dtype=float).reshape(var.shape).copy()
         ds.attrs.update(sim.summary())
+        if reason:
+            ds.attrs[NO_VALUE_REASON] = reason
         return ds
 
     def _monotonic(self, sim, q, A):
@@ -273,8 +301,13 @@ class GamutBarSolver(Solver):
         done = sim.follow(forces[1:])
         if done < forces.size - 1:
             s = done + 1
-            raise SolverError(f"cyclic step {s} (force {forces[s]:.6g} N, stress "
-                              f"{forces[s] / A:.6g} Pa) failed: {sim.failure_text()}")
+            where = (f"cyclic step {s} (force {forces[s]:.6g} N, stress {forces[s] / A:.6g} "
+                     f"Pa)")
+            if sim.failure[0] != K.STRAIN:
+                # a step Newton cannot carry is the solver's failure, not the bar's: the
+                # hardening share h E never slips, so the bar has no limit load in the cycles
+                raise SolverError(f"{where} failed: {sim.failure_text()}")
+            return self._broken_in_cycles(sim, q, A, forces, starts, s, where)
         strain = np.concatenate([[0.0], sim.out_u[:done] / sim.L])
         stress = forces / A
         sig_a, eps_a, eps_pa = loop_amplitudes(strain, stress, starts, 2 * plan.per_half,
@@ -292,10 +325,42 @@ class GamutBarSolver(Solver):
         if done2 == pull.size:
             raise SolverError(f"no failure up to {pull[-1]:.4g} N after the cycles")
         f_lo = sim.bisect(f_prev, pull[done2], c["bisections"])
+        bond = sim.breaking_bond()
         return {"strain": strain, "stress": stress, "stress_amplitude": sig_a,
                 "strain_amplitude": eps_a, "plastic_strain_amplitude": eps_pa,
                 "n_prime": n_prime, "K_prime": K_prime, "failure_strain": sim.u[-1] / sim.L,
-                "failure_stress": f_lo / A}
+                "failure_stress": f_lo / A, "broken": 0.0,
+                "break_cycle": float(plan.cycles + 1), "break_bond": float(bond),
+                "break_position": sim.bond_midpoint(bond)}
+
+    def _broken_in_cycles(self, sim, q, A, forces, starts, s, where):
+        """A bar whose bond passed eps_f in cyclic step ``s``: an outcome. The force at the
+        break is bisected as after the pull; the path stops there (NaN after it), the loops
+        finished before it keep their amplitudes, and n', K' (a fit over every level) have no
+        value. The reason goes with the run (``NO_VALUE_REASON``) for a study storing them."""
+        plan = self.plan
+        text = sim.failure_text()
+        bond = sim.failure[1]
+        f_lo = sim.bisect(forces[s - 1], forces[s], self.cfg["bisections"])
+        strain = np.full(plan.steps, np.nan)
+        stress = np.full(plan.steps, np.nan)
+        strain[:s] = np.concatenate([[0.0], sim.out_u[:s - 1] / sim.L])
+        stress[:s] = forces[:s] / A
+        span = 2 * plan.per_half
+        amplitudes = [np.full(plan.levels, np.nan) for _ in range(3)]
+        finished = starts[:, -1] + span < s      # the level's last loop ended before step s
+        if finished.any():
+            found = loop_amplitudes(strain, stress, starts[finished], span, q["E"])
+            for whole, part in zip(amplitudes, found):
+                whole[finished] = part
+        cycle = plan.cycle_of_step(s)
+        return {"strain": strain, "stress": stress, "stress_amplitude": amplitudes[0],
+                "strain_amplitude": amplitudes[1], "plastic_strain_amplitude": amplitudes[2],
+                "failure_strain": sim.u[-1] / sim.L, "failure_stress": f_lo / A,
+                "broken": 1.0, "break_cycle": float(cycle), "break_bond": float(bond),
+                "break_position": sim.bond_midpoint(bond),
+                NO_VALUE_REASON: f"the bar broke in cycle {cycle} of {plan.cycles}, {where}: "
+                                 f"{text}"}
 
 
 # ------------------------------------------------------------------------------------------
@@ -442,6 +507,15 @@ class _Simulation:
             text += f" (point {where}, x = {x[where]:.6g} m"
             text += ")" if not math.isfinite(value) else f", residual force {value:.6g} N)"
         return text
+
+    def breaking_bond(self):
+        """The bond that broke: the one past eps_f, or at a limit load the most strained."""
+        if self.failure is not None and self.failure[0] == K.STRAIN:
+            return int(self.failure[1])
+        return int(np.argmax(np.abs(np.diff(self.u)) / self.net.seg))
+
+    def bond_midpoint(self, bond):
+        return 0.5 * float(self.net.x[bond] + self.net.x[bond + 1])
 
     def summary(self):
         mode = "none"
