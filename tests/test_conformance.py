@@ -101,6 +101,22 @@ METHODS = {
     # the tiny y is about 5 m with a std near 1 m: a limit state about one std away
     "form": ({}, {"limit_states": [{"name": "high", "output": "y", "exceeds": 6.0}]}),
     "sorm": ({}, {"limit_states": [{"name": "high", "output": "y", "exceeds": 6.0}]}),
+    # 40 draws after FORM's search; cross-entropy: rounds of 40 draws (p ~ 0.16 > rho: one)
+    "importance-sampling": ({"samples": 40},
+                            {"limit_states": [{"name": "high", "output": "y", "exceeds": 6.0}],
+                             "random_plan": False}),
+    "cross-entropy": ({"samples": 40},
+                      {"limit_states": [{"name": "high", "output": "y", "exceeds": 6.0}],
+                       "random_plan": True}),
+    # 20 samples a level in 5 chains of 4: p ~ 0.2 takes two levels, 4 rounds
+    "subset-simulation": ({"samples_per_level": 20, "level_probability": 0.25},
+                          {"limit_states": [{"name": "high", "output": "y", "exceeds": 6.0}],
+                           "random_plan": True}),
+    # levels and a limit state: a cross-entropy round or two of 20 coarse runs, 20 fine runs
+    "multifidelity-importance-sampling": (
+        {"coarse_samples": 20, "samples": 20, "costs": [1.0, 4.0]},
+        {"levels": [4, 16], "random_plan": True,
+         "limit_states": [{"name": "high", "output": "y", "exceeds": 6.0}]}),
 }
 
 

@@ -144,6 +144,30 @@ SUBSET_SAMPLES, SUBSET_FAILED_RUNS = "subset_samples", "subset_failed_runs"
 #: (sum of delta_j; FAILURE_COV takes them uncorrelated, sqrt of the sum of delta_j^2)
 FAILURE_COV_CORRELATED = "failure_probability_cov_correlated"
 
+# multifidelity-importance-sampling (uqflow.methods.multifidelity_reliability)
+#: (limit_state): the standard error of P[failure], and the importance weights' effective
+#: sample size (Kish)
+FAILURE_STDERR, EFFECTIVE_SAMPLE_SIZE = "failure_probability_stderr", "effective_sample_size"
+#: (limit_state): finest-level runs plain Monte Carlo needs for the same c.o.v.,
+#: (1 - p) / (cov^2 p), their cost at the finest level's cost per run, and that cost over
+#: the method's (both stages)
+EQUIVALENT_FINEST_RUNS, EQUIVALENT_FINEST_COST = ("equivalent_finest_runs",
+                                                  "equivalent_finest_cost")
+FINEST_COST_RATIO = "finest_cost_ratio"
+#: (limit_state): stage 1's own P[failure] at the coarsest level (a guide, biased)
+GUIDE_PROBABILITY = "guide_failure_probability"
+#: (level): runs and cost of one run per fidelity level; the levels' values (coordinate)
+FIDELITY_RUNS, FIDELITY_COST = "fidelity_level_runs", "fidelity_level_cost"
+FIDELITY_VALUE = "fidelity_level_value"
+#: (biasing_component) weights and (biasing_component, parameter) means in standard normal
+#: space of the biasing density, its defensive standard normal last
+BIASING_COMPONENT, BIASING_WEIGHT, BIASING_MEAN = ("biasing_component", "biasing_weight",
+                                                   "biasing_mean")
+#: attributes: stage 1's rounds, whether it reached the coarse failure region, the defensive
+#: weight, and the cost of both stages
+GUIDE_ROUNDS, GUIDE_REACHED = "guide_search_rounds", "guide_reached"
+GUIDE_DEFENSIVE_WEIGHT, GUIDE_TOTAL_COST = "guide_defensive_weight", "guide_total_cost"
+
 # ----------------------------------------------------------------------------- root attributes
 STUDY_NAME, SOLVER = "study_name", "solver"
 COMPLETE, STOPPED_EARLY, ELAPSED_TIME = "complete", "stopped_early", "elapsed_time"

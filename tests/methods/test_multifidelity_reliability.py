@@ -1,0 +1,475 @@
+"""Multifidelity importance sampling against exact failure probabilities of level families.
+
+Two families of limit states in two standard normal inputs u1, u2, whose scene key
+``resolution`` sets a fidelity: h = 1 / resolution - 1 vanishes at the finest level
+(resolution 1), so the finest P[failure] is exact while the coarse level (resolution 0.5,
+h = 1) is biased.
+
+- ``biased``: g = beta - u1 + c h (u2^2 - 1): the finest is linear, P = Phi(-beta); the coarse
+  level fails earlier and on a parabola (its P by quadrature, three times the finest's).
+- ``missed``: g = min(beta - u1, beta2 + u1 + s h): the finest fails on two half-planes,
+  P = Phi(-beta) + Phi(-beta2); the coarse level has the first only (the second moved out
+  to u1 < -beta2 - s, where phi is 1e-30): a biasing density built on the coarse level
+  misses the second region, and only the defensive component samples it.
+
+The statistical tests drive the method the way the executor does (plan, extend until None,
+analyze) on runs evaluated in one vectorised call, so 10^4 runs take milliseconds; the
+studies at the end go through ``run_study`` like any study.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import warnings
+
+import numpy as np
+import pytest
+import xarray as xr
+from scipy import integrate
+from scipy import stats as sps
+
+import uqflow
+from uqflow.errors import AccuracyWarning, StudyError
+from uqflow.execute import run_study
+from uqflow.inputs import InputSpace, RandomInput
+from uqflow.layout import (BOUND, EQUIVALENT_FINEST_COST, EQUIVALENT_FINEST_RUNS,
+                           FAILURE_COV, FAILURE_INTERVAL, FAILURE_PROBABILITY,
+                           FAILURE_STDERR, FIDELITY_COST, FIDELITY_RUNS, FINEST_COST_RATIO,
+                           GUIDE_PROBABILITY, GUIDE_TOTAL_COST, INPUTS, LEVEL, ROUND,
+                           STATUS, STATUS_OK)
+from uqflow.levels import LevelsSpec, resolve_levels
+from uqflow.limit_states import LimitStates
+from uqflow.methods import get_method
+from uqflow.methods.form import STAGE, STANDARD_NORMAL
+from uqflow.methods.importance_sampling import standard_normal_log_pdf
+from uqflow.methods.multifidelity_reliability import (STAGE_ESTIMATE,
+                                                      MultifidelityImportanceSampling,
+                                                      with_defensive)
+from uqflow.realization import empty_runs
+from uqflow.report import open_result, summary_table
+from uqflow.store import read_runs, write_result
+from uqflow.study import load_study
+
+BETA, BIAS = 3.5, 0.5           # biased: the finest P = Phi(-3.5) = 2.33e-4
+BETA2, SHIFT = 2.0, 10.0        # missed: the second region Phi(-2) = 0.0228
+LEVELS = (0.5, 1.0)             # resolution: h = 1 at the coarse level, 0 at the finest
+
+
+def biased(u, h):
+    return BETA - u[:, 0] + BIAS * h * (u[:, 1] ** 2 - 1.0)
+
+
+def missed(u, h):
+    return np.minimum(BETA - u[:, 0], BETA2 + u[:, 0] + SHIFT * h)
+
+
+def _resolution(value):
+    return 1.0 / value - 1.0
+
+
+def _biased_solver(u1=0.0, u2=0.0, resolution=1.0):
+    return float(biased(np.array([[u1, u2]]), _resolution(resolution))[0])
+
+
+BiasedSolver = uqflow.solver_from_function(_biased_solver, outputs="g", units="1",
+                                           name="mfis-biased-test")
+uqflow.register_solver("mfis-biased-test")(BiasedSolver)
+
+LIMIT_STATE = [{"name": "fails", "output": "g", "below": 0.0}]
+
+
+def coarse_biased_probability():
+    """P[g <= 0] at h = 1: P[u1 >= beta - c + c u2^2] = E[Phi(-(beta - c + c u2^2))]."""
+    def integrand(v):
+        return sps.norm.sf(BETA - BIAS + BIAS * v * v) * sps.norm.pdf(v)
+    # a smooth integrand decaying like a Gaussian: quad's 1e-12 relative is far inside the
+    # 10 % the test asks of the bias
+    return integrate.quad(integrand, -np.inf, np.inf, epsabs=0, epsrel=1e-12)[0]
+
+
+# --------------------------------------------------------------- the method, driven directly
+
+def space():
+    return InputSpace([RandomInput.from_spec({"name": n, "distribution": "normal",
+                                              "mean": 0.0, "std": 1.0}) for n in ("u1", "u2")])
+
+
+def configured(**options) -> MultifidelityImportanceSampling:
+    method = MultifidelityImportanceSampling(**options)
+    template = BiasedSolver.from_scene({}).outputs()
+    method.check_limit_states(LimitStates.from_tables(LIMIT_STATE, template))
+    method.check_levels(resolve_levels(LevelsSpec(key="resolution", values=list(LEVELS)),
+                                       {}, BiasedSolver, ["g"], "scene"))
+    return method
+
+
+def evaluate(design, problem):
+    runs = empty_runs(design, BiasedSolver.from_scene({}).outputs())
+    h = _resolution(np.asarray(LEVELS)[design[LEVEL].values])
+    runs["g"].values[:] = problem(design[INPUTS].values, h)
+    runs[STATUS].values[:] = STATUS_OK
+    runs["wall_time"].values[:] = 0.0
+    return runs
+
+
+def drive(method, problem, seed):
+    design = method.plan(space(), None, np.random.SeedSequence(seed))
+    runs = evaluate(design, problem)
+    glue = dict(dim="realization", data_vars="minimal", coords="minimal", compat="override",
+                join="override")
+    while (more := method.extend(design, runs)) is not None:
+        n = design.sizes["realization"]
+        more = more.assign_coords(realization=np.arange(n, n + more.sizes["realization"]))
+        runs = xr.concat([runs, evaluate(more, problem)], **glue)
+        design = xr.concat([design, more], **glue)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", AccuracyWarning)
+        return method.analyze(design, runs), runs
+
+
+def estimate(stats):
+    return (float(stats[FAILURE_PROBABILITY].values[0]),
+            float(stats[FAILURE_STDERR].values[0]))
+
+
+# --------------------------------------------------------------- the problems themselves
+
+def test_the_finest_level_is_exact_and_the_coarse_level_biased():
+    u = np.random.default_rng(0).standard_normal((1000, 2))
+    # h = 0 leaves beta - u1 itself: the finest P is Phi(-beta) with no approximation
+    assert np.array_equal(biased(u, np.zeros(1000)), BETA - u[:, 0])
+    assert np.array_equal(missed(u, np.zeros(1000)), np.minimum(BETA - u[:, 0],
+                                                                 BETA2 + u[:, 0]))
+    assert coarse_biased_probability() > 2.5 * sps.norm.sf(BETA)
+    # the coarse missed level has no second region: phi(u1 < -12) = 1.8e-33
+    assert sps.norm.cdf(-BETA2 - SHIFT) < 1e-30
+    assert _biased_solver(1.0, 2.0, resolution=0.5) == BETA - 1.0 + BIAS * 3.0
+
+
+# --------------------------------------------------------------- unbiased at the finest level
+
+@pytest.mark.parametrize("search", ["cross-entropy", "form"])
+def test_the_finest_probability_is_unbiased_where_the_coarse_level_is_biased(search):
+    stats, runs = drive(configured(search=search, costs=[1.0, 10.0]), biased, seed=3)
+    p, stderr = estimate(stats)
+    exact = sps.norm.sf(BETA)
+    # 4 standard errors: a correct estimator fails 1 in 16,000 seeds (normal tail)
+    assert abs(p - exact) <= 4 * stderr
+    # 1000 draws near the design point: c.o.v. about 0.07 (plain MC would need 2e5 runs)
+    assert float(stats[FAILURE_COV].values[0]) < 0.1
+    # stage 1 on the coarse level only, stage 2 on the finest only
+    level, stage = runs[LEVEL].values, runs[STAGE].values
+    assert set(level[stage == STAGE_ESTIMATE]) == {1}
+    assert set(level[stage != STAGE_ESTIMATE]) == {0}
+    assert int((stage == STAGE_ESTIMATE).sum()) == 1000
+    # the coarse level's own estimate is its own, biased one: FORM's Phi(-beta_coarse) (the
+    # coarse design point is (beta - c, 0): beta_coarse = 3) or the cross-entropy estimate of
+    # the coarse P (within 30 %: its last round's 500 draws, c.o.v. about 0.1)
+    guide = float(stats[GUIDE_PROBABILITY].values[0])
+    if search == "form":
+        # the search converges to |g| <= 1e-3 |g(0)|: beta within ~3e-3, Phi(-beta) 1 %
+        assert guide == pytest.approx(sps.norm.sf(BETA - BIAS), rel=0.01)
+    else:
+        assert guide == pytest.approx(coarse_biased_probability(), rel=0.3)
+
+
+def test_forgetting_the_likelihood_ratio_would_be_far_off():
+    # the same finest-level draws, counted as plain Monte Carlo: the fraction of failures
+    # under q is near 0.5, three orders above the answer the weights give back
+    stats, runs = drive(configured(search="form", costs=[1.0, 10.0]), biased, seed=3)
+    rows = runs[STAGE].values == STAGE_ESTIMATE
+    fraction = float(np.mean(runs["g"].values[rows] <= 0))
+    p, stderr = estimate(stats)
+    assert fraction > 100 * p and abs(fraction - sps.norm.sf(BETA)) > 1000 * stderr
+
+
+@pytest.mark.parametrize("search", ["cross-entropy", "form"])
+def test_the_defensive_component_keeps_a_region_the_coarse_level_misses(search):
+    method = configured(search=search, samples=10_000, costs=[1.0, 10.0])
+    stats, runs = drive(method, missed, seed=11)
+    p, stderr = estimate(stats)
+    exact = sps.norm.sf(BETA) + sps.norm.sf(BETA2)
+    # 4 standard errors (1 in 16,000 seeds); the missed region is sampled only by the
+    # defensive share, 0.1 x 10,000 x 0.0228 = 23 expected draws
+    assert abs(p - exact) <= 4 * stderr
+    assert stderr < 0.3 * exact
+    # the same draws weighted as if q had no defensive component (its weight 1e-12):
+    # the missed region has no draw of the Gaussian part and the estimate is the found
+    # region's alone, many of its own standard errors below the answer
+    guide = method.guide(runs)
+    focused = with_defensive(_without_last(guide.density), 1e-12)
+    rows = runs[STAGE].values == STAGE_ESTIMATE
+    u = runs[STANDARD_NORMAL].values[rows]
+    failed = runs["g"].values[rows] <= 0
+    near_coarse = u[:, 0] > 0
+    weights = np.exp(standard_normal_log_pdf(u) - focused.log_pdf(u))
+    terms = np.where(failed & near_coarse, weights, 0.0)
+    alone, alone_se = terms.mean(), terms.std(ddof=1) / math.sqrt(terms.size)
+    assert exact - alone > 20 * alone_se
+
+
+def _without_last(density):
+    """The biasing density without its defensive (last) component."""
+    from uqflow.methods.importance_sampling import GaussianMixture
+    return GaussianMixture(density.weights[:-1], density.means[:-1],
+                           density.covariances[:-1])
+
+
+def test_the_reported_standard_error_matches_the_spread_over_seeds():
+    # 40 seeds of stage 2 at 300 finest runs each, on one stage 1 (FORM's is the same for
+    # every seed: the spread is stage 2's, which the standard error describes)
+    method = configured(search="form", samples=300, costs=[1.0, 10.0])
+    runs = drive(method, biased, seed=0)[1]
+    stage1 = runs.isel(realization=np.flatnonzero(runs[STAGE].values != STAGE_ESTIMATE))
+    guide = method.guide(stage1)
+    found = []
+    for seed in range(40):
+        method.plan(space(), None, np.random.SeedSequence(seed))
+        got = method.estimate(evaluate(method.extend(stage1, stage1), biased), guide)
+        found.append((got.probability, got.stderr))
+    found = np.array(found)
+    p, stderr = found[:, 0], found[:, 1]
+    exact = sps.norm.sf(BETA)
+    # the spread of 40 estimates has a relative standard error ~ 1/sqrt(80) = 0.11: the
+    # ratio within 0.6 .. 1.5 is about 4 of those either side
+    ratio = p.std(ddof=1) / np.sqrt(np.mean(stderr**2))
+    assert 0.6 < ratio < 1.5
+    # the mean of 40 unbiased estimates within 4 of its standard errors of the answer
+    assert abs(p.mean() - exact) <= 4 * p.std(ddof=1) / math.sqrt(40)
+    # 95 % intervals: 40 x 0.95 = 38 expected to cover; 33 or fewer has binomial
+    # probability 0.5 % for a correct interval
+    low, high = p - 1.96 * stderr, p + 1.96 * stderr
+    assert int(np.sum((low <= exact) & (exact <= high))) >= 34
+
+
+def test_the_equivalent_finest_level_cost_is_plain_monte_carlo_at_the_same_cov():
+    stats, runs = drive(configured(search="form", costs=[1.0, 10.0]), biased, seed=3)
+    p, cov = float(stats[FAILURE_PROBABILITY].values[0]), float(stats[FAILURE_COV].values[0])
+    runs_needed = (1 - p) / (cov**2 * p)
+    # the same three operations in another order: a few ulp
+    assert float(stats[EQUIVALENT_FINEST_RUNS].values[0]) == pytest.approx(runs_needed,
+                                                                            rel=1e-12)
+    per_level = stats[FIDELITY_RUNS].values
+    spent = per_level[0] * 1.0 + per_level[1] * 10.0
+    assert stats.attrs[GUIDE_TOTAL_COST] == spent
+    # one or two more roundings of a product and a quotient on top of the above: a few ulp
+    assert float(stats[EQUIVALENT_FINEST_COST].values[0]) == pytest.approx(
+        10.0 * runs_needed, rel=1e-12)
+    # the same, one quotient more
+    assert float(stats[FINEST_COST_RATIO].values[0]) == pytest.approx(
+        10.0 * runs_needed / spent, rel=1e-12)
+    # Phi(-3.5) at c.o.v. 0.07 is ~9e5 finest runs; the study ran 1000 of them
+    assert float(stats[FINEST_COST_RATIO].values[0]) > 50
+    assert list(stats[FIDELITY_COST].values) == [1.0, 10.0]
+
+
+def test_draws_depend_on_the_seed_and_the_runs_alone():
+    first = drive(configured(costs=[1.0, 10.0]), biased, seed=3)[1]
+    again = drive(configured(costs=[1.0, 10.0]), biased, seed=3)[1]
+    other = drive(configured(costs=[1.0, 10.0]), biased, seed=4)[1]
+    np.testing.assert_array_equal(first[INPUTS].values, again[INPUTS].values)
+    assert not np.array_equal(first[INPUTS].values[:10], other[INPUTS].values[:10])
+    # every prefix of finished rounds gives back, bit for bit, the round that ran next
+    method = configured(costs=[1.0, 10.0])
+    method.plan(space(), None, np.random.SeedSequence(3))
+    rounds = first[ROUND].values
+    for r in range(int(rounds.max())):
+        prefix = first.isel(realization=np.flatnonzero(rounds <= r))
+        more = method.extend(prefix, prefix)
+        np.testing.assert_array_equal(more[INPUTS].values, first[INPUTS].values[rounds == r + 1])
+    assert method.extend(first, first) is None
+
+
+def test_target_cov_adds_batches_until_it_is_met():
+    stats, runs = drive(configured(search="form", samples=100, target_cov=0.1,
+                                   max_samples=5000, costs=[1.0, 10.0]), biased, seed=3)
+    stage = runs[STAGE].values
+    batches = np.unique(runs[ROUND].values[stage == STAGE_ESTIMATE])
+    assert float(stats[FAILURE_COV].values[0]) <= 0.1 and batches.size >= 2
+    # one batch fewer did not meet it
+    last = runs[ROUND].values != batches[-1]
+    method = configured(search="form", samples=100, target_cov=0.1, max_samples=5000,
+                        costs=[1.0, 10.0])
+    prefix = runs.isel(realization=np.flatnonzero(last))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", AccuracyWarning)
+        assert float(method.analyze(prefix, prefix)[FAILURE_COV].values[0]) > 0.1
+
+
+# --------------------------------------------------------------- studies through the executor
+
+def toml(value) -> str:
+    if isinstance(value, dict):
+        return "{ " + ", ".join(f"{k} = {toml(v)}" for k, v in value.items()) + " }"
+    if isinstance(value, str):
+        return json.dumps(value)
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(toml(v) for v in value) + "]"
+    return repr(value)
+
+
+def study_file(tmp_path, name, method=None, *, levels=True, workers=0, limit_states=None):
+    """The analytic linear model g = offset - u1 in two standard normals, the offset as the
+    levels' key: 3.0 at the coarse level (biased), 3.5 at the finest (P = Phi(-3.5))."""
+    method = {"kind": "multifidelity-importance-sampling", "samples": 100,
+              "costs": [1.0, 10.0], **(method or {})}
+    if method.get("search", "cross-entropy") == "cross-entropy":
+        method.setdefault("coarse_samples", 50)
+    lines = [f'name = "{name}"', 'solver = "analytic"',
+             'scene = { model = "linear", offset = 3.5, coefficients = [-1.0, 0.0] }', ""]
+    for n in ("x1", "x2"):
+        lines += ["[[inputs]]", f'name = "{n}"', 'distribution = "normal"', "mean = 0.0",
+                  "std = 1.0", ""]
+    if levels:
+        lines += ["[levels]", 'key = "offset"', "values = [3.0, 3.5]", ""]
+    for table in limit_states or [{"name": "fails", "output": "y", "below": 0.0}]:
+        lines += ["[[limit_states]]"] + [f"{k} = {toml(v)}" for k, v in table.items()] + [""]
+    lines += ["[method]"] + [f"{k} = {toml(v)}" for k, v in method.items()]
+    lines += ["", "[execution]", f"workers = {workers}", "seed = 8", "batch = 7", "",
+              "[output]", f'path = "{name}.nc"', "figures = false", ""]
+    path = tmp_path / f"{name}.toml"
+    path.write_text("\n".join(lines))
+    return path
+
+
+def run(path, **kwargs):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", AccuracyWarning)
+        return run_study(load_study(path), show_progress=False, force=True, **kwargs)
+
+
+def comparable(path):
+    tree = open_result(path)
+    runs = tree["runs"].to_dataset().drop_vars(["wall_time", "compile_time"], errors="ignore")
+    stats = tree["statistics"].to_dataset()
+    stats.attrs.pop("solver_wall_time")
+    stats.attrs.pop("solver_compile_time", None)
+    return runs, stats
+
+
+def test_a_study_runs_each_stage_on_its_level_and_reports_the_saving(tmp_path):
+    outcome = run(study_file(tmp_path, "mfis", {"search": "form"}))
+    runs, stats = outcome.runs, outcome.statistics
+    offset = np.array([3.0, 3.5])[runs[LEVEL].values]
+    # each row ran at its own level's offset: the model's own float64 sum, bit for bit
+    np.testing.assert_array_equal(runs["y"].values, offset - runs[INPUTS].values[:, 0])
+    p, stderr = estimate(stats)
+    assert abs(p - sps.norm.sf(3.5)) <= 4 * stderr   # 4 standard errors: 1 in 16,000
+    text = summary_table(open_result(outcome.path))
+    assert "P[failure of fails] (y < 0) at the finest level = " in text
+    assert "plain Monte Carlo at the finest level needs" in text
+    assert "stage 1 (form) on the coarsest level: 2 rounds, 10 runs" in text
+
+
+def test_a_killed_study_resumes_to_the_uninterrupted_numbers(tmp_path):
+    path = study_file(tmp_path, "whole")
+    whole = run(path)
+    runs_w, stats_w = comparable(whole.path)
+    last = int(whole.runs[ROUND].values.max())
+    # killed in the first cross-entropy round, and in the finest-level round
+    for keep, finished in ((1, 30), (last + 1, 40)):
+        stored, attrs = read_runs(whole.path)
+        stored = stored.isel(realization=np.flatnonzero(stored[ROUND].values < keep))
+        pending = np.flatnonzero(stored[ROUND].values == keep - 1)[finished:]
+        stored[STATUS].values[pending] = "pending"
+        stored["y"].values[pending] = np.nan
+        stored["wall_time"].values[pending] = np.nan
+        attrs.update(complete=0)
+        attrs.pop("runs_sha256", None)
+        write_result(whole.path, stored, None, attrs)
+        resumed = run(path, resume=True)
+        assert resumed.resumed > 0
+        runs_c, stats_c = comparable(whole.path)
+        xr.testing.assert_identical(runs_w.drop_vars("message"), runs_c.drop_vars("message"))
+        xr.testing.assert_identical(stats_w, stats_c)
+
+
+@pytest.mark.slow
+def test_one_and_two_workers_give_identical_results(tmp_path):
+    paths = [run(study_file(tmp_path, f"w{w}", workers=w)).path for w in (0, 2)]
+    (runs0, stats0), (runs2, stats2) = map(comparable, paths)
+    xr.testing.assert_identical(runs0, runs2)
+    xr.testing.assert_identical(stats0, stats2)
+
+
+def test_a_function_solver_study_with_resolution_levels(tmp_path):
+    text = f"""\
+name = "biased"
+solver = "mfis-biased-test"
+scene = {{}}
+
+[[inputs]]
+name = "u1"
+distribution = "normal"
+mean = 0.0
+std = 1.0
+
+[[inputs]]
+name = "u2"
+distribution = "normal"
+mean = 0.0
+std = 1.0
+
+[levels]
+key = "resolution"
+values = {list(LEVELS)}
+
+[[limit_states]]
+name = "fails"
+output = "g"
+below = 0.0
+
+[method]
+kind = "multifidelity-importance-sampling"
+search = "form"
+samples = 300
+costs = [1.0, 10.0]
+
+[execution]
+workers = 0
+seed = 2
+
+[output]
+path = "biased.nc"
+figures = false
+"""
+    path = tmp_path / "biased.toml"
+    path.write_text(text)
+    outcome = run(path)
+    p, stderr = estimate(outcome.statistics)
+    assert abs(p - sps.norm.sf(BETA)) <= 4 * stderr   # 4 standard errors: 1 in 16,000
+
+
+# --------------------------------------------------------------- refusals
+
+@pytest.mark.parametrize("change, key, words", [
+    (dict(levels=False), "levels", "add a [levels] table"),
+    (dict(method={"costs": [1.0]}), "method.costs", "costs has 1 values for 2 levels"),
+    (dict(method={"search": "form", "coarse_samples": 100}), "method",
+     "'coarse_samples' applies to search = \"cross-entropy\""),
+    (dict(method={"search": "form", "limit_state": "either"},
+          limit_states=[{"name": "low", "output": "y", "below": 0.0},
+                        {"name": "high", "output": "y", "exceeds": 9.0},
+                        {"name": "either", "series": ["low", "high"]}]),
+     "method.limit_state", "series system"),
+])
+def test_refusals_are_one_line_naming_the_key(tmp_path, change, key, words):
+    path = study_file(tmp_path, "bad", **change)
+    with pytest.raises(StudyError) as error:
+        load_study(path)
+    assert error.value.key == key and "\n" not in str(error.value)
+    assert words in str(error.value)
+
+
+def test_a_system_is_taken_by_the_cross_entropy_search(tmp_path):
+    systems = [{"name": "low", "output": "y", "below": 0.0},
+               {"name": "high", "output": "y", "exceeds": 9.0},
+               {"name": "either", "series": ["low", "high"]}]
+    study = load_study(study_file(tmp_path, "system", {"limit_state": "either"},
+                                  limit_states=systems))
+    assert study.method.limit_state == "either"
+
+
+def test_registered_under_its_kind():
+    assert get_method("multifidelity-importance-sampling") is MultifidelityImportanceSampling

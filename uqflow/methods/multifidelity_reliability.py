@@ -1,0 +1,513 @@
+"""Multifidelity importance sampling (Peherstorfer, Cui, Marzouk & Willcox 2016, "Multifidelity
+importance sampling", CMAME 300): a cheap level finds the failure region, the finest level
+alone estimates P[failure], without bias.
+
+Stage 1 runs on the coarsest level of the study's ``[levels]`` (level 0): either FORM's
+improved HL-RF search (``uqflow.methods.form.Form``, composed, its rows at level 0), or
+cross-entropy rounds (Rubinstein): ``coarse_samples`` draws of the current density q_k, the
+``quantile`` of their margins g as the next intermediate threshold gamma_k = max(quantile, 0),
+and q_k+1 fitted to the draws with g <= gamma_k weighted by phi / q_k, until gamma_k = 0 (the
+coarse failure region is reached) or ``max_search_rounds``. The biasing density is
+
+    q = (1 - w) q* + w phi,
+
+q* the Gaussian at FORM's design point (unit covariance) or the last cross-entropy fit, phi the
+standard normal density of the inputs' standard normal space and w = ``defensive_weight``:
+the likelihood ratio phi / q is then at most 1 / w everywhere, so where the coarse level
+misses a failure region of the finest one the estimate keeps a finite variance and stays
+unbiased (it falls back to plain Monte Carlo with w N samples there).
+
+Stage 2 runs ``samples`` draws of q on the finest level only: P[failure] is the mean of
+1{g <= 0} phi / q (``uqflow.methods.importance_sampling.importance_estimate``: its standard
+error, interval, coefficient of variation and effective sample size). With ``target_cov``
+more batches of ``samples`` follow until the c.o.v. is reached or ``max_samples``.
+
+Cost: the equivalent plain Monte Carlo at the finest level for the same c.o.v. is
+(1 - p) / (c.o.v.^2 p) runs of the finest level's cost c_L, against the cost of both stages,
+sum_l n_l c_l (costs stated, or the median wall time of each level's runs less compile time,
+as multilevel measures them). docs/rare_events_across_levels.md.
+
+Every draw comes from the plan's SeedSequence (a child per stage and round) and from the
+runs so far (the density a round samples is replayed from the earlier rounds' runs), never
+from completion order: workers and resumes give the same rows.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings as pywarnings
+from dataclasses import dataclass
+from typing import ClassVar, Literal
+
+import numpy as np
+import xarray as xr
+from pydantic import Field, model_validator
+from scipy import stats as sps
+
+from uqflow.errors import AccuracyWarning, StudyError
+from uqflow.layout import (BIASING_COMPONENT, BIASING_MEAN, BIASING_WEIGHT, BOUND,
+                           BOUND_HIGH, BOUND_LOW, COMPILE_TIME, CONFIDENCE,
+                           EFFECTIVE_SAMPLE_SIZE, EQUIVALENT_FINEST_COST,
+                           EQUIVALENT_FINEST_RUNS, FAILURE_COV, FAILURE_INTERVAL,
+                           FAILURE_LEFT_OUT, FAILURE_PROBABILITY, FAILURE_RUNS,
+                           FAILURE_STDERR, FAILURES, FIDELITY_COST, FIDELITY_RUNS,
+                           FIDELITY_VALUE, FINEST_COST_RATIO, GUIDE_DEFENSIVE_WEIGHT,
+                           GUIDE_PROBABILITY, GUIDE_REACHED, GUIDE_ROUNDS, GUIDE_TOTAL_COST,
+                           LEVEL, LIMIT_STATE, PARAMETER, RELIABILITY_INDEX, REALIZATION,
+                           ROUND, SOLVER_RUNS, STATISTIC, STATISTIC_MEAN, STATISTIC_STD,
+                           STATUS, STATUS_PENDING, UNITS, WALL_TIME, ok_mask, output_names)
+from uqflow.methods.base import (MAX_REALIZATIONS, MethodOptions, PropagationMethod,
+                                 finish_statistics, make_design, register_method)
+from uqflow.methods.form import (STAGE, STAGE_SEARCH, STANDARD_NORMAL, STENCIL_OFFSET, Form,
+                                 system_kind, to_inputs)
+from uqflow.methods.importance_sampling import (GaussianMixture, cross_entropy_fit,
+                                                defensive_mixture, importance_estimate,
+                                                standard_normal, standard_normal_log_pdf)
+from uqflow.probability import reliability_index
+from uqflow.report import MethodReport, number
+
+#: what a row is besides FORM's search rows: a cross-entropy draw at the coarse level, or a
+#: draw of the biasing density at the finest level
+STAGE_CROSS_ENTROPY, STAGE_ESTIMATE = "cross-entropy", "estimate"
+SEARCH_CROSS_ENTROPY, SEARCH_FORM = "cross-entropy", "form"
+#: children of the plan's SeedSequence: (stream, round) for each round's draws
+CROSS_ENTROPY_STREAM, ESTIMATE_STREAM = 1, 2
+#: the level stage 1 runs at: the coarsest of [levels] (values are coarsest first)
+GUIDE_LEVEL = 0
+
+
+class MultifidelityImportanceOptions(MethodOptions):
+    limit_state: str | None = Field(None, description="the study's limit state (default: "
+                                    "its only one)")
+    search: Literal["cross-entropy", "form"] = Field(
+        "cross-entropy", description="how stage 1 finds the failure region on the coarsest "
+                                     "level: cross-entropy rounds, or FORM's design point")
+    coarse_samples: int = Field(500, ge=10, le=MAX_REALIZATIONS, description="coarse-level "
+                                "runs of each cross-entropy round")
+    quantile: float = Field(0.1, gt=0, lt=0.5, description="share of a cross-entropy round's "
+                            "draws whose margin sets the next intermediate threshold")
+    min_spread: float = Field(1.0, gt=0, le=10, description="least standard deviation of "
+                              "the cross-entropy Gaussian in any direction, in standard "
+                              "normal units")
+    max_search_rounds: int = Field(20, ge=1, le=1000, description="most rounds of stage 1 "
+                                   "(cross-entropy rounds, or FORM iterations)")
+    defensive_weight: float = Field(0.1, gt=0, lt=1, description="weight w of the standard "
+                                    "normal in the biasing density (1 - w) q* + w phi")
+    samples: int = Field(1000, ge=2, le=MAX_REALIZATIONS, description="finest-level runs of "
+                         "the biasing density (per batch, with target_cov)")
+    target_cov: float | None = Field(None, gt=0, lt=1, description="add batches of samples "
+                                     "until the c.o.v. of P[failure] is at most this")
+    max_samples: int = Field(10_000, ge=2, le=MAX_REALIZATIONS, description="most "
+                             "finest-level runs with target_cov")
+    confidence: float = Field(0.95, gt=0, lt=1, description="level of the interval")
+    costs: Literal["measured"] | list[float] = Field(
+        "measured", description="cost of one run per level, coarsest first: 'measured' "
+                                "(median wall time less compile time) or numbers")
+
+    @model_validator(mode="after")
+    def _applies(self):
+        self.only_where("coarse_samples", self.search == SEARCH_CROSS_ENTROPY,
+                        'search = "cross-entropy"')
+        for key in ("quantile", "min_spread"):
+            self.only_where(key, self.search == SEARCH_CROSS_ENTROPY,
+                            'search = "cross-entropy"')
+        self.only_where("max_samples", self.target_cov is not None, "target_cov")
+        if isinstance(self.costs, list) and not all(c > 0 for c in self.costs):
+            raise ValueError(f"every cost must be > 0, got {self.costs}")
+        return self
+
+
+@dataclass
+class Guide:
+    """Stage 1 replayed from the coarse runs: the biasing density once it is built."""
+
+    rounds: int                          # stage-1 rounds run so far
+    done: bool                           # whether stage 1 has ended
+    density: GaussianMixture | None      # (1 - w) q* + w phi, once done
+    reached: bool = False                # the coarse failure region was found
+    coarse_probability: float = math.nan  # stage 1's own P[failure] at the coarse level
+    note: str = ""                       # why stage 1 did not reach it, in words
+    next_density: GaussianMixture | None = None  # what the next cross-entropy round draws
+
+
+@register_method("multifidelity-importance-sampling")
+class MultifidelityImportanceSampling(PropagationMethod):
+    """P[failure] at the finest level from a biasing density found on the coarsest."""
+
+    Options: ClassVar = MultifidelityImportanceOptions
+    uses_levels: ClassVar[bool] = True
+    extends: ClassVar[bool] = True
+    uses_limit_states: ClassVar[bool] = True
+
+    # ------------------------------------------------------------------ load-time checks
+    def check_limit_states(self, limit_states) -> None:
+        form = Form(limit_state=self.options.limit_state,
+                    max_iterations=self.options.max_search_rounds)
+        form.name = self.name
+        try:
+            form.check_limit_states(limit_states)
+        except StudyError as exc:
+            # FORM refuses systems; the cross-entropy search takes them (a system's margin
+            # is min or max of its members', and its sign is the event)
+            if not (self.options.search == SEARCH_CROSS_ENTROPY and "system" in exc.reason
+                    and limit_states is not None):
+                raise
+            form.limit_states, form.limit_state = limit_states, self.options.limit_state
+        self.limit_states, self.limit_state = limit_states, form.limit_state
+        self._form = form
+
+    def check_levels(self, levels) -> None:
+        self.n_levels = len(levels)
+        self.level_values = [float(v) for v in levels.values]
+        if isinstance(self.options.costs, list) and len(self.options.costs) != self.n_levels:
+            raise StudyError(f"costs has {len(self.options.costs)} values for "
+                             f"{self.n_levels} levels", key="method.costs")
+
+    def margins(self, runs: xr.Dataset) -> np.ndarray:
+        """g of every realization (NaN where a run did not finish ok)."""
+        return self._form.margins(runs)
+
+    # ------------------------------------------------------------------ designs
+    def plan(self, space, fields, seed):
+        self.check(space, fields)
+        if getattr(self, "_form", None) is None:
+            raise StudyError(f"method '{self.name}' needs a limit state: add a "
+                             f"[[limit_states]] table", key="limit_states")
+        if not hasattr(self, "n_levels"):
+            raise StudyError(f"method '{self.name}' needs the study's [levels]", key="levels")
+        self._space, self._seed = space, seed
+        if self.options.search == SEARCH_FORM:
+            return self.at_level(self._form.plan(space, fields, seed), GUIDE_LEVEL)
+        return self.draw_rows(standard_normal(len(space)), CROSS_ENTROPY_STREAM, 0,
+                              self.options.coarse_samples, GUIDE_LEVEL, STAGE_CROSS_ENTROPY)
+
+    def rng(self, stream: int, round_: int) -> np.random.Generator:
+        return np.random.default_rng(np.random.SeedSequence(
+            self._seed.entropy, spawn_key=(*self._seed.spawn_key, stream, round_)))
+
+    def draw_rows(self, density, stream, round_, n, level, stage) -> xr.Dataset:
+        u = np.asarray(density.sample(self.rng(stream, round_), n), dtype=float)
+        u = u.reshape(n, len(self._space))
+        design = make_design(self._space, to_inputs(self._space, u),
+                             **{ROUND: (REALIZATION, np.full(n, round_, dtype=np.int64))})
+        design = design.assign_coords({
+            STANDARD_NORMAL: ((REALIZATION, PARAMETER), u,
+                              {"long_name": "point in standard normal space"}),
+            STENCIL_OFFSET: ((REALIZATION, PARAMETER), np.zeros_like(u)),
+            STAGE: (REALIZATION, np.full(n, stage, dtype=object))})
+        return self.at_level(design, level)
+
+    @staticmethod
+    def at_level(design: xr.Dataset, level: int) -> xr.Dataset:
+        design[LEVEL] = (REALIZATION, np.full(design.sizes[REALIZATION], level,
+                                              dtype=np.int64))
+        return design
+
+    def extend(self, design, runs):
+        guide = self.guide(runs)
+        stage = runs[STAGE].values
+        last_round = int(runs[ROUND].values.max())
+        if not guide.done:
+            if self.options.search == SEARCH_FORM:
+                search = self.stage_rows(runs, stage == STAGE_SEARCH)
+                return self.at_level(self._form.extend(search, search), GUIDE_LEVEL)
+            return self.draw_rows(guide.next_density, CROSS_ENTROPY_STREAM, guide.rounds,
+                                  self.options.coarse_samples, GUIDE_LEVEL,
+                                  STAGE_CROSS_ENTROPY)
+        estimate = stage == STAGE_ESTIMATE
+        batches = np.unique(runs[ROUND].values[estimate]).size
+        drawn = int(estimate.sum())
+        if batches:
+            opts = self.options
+            if opts.target_cov is None or drawn >= opts.max_samples:
+                return None
+            found = self.estimate(runs, guide)
+            if found is not None and found.cov <= opts.target_cov:
+                return None
+        n = self.options.samples
+        if self.options.target_cov is not None:
+            n = min(n, self.options.max_samples - drawn)
+        rows = self.draw_rows(guide.density, ESTIMATE_STREAM, batches, n, self.n_levels - 1,
+                              STAGE_ESTIMATE)
+        rows[ROUND].values[:] = last_round + 1
+        return rows
+
+    @staticmethod
+    def stage_rows(runs: xr.Dataset, mask: np.ndarray) -> xr.Dataset:
+        return runs.isel({REALIZATION: np.flatnonzero(mask)})
+
+    # ------------------------------------------------------------------ stage 1, replayed
+    def guide(self, runs: xr.Dataset) -> Guide:
+        """Stage 1 after the runs so far, from the runs alone."""
+        if self.options.search == SEARCH_FORM:
+            return self.form_guide(runs)
+        return self.cross_entropy_guide(runs)
+
+    def biasing(self, centre_density: GaussianMixture) -> GaussianMixture:
+        """(1 - w) q* + w phi."""
+        return with_defensive(centre_density, self.options.defensive_weight)
+
+    def form_guide(self, runs: xr.Dataset) -> Guide:
+        search_rows = self.stage_rows(runs, runs[STAGE].values == STAGE_SEARCH)
+        n = search_rows.sizes[PARAMETER]
+        if not search_rows.sizes[REALIZATION]:
+            return Guide(0, False, None)
+        search = self._form.replay(search_rows)
+        rounds = len(search.iterations)
+        if search.next_point() is not None:
+            return Guide(rounds, False, None)
+        centre = search.point.u if search.point is not None else np.zeros(n)
+        beta = math.nan
+        if search.point is not None:
+            gradient = search.point.gradient
+            beta = float(-gradient @ search.point.u / np.linalg.norm(gradient))
+        note = "" if search.converged else \
+            f"FORM on the coarse level did not converge ({search.stopped})"
+        density = defensive_mixture(centre, defensive_weight=self.options.defensive_weight)
+        return Guide(rounds, True, density, reached=bool(search.converged),
+                     coarse_probability=float(sps.norm.sf(beta)), note=note)
+
+    def cross_entropy_guide(self, runs: xr.Dataset) -> Guide:
+        opts = self.options
+        stage = runs[STAGE].values
+        rounds_of = runs[ROUND].values
+        mask = stage == STAGE_CROSS_ENTROPY
+        n = runs.sizes[PARAMETER]
+        density = standard_normal(n)
+        g_all = self.margins(runs)
+        u_all = np.asarray(runs[STANDARD_NORMAL].values, dtype=float)
+        done_rounds = np.unique(rounds_of[mask])
+        fitted, probability = density, math.nan
+        for r in done_rounds:
+            rows = np.flatnonzero(mask & (rounds_of == r))
+            g, u = g_all[rows], u_all[rows]
+            judged = np.isfinite(g)
+            log_ratio = standard_normal_log_pdf(u) - density.log_pdf(u)
+            if not judged.any():
+                note = f"every coarse run of cross-entropy round {int(r)} failed"
+                return Guide(int(r) + 1, True, self.biasing(fitted), note=note)
+            threshold = max(float(np.quantile(g[judged], opts.quantile)), 0.0)
+            elite = judged & (g <= threshold)
+            fitted = cross_entropy_fit(u[elite], log_ratio[elite],
+                                       floor=opts.min_spread**2)
+            if threshold == 0.0:
+                failed = np.asarray(g[judged] <= 0)
+                probability = importance_estimate(failed, log_ratio[judged],
+                                                  opts.confidence).probability
+                return Guide(int(r) + 1, True, self.biasing(fitted), reached=True,
+                             coarse_probability=float(probability))
+            density = fitted
+        rounds = int(done_rounds.size)
+        if rounds >= opts.max_search_rounds:
+            note = (f"the cross-entropy rounds did not reach the coarse level's failure "
+                    f"region in max_search_rounds = {opts.max_search_rounds}")
+            return Guide(rounds, True, self.biasing(fitted), note=note)
+        return Guide(rounds, False, None, next_density=density)
+
+    # ------------------------------------------------------------------ stage 2
+    def estimate(self, runs: xr.Dataset, guide: Guide):
+        """The importance-sampling estimate from the finest-level rows (None without any)."""
+        rows = np.flatnonzero(runs[STAGE].values == STAGE_ESTIMATE)
+        if not rows.size or guide.density is None:
+            return None
+        g = self.margins(runs)[rows]
+        judged = np.isfinite(g)
+        if not judged.any():
+            return None
+        u = np.asarray(runs[STANDARD_NORMAL].values, dtype=float)[rows][judged]
+        log_ratio = standard_normal_log_pdf(u) - guide.density.log_pdf(u)
+        return importance_estimate(np.asarray(g[judged] <= 0), log_ratio,
+                                   self.options.confidence)
+
+    def run_costs(self, runs: xr.Dataset) -> np.ndarray:
+        """Cost of one run per level: stated, or the median wall time of the level's runs
+        that ran ok, less numba's compile time (paid once per process); NaN for a level
+        without such runs."""
+        if isinstance(self.options.costs, list):
+            return np.asarray(self.options.costs, dtype=float)
+        level = runs[LEVEL].values
+        ok = ok_mask(runs)
+        seconds = np.asarray(runs[WALL_TIME].values, dtype=float)
+        if COMPILE_TIME in runs:
+            seconds = seconds - np.nan_to_num(np.asarray(runs[COMPILE_TIME].values,
+                                                         dtype=float), nan=0.0)
+        return np.array([float(np.median(seconds[ok & (level == lv)]))
+                         if np.any(ok & (level == lv)) else math.nan
+                         for lv in range(self.n_levels)])
+
+    # ------------------------------------------------------------------ statistics
+    def analyze(self, design, runs):
+        opts = self.options
+        guide = self.guide(runs)
+        found = self.estimate(runs, guide)
+        warnings = []
+        stage = runs[STAGE].values
+        estimate_rows = stage == STAGE_ESTIMATE
+        ok = ok_mask(runs)
+        left_out = int((estimate_rows & ~ok & (runs[STATUS].values != STATUS_PENDING)).sum())
+        if guide.note:
+            warnings.append(f"{guide.note}: the biasing density is built on what it found; "
+                            f"the estimate stays unbiased through the defensive component "
+                            f"but may need many more samples")
+        if found is None:
+            warnings.append("no finest-level run of the biasing density finished ok: "
+                            "P[failure] is not estimated")
+        if left_out:
+            warnings.append(f"{left_out} finest-level runs did not run ok and are left out "
+                            f"(neither failure nor safe): P[failure] is biased if solver "
+                            f"errors depend on the inputs")
+        coarse_failed = int(((~estimate_rows) & ~ok).sum())
+        if coarse_failed:
+            warnings.append(f"{coarse_failed} coarse-level runs of stage 1 did not run ok; "
+                            f"stage 1 used the others")
+        p, stderr, low, high, cov, ess, n, failures = (math.nan,) * 6 + (0, 0)
+        if found is not None:
+            p, stderr, low, high = found.probability, found.stderr, found.low, found.high
+            cov, ess, n = found.cov, found.effective_sample_size, int(found.n)
+            judged = np.isfinite(self.margins(runs)[estimate_rows])
+            failures = int((self.margins(runs)[estimate_rows][judged] <= 0).sum())
+            if failures == 0:
+                warnings.append("no finest-level run of the biasing density failed: "
+                                "P[failure] is 0 with an undefined c.o.v.; the biasing "
+                                "density may miss the failure region")
+        costs = self.run_costs(runs)
+        level = runs[LEVEL].values
+        done = runs[STATUS].values != STATUS_PENDING
+        level_runs = np.array([int((done & (level == lv)).sum())
+                               for lv in range(self.n_levels)])
+        spent = float(np.nansum(level_runs * costs))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            equivalent = (1.0 - p) / (cov**2 * p) if p > 0 and cov > 0 else math.nan
+        equivalent_cost = equivalent * costs[-1]
+        ratio = equivalent_cost / spent if spent > 0 else math.nan
+        one = (LIMIT_STATE,)
+        data = {
+            FAILURE_PROBABILITY: (one, [p], {"long_name": "failure probability at the "
+                                                          "finest level", UNITS: "1"}),
+            FAILURE_STDERR: (one, [stderr], {"long_name": "standard error of P[failure]",
+                                             UNITS: "1"}),
+            FAILURE_INTERVAL: ((LIMIT_STATE, BOUND), [[low, high]], {UNITS: "1"}),
+            FAILURE_COV: (one, [cov], {UNITS: "1"}),
+            RELIABILITY_INDEX: (one, [float(reliability_index(p))], {UNITS: "1"}),
+            FAILURES: (one, [failures]),
+            FAILURE_RUNS: (one, [n]),
+            FAILURE_LEFT_OUT: (one, [left_out]),
+            EFFECTIVE_SAMPLE_SIZE: (one, [ess], {"long_name": "effective sample size of "
+                                                              "the importance weights"}),
+            EQUIVALENT_FINEST_RUNS: (one, [equivalent], {
+                "long_name": "finest-level runs plain Monte Carlo needs for the same c.o.v., "
+                             "(1 - p) / (cov^2 p)"}),
+            EQUIVALENT_FINEST_COST: (one, [equivalent_cost], {
+                "long_name": "their cost at the finest level's cost per run"}),
+            FINEST_COST_RATIO: (one, [ratio], {
+                "long_name": "equivalent finest-level Monte Carlo cost over this study's"}),
+            GUIDE_PROBABILITY: (one, [guide.coarse_probability], {
+                "long_name": "stage 1's P[failure] at the coarsest level (a guide: biased)",
+                UNITS: "1"}),
+            FIDELITY_RUNS: ((LEVEL,), level_runs),
+            FIDELITY_COST: ((LEVEL,), costs, {UNITS: "s" if opts.costs == "measured"
+                                           else "stated"}),
+        }
+        if guide.density is not None:
+            data[BIASING_WEIGHT] = ((BIASING_COMPONENT,), np.asarray(guide.density.weights, float))
+            data[BIASING_MEAN] = ((BIASING_COMPONENT, PARAMETER),
+                                  np.asarray(guide.density.means, float),
+                                  {"long_name": "component means in standard normal space",
+                                   UNITS: "1"})
+        stats = xr.Dataset(data, coords={LIMIT_STATE: [self.limit_state],
+                                         BOUND: [BOUND_LOW, BOUND_HIGH],
+                                         LEVEL: np.arange(self.n_levels),
+                                         PARAMETER: runs[PARAMETER].values})
+        stats = stats.assign_coords({FIDELITY_VALUE: (LEVEL, np.asarray(self.level_values,
+                                                                    dtype=float))})
+        self.output_moments(stats, runs, guide, estimate_rows)
+        for message in warnings:
+            pywarnings.warn(message, AccuracyWarning, stacklevel=2)
+        stats = finish_statistics(stats, design, runs, self.name, warnings)
+        state = self.limit_states[self.limit_state]
+        stats.attrs[LIMIT_STATE] = self.limit_state
+        stats.attrs.update({CONFIDENCE: opts.confidence, "search": opts.search,
+                            GUIDE_ROUNDS: guide.rounds, GUIDE_REACHED: int(guide.reached),
+                            GUIDE_DEFENSIVE_WEIGHT: opts.defensive_weight,
+                            "limit_state_event": getattr(state, "describe", lambda: "")(),
+                            GUIDE_TOTAL_COST: spent})
+        return stats
+
+    def output_moments(self, stats, runs, guide, estimate_rows) -> None:
+        """Each output's mean and std over the inputs' distribution from the finest-level
+        runs, self-normalized by their importance weights (bounded by 1 / w)."""
+        ok = ok_mask(runs) & estimate_rows
+        u = np.asarray(runs[STANDARD_NORMAL].values, dtype=float)[ok]
+        weights = np.zeros(0)
+        if u.size and guide.density is not None:
+            weights = np.exp(standard_normal_log_pdf(u) - guide.density.log_pdf(u))
+        for out in output_names(runs):
+            values = np.asarray(runs[out].values, dtype=float)[ok]
+            shape = runs[out].shape[1:]
+            mean = std = np.full(shape, np.nan)
+            if weights.size and np.sum(weights) > 0:
+                w = (weights / np.sum(weights)).reshape(-1, *([1] * len(shape)))
+                mean = np.sum(w * values, axis=0)
+                std = np.sqrt(np.sum(w * (values - mean) ** 2, axis=0))
+            stats[out] = xr.DataArray(np.stack([mean, std]),
+                                      dims=(STATISTIC, *runs[out].dims[1:]))
+        stats.coords[STATISTIC] = [STATISTIC_MEAN, STATISTIC_STD]
+        for dim in {d for out in output_names(runs) for d in runs[out].dims[1:]}:
+            if dim in runs.coords:
+                stats.coords[dim] = runs[dim]
+
+    # ------------------------------------------------------------------ report
+    @classmethod
+    def report(cls, view):
+        """P[failure] with its interval and c.o.v., the two stages' runs and what plain Monte
+        Carlo at the finest level would have cost."""
+        stats = view.stats
+        attrs = stats.attrs
+        name = str(attrs.get(LIMIT_STATE, "?"))
+
+        def value(key, *, bound=None):
+            if key not in stats:
+                return math.nan
+            at = stats[key].isel({LIMIT_STATE: 0})
+            return float(at.sel({BOUND: bound}) if bound else at)
+
+        level = f"{100 * float(attrs.get(CONFIDENCE, 0.95)):g} %"
+        event = f" ({attrs['limit_state_event']})" if attrs.get("limit_state_event") else ""
+        runs = [int(r) for r in stats[FIDELITY_RUNS].values] if FIDELITY_RUNS in stats else []
+        values = [number(v) for v in stats[FIDELITY_VALUE].values] if FIDELITY_VALUE in stats.coords \
+            else []
+        notes = [
+            f"P[failure of {name}]{event} at the finest level = "
+            f"{number(value(FAILURE_PROBABILITY))} ({level} interval "
+            f"{number(value(FAILURE_INTERVAL, bound=BOUND_LOW))} .. "
+            f"{number(value(FAILURE_INTERVAL, bound=BOUND_HIGH))}), stderr "
+            f"{number(value(FAILURE_STDERR))}, c.o.v. {number(value(FAILURE_COV))}, beta = "
+            f"{number(value(RELIABILITY_INDEX))}; {int(value(FAILURES))} failures in "
+            f"{int(value(FAILURE_RUNS))} finest-level runs, effective sample size "
+            f"{number(value(EFFECTIVE_SAMPLE_SIZE))}",
+            f"stage 1 ({attrs.get('search', '?')}) on the coarsest level: "
+            f"{int(attrs.get(GUIDE_ROUNDS, 0))} rounds, "
+            f"{runs[0] if runs else 0} runs, its own P[failure] there "
+            f"{number(value(GUIDE_PROBABILITY))}"
+            + ("" if int(attrs.get(GUIDE_REACHED, 0)) else " (failure region NOT reached)")
+            + f"; defensive weight {number(attrs.get(GUIDE_DEFENSIVE_WEIGHT, math.nan))}",
+            "runs per level (" + ", ".join(values) + "): " + ", ".join(map(str, runs)),
+            f"plain Monte Carlo at the finest level needs "
+            f"{number(value(EQUIVALENT_FINEST_RUNS))} runs for this c.o.v. (cost "
+            f"{number(value(EQUIVALENT_FINEST_COST))}); both stages cost "
+            f"{number(attrs.get(GUIDE_TOTAL_COST, math.nan))}: "
+            f"{number(value(FINEST_COST_RATIO))} times less",
+        ]
+        total = int(attrs.get(SOLVER_RUNS, 0))
+        return MethodReport(
+            description=f"multifidelity importance sampling of '{name}', {total} runs",
+            notes=notes)
+
+
+def with_defensive(density: GaussianMixture, weight: float) -> GaussianMixture:
+    """(1 - weight) density + weight phi: every likelihood ratio phi / q is then at most
+    1 / weight."""
+    d = density.dimension
+    return GaussianMixture(np.append((1.0 - weight) * density.weights, weight),
+                           np.vstack([density.means, np.zeros((1, d))]),
+                           np.concatenate([density.covariances, np.eye(d)[None]]))
