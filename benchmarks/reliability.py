@@ -374,7 +374,8 @@ def report(results: dict, repetitions: int, case_seconds: float) -> str:
         "2.5 % and 97.5 %); rows with fewer repetitions are judged against their own R. "
         "Only p_f, c.o.v. and calls are figures here, no time: other load on the machine "
         "changes none of them. References: `benchmarks/reliability_references.json` "
-        "(exact formulas or quadrature; 10⁸-sample numpy Monte Carlo checks beside them).\n")
+        "(exact formulas or quadrature; 10⁸-sample numpy Monte Carlo checks beside them). "
+        f"Measured with {_checkout()}.\n")
     if any(r["stopped"] for r in results.values()):
         body += (f"\nA uqflow method's repetitions stop after {case_seconds:.0f} s of runs "
                  "(`--case-seconds`); those rows say how many ran. The full "
@@ -396,6 +397,23 @@ def report(results: dict, repetitions: int, case_seconds: float) -> str:
         if notes:
             body += "\nuqflow warnings (first repetition): " + " / ".join(notes) + "\n"
     return body
+
+
+def _checkout() -> str:
+    """The commit the figures were measured at, and uqflow's files changed since (a method
+    being written while the benchmark ran)."""
+    import subprocess
+
+    from _record import ROOT
+
+    def git(*args):
+        return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True,
+                              check=False).stdout.strip()
+    head = git("rev-parse", "--short", "HEAD") or "unknown"
+    changed = [line.split()[-1] for line in
+               git("status", "--porcelain", "--", "uqflow").splitlines()]
+    return f"uqflow at commit {head}" + (
+        f" with uncommitted changes in {', '.join(changed)}" if changed else "")
 
 
 def _openturns_version() -> str:
