@@ -68,7 +68,8 @@ UQFLOW_METHODS = {
     "form": (lambda b: {}, False),
     "sorm": (lambda b: {}, False),
     "importance-sampling": (lambda b: {"samples": b["samples"]}, True),
-    "cross-entropy": (lambda b: {"samples": b["samples"]}, True),
+    # its rounds and final draws each take `samples`: two or three of them make the budget
+    "cross-entropy": (lambda b: {"samples": b["samples"] // 2}, True),
     "subset-simulation": (lambda b: {"samples_per_level": b["per_level"],
                                      "level_probability": LEVEL_PROBABILITY}, True),
 }
