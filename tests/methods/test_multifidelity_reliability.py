@@ -47,7 +47,7 @@ from uqflow.methods.multifidelity_reliability import (STAGE_ESTIMATE,
                                                       MultifidelityImportanceSampling,
                                                       with_defensive)
 from uqflow.realization import empty_runs
-from uqflow.report import open_result, summary_table
+from uqflow.report import open_result, summary_table, write_figures
 from uqflow.store import read_runs, write_result
 from uqflow.study import load_study
 
@@ -243,6 +243,19 @@ def test_the_reported_standard_error_matches_the_spread_over_seeds():
     assert int(np.sum((low <= exact) & (exact <= high))) >= 34
 
 
+def test_the_outputs_moments_are_weighted_back_to_the_inputs_distribution():
+    # g = 3.5 - u1 at the finest level: mean 3.5, std 1 under the inputs' distribution,
+    # although the draws sit near u1 = 3.5 where g is near 0
+    stats, runs = drive(configured(search="form", costs=[1.0, 10.0]), biased, seed=3)
+    mean, std, stderr = (float(stats["g"].sel(statistic=s)) for s in ("mean", "std", "stderr"))
+    rows = runs[STAGE].values == STAGE_ESTIMATE
+    assert abs(float(np.mean(runs["g"].values[rows]))) < 1.0       # unweighted: far off
+    # 4 standard errors (delta method): 1 in 16,000 seeds
+    assert abs(mean - BETA) <= 4 * stderr and stderr < 0.2
+    # the std of a weighted sample of ~100 effective draws: within 30 % of 1
+    assert std == pytest.approx(1.0, rel=0.3)
+
+
 def test_the_equivalent_finest_level_cost_is_plain_monte_carlo_at_the_same_cov():
     stats, runs = drive(configured(search="form", costs=[1.0, 10.0]), biased, seed=3)
     p, cov = float(stats[FAILURE_PROBABILITY].values[0]), float(stats[FAILURE_COV].values[0])
@@ -360,6 +373,8 @@ def test_a_study_runs_each_stage_on_its_level_and_reports_the_saving(tmp_path):
     assert "P[failure of fails] (y < 0) at the finest level = " in text
     assert "plain Monte Carlo at the finest level needs" in text
     assert "stage 1 (form) on the coarsest level: 2 rounds, 10 runs" in text
+    written = [p.name for p in write_figures(open_result(outcome.path), tmp_path / "figures")]
+    assert "stages.png" in written
 
 
 def test_a_killed_study_resumes_to_the_uninterrupted_numbers(tmp_path):

@@ -55,7 +55,8 @@ from uqflow.layout import (BIASING_COMPONENT, BIASING_MEAN, BIASING_WEIGHT, BOUN
                            GUIDE_PROBABILITY, GUIDE_REACHED, GUIDE_ROUNDS, GUIDE_TOTAL_COST,
                            LEVEL, LIMIT_STATE, PARAMETER, RELIABILITY_INDEX, REALIZATION,
                            ROUND, SOLVER_RUNS, STATISTIC, STATISTIC_MEAN, STATISTIC_STD,
-                           STATUS, STATUS_PENDING, UNITS, WALL_TIME, ok_mask, output_names)
+                           STATISTIC_STDERR, STATUS, STATUS_PENDING, UNITS, WALL_TIME,
+                           ok_mask, output_names)
 from uqflow.methods.base import (MAX_REALIZATIONS, MethodOptions, PropagationMethod,
                                  finish_statistics, make_design, register_method)
 from uqflow.methods.form import (STAGE, STAGE_SEARCH, STANDARD_NORMAL, STENCIL_OFFSET, Form,
@@ -64,7 +65,7 @@ from uqflow.methods.importance_sampling import (GaussianMixture, cross_entropy_f
                                                 defensive_mixture, importance_estimate,
                                                 standard_normal, standard_normal_log_pdf)
 from uqflow.probability import reliability_index
-from uqflow.report import MethodReport, number
+from uqflow.report import FigureSpec, MethodReport, new_figure, number
 
 #: what a row is besides FORM's search rows: a cross-entropy draw at the coarse level, or a
 #: draw of the biasing density at the finest level
@@ -434,8 +435,10 @@ class MultifidelityImportanceSampling(PropagationMethod):
         return stats
 
     def output_moments(self, stats, runs, guide, estimate_rows) -> None:
-        """Each output's mean and std over the inputs' distribution from the finest-level
-        runs, self-normalized by their importance weights (bounded by 1 / w)."""
+        """Each output's mean, std and the mean's standard error over the inputs'
+        distribution from the finest-level runs, self-normalized by their importance weights
+        (bounded by 1 / w, so never worse than plain Monte Carlo with w N runs; the standard
+        error is the delta method's, sqrt(sum w_i^2 (y_i - mean)^2) / sum w_i)."""
         ok = ok_mask(runs) & estimate_rows
         u = np.asarray(runs[STANDARD_NORMAL].values, dtype=float)[ok]
         weights = np.zeros(0)
@@ -444,14 +447,15 @@ class MultifidelityImportanceSampling(PropagationMethod):
         for out in output_names(runs):
             values = np.asarray(runs[out].values, dtype=float)[ok]
             shape = runs[out].shape[1:]
-            mean = std = np.full(shape, np.nan)
+            mean = std = stderr = np.full(shape, np.nan)
             if weights.size and np.sum(weights) > 0:
                 w = (weights / np.sum(weights)).reshape(-1, *([1] * len(shape)))
                 mean = np.sum(w * values, axis=0)
                 std = np.sqrt(np.sum(w * (values - mean) ** 2, axis=0))
-            stats[out] = xr.DataArray(np.stack([mean, std]),
+                stderr = np.sqrt(np.sum(w**2 * (values - mean) ** 2, axis=0))
+            stats[out] = xr.DataArray(np.stack([mean, std, stderr]),
                                       dims=(STATISTIC, *runs[out].dims[1:]))
-        stats.coords[STATISTIC] = [STATISTIC_MEAN, STATISTIC_STD]
+        stats.coords[STATISTIC] = [STATISTIC_MEAN, STATISTIC_STD, STATISTIC_STDERR]
         for dim in {d for out in output_names(runs) for d in runs[out].dims[1:]}:
             if dim in runs.coords:
                 stats.coords[dim] = runs[dim]
@@ -501,7 +505,34 @@ class MultifidelityImportanceSampling(PropagationMethod):
         total = int(attrs.get(SOLVER_RUNS, 0))
         return MethodReport(
             description=f"multifidelity importance sampling of '{name}', {total} runs",
-            notes=notes)
+            notes=notes, figures=[FigureSpec("stages", stages_figure, per_output=False)])
+
+
+def stages_figure(view, output=None):
+    """Where each stage drew, in the plane of the two inputs the biasing density moves most
+    (standard normal units): the coarse rows of stage 1, the finest-level draws of stage 2 and
+    the biasing components' means (None without two inputs or without the density)."""
+    stats, runs = view.stats, view.runs
+    if runs is None or BIASING_MEAN not in stats or STANDARD_NORMAL not in runs.coords or \
+            runs.sizes.get(PARAMETER, 0) < 2:
+        return None
+    means = np.asarray(stats[BIASING_MEAN].values, dtype=float)
+    axes = np.sort(np.argsort(-np.abs(means[:-1]).max(axis=0), kind="stable")[:2])
+    names = [str(p) for p in runs[PARAMETER].values[axes]]
+    u = np.asarray(runs[STANDARD_NORMAL].values, dtype=float)[:, axes]
+    finest = np.asarray(runs[STAGE].values == STAGE_ESTIMATE)
+    fig, ax = new_figure(width=5.6, height=5.0)
+    ax.scatter(u[~finest, 0], u[~finest, 1], s=6, color="#9e9e9e", alpha=0.6,
+               label=f"stage 1, coarsest level ({int((~finest).sum())} runs)")
+    ax.scatter(u[finest, 0], u[finest, 1], s=6, color="#1f4e79", alpha=0.6,
+               label=f"stage 2, finest level ({int(finest.sum())} runs)")
+    ax.scatter(means[:-1, axes[0]], means[:-1, axes[1]], marker="x", s=80, color="#c0392b",
+               label="biasing density's centre(s)")
+    ax.set_xlabel(f"u of {names[0]} (standard normal)")
+    ax.set_ylabel(f"u of {names[1]} (standard normal)")
+    ax.set_title(f"where the stages drew: P[failure of {stats.attrs.get(LIMIT_STATE, '?')}]")
+    ax.legend(loc="best", fontsize="small")
+    return fig
 
 
 def with_defensive(density: GaussianMixture, weight: float) -> GaussianMixture:
