@@ -168,6 +168,18 @@ BIASING_COMPONENT, BIASING_WEIGHT, BIASING_MEAN = ("biasing_component", "biasing
 GUIDE_ROUNDS, GUIDE_REACHED = "guide_search_rounds", "guide_reached"
 GUIDE_DEFENSIVE_WEIGHT, GUIDE_TOTAL_COST = "guide_defensive_weight", "guide_total_cost"
 
+# importance-sampling and cross-entropy (uqflow.methods.importance_sampling; they write
+# FAILURE_STDERR and EFFECTIVE_SAMPLE_SIZE above too)
+#: design coordinate (realization): log phi(u) - log q(u) of the density a row was drawn from
+LOG_LIKELIHOOD_RATIO = "log_likelihood_ratio"
+#: (cross_entropy_round): each round's threshold of g and its count of elite draws
+CE_ROUND, CE_THRESHOLD, CE_ELITES = ("cross_entropy_round", "cross_entropy_threshold",
+                                     "cross_entropy_elites")
+#: attributes: solver runs that built the biasing density and that sampled it, the density in
+#: words, and whether the cross-entropy threshold reached 0
+DENSITY_RUNS, SAMPLING_RUNS = "density_runs", "sampling_runs"
+BIASING_DENSITY, THRESHOLD_REACHED = "biasing_density", "threshold_reached"
+
 # ----------------------------------------------------------------------------- root attributes
 STUDY_NAME, SOLVER = "study_name", "solver"
 COMPLETE, STOPPED_EARLY, ELAPSED_TIME = "complete", "stopped_early", "elapsed_time"

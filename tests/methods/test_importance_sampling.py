@@ -10,17 +10,34 @@ deterministic.
 
 from __future__ import annotations
 
+import json
 import math
+import warnings
 
 import numpy as np
 import pytest
+import xarray as xr
 from scipy import integrate
 from scipy import stats as sps
 
-from uqflow.methods.importance_sampling import (COVARIANCE_FLOOR, GaussianMixture,
-                                                ImportanceEstimate, cross_entropy_fit,
-                                                defensive_mixture, importance_estimate,
-                                                standard_normal_log_pdf)
+from uqflow.errors import AccuracyWarning, StudyError
+from uqflow.execute import run_study
+from uqflow.function_solver import solver_from_function
+from uqflow.layout import (CE_THRESHOLD, EFFECTIVE_SAMPLE_SIZE, FAILURE_COV, FAILURE_INTERVAL,
+                           FAILURE_LEFT_OUT, FAILURE_PROBABILITY, FAILURE_RUNS, FAILURE_STDERR,
+                           FAILURES, INPUTS, LOG_LIKELIHOOD_RATIO, RELIABILITY_INDEX, ROUND,
+                           STATUS, STATUS_FAILED)
+from uqflow.methods import get_method
+from uqflow.methods.form import DESIGN_POINT, FORM_INDEX, STAGE
+from uqflow.methods.importance_sampling import (COVARIANCE_FLOOR, DEGENERATE_SHARE,
+                                                STAGE_SAMPLING, CrossEntropy,
+                                                GaussianMixture, ImportanceEstimate,
+                                                ImportanceSampling, cross_entropy_fit,
+                                                cross_entropy_step, defensive_mixture,
+                                                importance_estimate, standard_normal_log_pdf)
+from uqflow.report import open_result, summary_table
+from uqflow.solver import register_solver
+from uqflow.study import load_study
 
 # 4 standard errors: a normal deviate beyond them 1 time in 16,000
 SE4 = 4.0
@@ -127,8 +144,9 @@ def test_cross_entropy_fit_is_the_weighted_mean_and_covariance():
 def test_cross_entropy_fit_recovers_a_target_through_its_likelihood_ratios():
     # draws of phi weighted by N(m, C)/phi: the self-normalized fit is N(m, C) up to the
     # sampling error (a few hundredths with 20,000 draws, whose weights have an effective
-    # size of a few thousand); without the ratios it would be phi's own N(0, I)
-    m, c = np.array([1.5, -0.5]), np.array([[0.5, 0.2], [0.2, 0.8]])
+    # size of a few thousand); without the ratios it would be phi's own N(0, I). C's
+    # eigenvalues (0.65, 0.85) are above the floor.
+    m, c = np.array([1.0, -0.5]), np.array([[0.8, 0.1], [0.1, 0.7]])
     u = np.random.default_rng(8).normal(size=(20_000, 2))
     log_w = sps.multivariate_normal(m, c).logpdf(u) - standard_normal_log_pdf(u)
     fitted = cross_entropy_fit(u, log_w)
@@ -143,6 +161,8 @@ def test_cross_entropy_fit_floors_a_singular_covariance():
     # the floor is set exactly, the other eigenvalue (4/3) keeps eps-level rounding
     assert values[0] == pytest.approx(COVARIANCE_FLOOR, rel=1e-12)
     assert values[1] == pytest.approx(4.0 / 3.0, rel=1e-12)
+    assert np.linalg.eigvalsh(cross_entropy_fit(u, np.zeros(3), floor=1e-3).covariances[0])[
+        0] == pytest.approx(1e-3, rel=1e-12)  # the floor given; rounding as above
     one = cross_entropy_fit(u[:1], np.zeros(1))  # a single elite: the floor in every direction
     assert np.allclose(one.covariances[0], COVARIANCE_FLOOR * np.eye(2), rtol=1e-12)
     with pytest.raises(ValueError, match="one log weight per point"):
@@ -199,6 +219,26 @@ def test_estimate_of_a_linear_limit_state_is_exact_within_its_standard_error(dro
         assert estimate.cov < 0.05
 
 
+def ideal_ess_share(beta):
+    """ESS / failing draws of N(beta alpha, I) on g = beta - alpha.u, in the limit of many
+    draws: E_q[y]^2 / (E_q[y^2] P_q[g <= 0]) = Phi(-beta)^2 / (e^(beta^2) Phi(-2 beta) / 2)."""
+    return math.exp(2 * sps.norm.logsf(beta) - beta**2 - sps.norm.logsf(2 * beta) + math.log(2))
+
+
+def test_effective_sample_size_of_a_linear_limit_state_at_its_design_point():
+    # the closed form the page and DEGENERATE_SHARE quote: 0.31 at 4.75, above 0.1 up to 15
+    assert ideal_ess_share(4.75) == pytest.approx(0.313, abs=0.0005)
+    assert ideal_ess_share(15.0) > 0.1 > ideal_ess_share(16.0)
+    assert ideal_ess_share(40.0) * 40.0 == pytest.approx(2 * math.sqrt(2 / math.pi), rel=0.01)
+    # and the estimator's ESS from 20,000 draws (about 10,000 failing, a share estimated
+    # within a few per cent)
+    failed, log_ratio = linear_draws(np.random.default_rng(9), 20_000, 4.75, weight=0.0)
+    estimate = importance_estimate(failed, log_ratio)
+    share = estimate.effective_sample_size / failed.sum()
+    assert share == pytest.approx(ideal_ess_share(4.75), rel=0.1)
+    assert share > DEGENERATE_SHARE
+
+
 def test_interval_coverage_and_reported_cov_match_repetitions():
     beta, reps, n = 3.0, 400, 500
     rng = np.random.default_rng(1234)
@@ -238,3 +278,267 @@ def test_defensive_mixture_at_one_branch_of_four_stays_unbiased():
     first = failed & (u @ np.ones(2) / math.sqrt(2) > 0) & (np.abs(u[:, 0] - u[:, 1]) <
                                                            6 / math.sqrt(2))
     assert importance_estimate(first, log_ratio).high < exact
+
+
+def test_cross_entropy_rounds_reach_a_linear_limit_state_in_ten_dimensions():
+    # the CE iteration of the method (cross_entropy_step) on g = 4.75 - a.u in 10 standard
+    # normals, 1,000 draws a round: the threshold reaches 0 in a few rounds and the final
+    # estimate is within 4 of its standard errors of Phi(-4.75). With the covariance floor
+    # at 0.01 instead of 0.6 the fits collapse along a (an estimate of infinite variance) and
+    # this fails.
+    d, beta = 10, 4.75
+    a = np.ones(d) / math.sqrt(d)
+    rng = np.random.default_rng(4)
+    density = GaussianMixture([1.0], np.zeros((1, d)), np.eye(d)[None])
+    thresholds = []
+    for _ in range(10):
+        u = density.sample(rng, 1000)
+        log_ratio = standard_normal_log_pdf(u) - density.log_pdf(u)
+        threshold, elites, density = cross_entropy_step(u, beta - u @ a, log_ratio, 0.1)
+        thresholds.append(threshold)
+        if threshold == 0:
+            break
+    assert thresholds[-1] == 0 and len(thresholds) <= 6 and elites >= 100
+    u = density.sample(rng, 1000)
+    estimate = importance_estimate(beta - u @ a <= 0,
+                                   standard_normal_log_pdf(u) - density.log_pdf(u))
+    assert abs(estimate.probability - sps.norm.sf(beta)) <= SE4 * estimate.stderr
+    assert estimate.cov < 0.2
+
+
+# ============================================================================= the methods
+
+def toml(value) -> str:
+    if isinstance(value, dict):
+        return "{ " + ", ".join(f"{k} = {toml(v)}" for k, v in value.items()) + " }"
+    if isinstance(value, str):
+        return json.dumps(value)
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(toml(v) for v in value) + "]"
+    return repr(float(value)) if isinstance(value, (float, np.floating)) else repr(value)
+
+
+def study(tmp_path, scene, inputs, limit_states, method, solver="analytic", seed=1,
+          name="is", execution=None):
+    """A study of ``solver`` with normal ``inputs`` [(name, mean, std)]."""
+    lines = [f'name = "{name}"', f'solver = "{solver}"', f"scene = {toml(scene)}", ""]
+    for label, mean, std in inputs:
+        lines += ["[[inputs]]", f'name = "{label}"', 'distribution = "normal"',
+                  f"mean = {mean!r}", f"std = {std!r}", 'units = "m"', ""]
+    for table in limit_states:
+        lines += ["[[limit_states]]"] + [f"{k} = {toml(v)}" for k, v in table.items()] + [""]
+    lines += ["[method]"] + [f"{k} = {toml(v)}" for k, v in method.items()]
+    execution = {"workers": 0, "seed": seed, **(execution or {})}
+    lines += ["", "[execution]"] + [f"{k} = {toml(v)}" for k, v in execution.items()]
+    lines += ["", "[output]", f'path = "{name}.nc"', "figures = false", ""]
+    path = tmp_path / f"{name}.toml"
+    path.write_text("\n".join(lines))
+    return load_study(path)
+
+
+def run(tmp_path, *args, **kwargs):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        outcome = run_study(study(tmp_path, *args, **kwargs), show_progress=False, force=True)
+    raised = [str(w.message) for w in caught if issubclass(w.category, AccuracyWarning)]
+    return outcome, raised
+
+
+def first(stats, name):
+    return float(stats[name].values.ravel()[0])
+
+
+# R - S with R ~ N(4, 1), S ~ N(2, 1): p = Phi(-sqrt 2)
+R_MINUS_S = {"model": "linear", "coefficients": [1.0, -1.0]}
+RS_INPUTS = [("x1", 4.0, 1.0), ("x2", 2.0, 1.0)]
+BELOW_ZERO = [{"name": "negative", "output": "y", "below": 0.0}]
+RS_EXACT = 0.0786496035251426
+
+
+def linear_in(d):
+    coefficients = np.ones(d) / math.sqrt(d)
+    return {"model": "linear", "coefficients": coefficients.tolist()}, \
+        [(f"x{k + 1}", 0.0, 1.0) for k in range(d)]
+
+
+def four_branch(x1=0.0, x2=0.0):
+    u = np.array([[x1, x2]])
+    s, d = (x1 + x2) / math.sqrt(2), x1 - x2
+    del u
+    return {"g1": 3 + d**2 / 10 - s, "g2": 3 + d**2 / 10 + s,
+            "g3": d + 6 / math.sqrt(2), "g4": -d + 6 / math.sqrt(2)}
+
+
+FourBranch = register_solver("four-branch-test")(solver_from_function(
+    four_branch, outputs=["g1", "g2", "g3", "g4"], units={f"g{k}": "1" for k in range(1, 5)},
+    name="four-branch-test"))
+FOUR_BRANCH_STATES = [{"name": f"branch{k}", "output": f"g{k}", "below": 0.0}
+                      for k in range(1, 5)] + [
+    {"name": "system", "series": [f"branch{k}" for k in range(1, 5)]}]
+
+
+def test_registered_under_their_names():
+    assert get_method("importance-sampling") is ImportanceSampling
+    assert get_method("cross-entropy") is CrossEntropy
+
+
+@pytest.mark.parametrize("kind, options", [
+    ("importance-sampling", {"samples": 400}),
+    ("cross-entropy", {"samples": 300}),
+])
+def test_r_minus_s_is_exact_within_its_standard_error(tmp_path, kind, options):
+    outcome, raised = run(tmp_path, R_MINUS_S, RS_INPUTS, BELOW_ZERO, {"kind": kind, **options})
+    stats = outcome.statistics
+    p, stderr = first(stats, FAILURE_PROBABILITY), first(stats, FAILURE_STDERR)
+    assert abs(p - RS_EXACT) <= SE4 * stderr and stderr / p < 0.1
+    low, high = stats[FAILURE_INTERVAL].values[0]
+    assert low <= RS_EXACT <= high and high - low == pytest.approx(
+        2 * sps.norm.ppf(0.975) * stderr, rel=1e-9)  # p +- z s.e., a few roundings
+    assert first(stats, FAILURE_COV) == pytest.approx(stderr / p, rel=1e-12)  # one division
+    assert first(stats, RELIABILITY_INDEX) == pytest.approx(-sps.norm.ppf(p), rel=1e-12)
+    assert stats.attrs["interval_method"] == "normal" and raised == []
+    assert stats.attrs["sampling_runs"] == options["samples"]
+    assert stats.attrs["density_runs"] + stats.attrs["sampling_runs"] == \
+        stats.attrs["solver_runs"]
+
+
+def test_importance_sampling_of_a_linear_limit_state_at_beta_4_75_in_ten_dimensions(tmp_path):
+    scene, inputs = linear_in(10)
+    outcome, raised = run(tmp_path, scene, inputs,
+                          [{"name": "high", "output": "y", "exceeds": 4.75}],
+                          {"kind": "importance-sampling", "samples": 500})
+    stats = outcome.statistics
+    p, stderr = first(stats, FAILURE_PROBABILITY), first(stats, FAILURE_STDERR)
+    exact = sps.norm.sf(4.75)  # 1.017e-6
+    assert abs(p - exact) <= SE4 * stderr and stderr / p < 0.15 and raised == []
+    # FORM beside it is exact for a linear limit state (finite differences of a linear g:
+    # rounding only, eps |g| / step ~ 1e-13)
+    assert first(stats, FORM_INDEX) == pytest.approx(4.75, rel=1e-9)
+    assert np.allclose(stats[DESIGN_POINT].values[0], 4.75 / math.sqrt(10), rtol=1e-9)
+    assert first(stats, EFFECTIVE_SAMPLE_SIZE) > 50
+
+
+def test_cross_entropy_finds_the_four_branch_system_where_form_is_wrong(tmp_path):
+    outcome, raised = run(tmp_path, {}, [("x1", 0.0, 1.0), ("x2", 0.0, 1.0)],
+                          FOUR_BRANCH_STATES, {"kind": "cross-entropy", "samples": 500,
+                                               "limit_state": "system"},
+                          solver="four-branch-test")
+    stats = outcome.statistics
+    exact = four_branch_exact(6.0)
+    low, high = stats[FAILURE_INTERVAL].values[0]
+    # one Gaussian spread over the four branches: c.o.v. near 0.16 from 500 draws, where plain
+    # Monte Carlo's sqrt((1 - p) / (500 p)) is 0.67
+    assert low <= exact <= high and first(stats, FAILURE_COV) < 0.25
+    thresholds = stats[CE_THRESHOLD].values
+    assert thresholds[-1] == 0 and np.all(np.diff(thresholds) < 0)
+    assert stats.attrs["threshold_reached"] == 1 and raised == []
+
+
+def test_defensive_importance_sampling_at_one_branch_warns_of_its_weights(tmp_path):
+    # centred at the first branch's design point (FORM's answer for the branch nearest the
+    # origin), the draws of the defensive share in the other branches carry the estimate
+    centre = {"x1": 3 / math.sqrt(2), "x2": 3 / math.sqrt(2)}
+    outcome, raised = run(tmp_path, {}, [("x1", 0.0, 1.0), ("x2", 0.0, 1.0)],
+                          FOUR_BRANCH_STATES, {"kind": "importance-sampling", "samples": 1000,
+                                               "limit_state": "system",
+                                               "design_point": centre},
+                          solver="four-branch-test", seed=2)
+    stats = outcome.statistics
+    assert any("importance weights have degenerated" in w for w in raised)
+    assert first(stats, EFFECTIVE_SAMPLE_SIZE) < 0.1 * first(stats, FAILURES)
+    assert stats.attrs["density_runs"] == 0  # the design point given: no FORM search
+    assert np.allclose(stats[DESIGN_POINT].values[0], list(centre.values()), rtol=1e-15)
+    text = summary_table(open_result(outcome.path))
+    assert "importance weights have degenerated" in text
+    assert "design point: x1 = 2.12132 m, x2 = 2.12132 m" in text
+
+
+def test_a_failed_run_is_left_out_and_counted_apart(tmp_path):
+    # y = x, failing runs above 0.5: draws of the failure domain y < -2 all run, draws past
+    # 0.5 (mostly of the defensive share) do not, and are neither failures nor safe
+    outcome, raised = run(tmp_path, {"model": "faulty", "raise_above": 0.5}, [("x", 0.0, 1.0)],
+                          [{"name": "low", "output": "y", "below": -2.0}],
+                          {"kind": "importance-sampling", "samples": 400},
+                          execution={"max_failure_fraction": 0.5})
+    stats, runs = outcome.statistics, outcome.runs
+    sampling = runs[STAGE].values == STAGE_SAMPLING
+    failed = sampling & (runs[STATUS].values == STATUS_FAILED)
+    assert failed.sum() > 0
+    assert int(stats[FAILURE_LEFT_OUT].values[0]) == failed.sum()
+    assert int(stats[FAILURE_RUNS].values[0]) == 400 - failed.sum()
+    ok = sampling & ~failed
+    y = runs["y"].values[ok]
+    expected = importance_estimate(y <= -2.0, runs[LOG_LIKELIHOOD_RATIO].values[ok])
+    assert first(stats, FAILURE_PROBABILITY) == expected.probability
+    assert int(stats[FAILURES].values[0]) == int((y <= -2.0).sum())
+    assert any(f"{failed.sum()} of 400 draws of the biasing density did not run ok" in w
+               for w in raised)
+    assert "left out of the mean" in stats.attrs["failure_probability_note"]
+
+
+@pytest.mark.parametrize("kind", ["importance-sampling", "cross-entropy"])
+def test_every_round_replays_from_the_runs_before_it(tmp_path, kind):
+    # a resume asks extend the same question of the same runs: each prefix of finished
+    # rounds gives back, bit for bit, the round that ran next; another seed other draws
+    options = {"kind": kind, "samples": 200, "batches": 2}
+    outcome, _ = run(tmp_path, R_MINUS_S, RS_INPUTS, BELOW_ZERO, options, seed=3, name="a")
+    fresh = load_study(tmp_path / "a.toml")
+    method = fresh.method
+    method.plan(fresh.space, None, np.random.SeedSequence(3))
+    runs = outcome.runs
+    rounds = runs[ROUND].values
+    for r in range(int(rounds.max())):
+        prefix = runs.isel(realization=np.flatnonzero(rounds <= r))
+        more = method.extend(prefix, prefix)
+        assert np.array_equal(more[INPUTS].values, runs[INPUTS].values[rounds == r + 1])
+        assert np.array_equal(more[LOG_LIKELIHOOD_RATIO].values,
+                              runs[LOG_LIKELIHOOD_RATIO].values[rounds == r + 1],
+                              equal_nan=True)  # NaN: a search row is no draw
+    assert method.extend(runs, runs) is None
+    other, _ = run(tmp_path, R_MINUS_S, RS_INPUTS, BELOW_ZERO, options, seed=4, name="b")
+    assert not np.array_equal(other.runs[INPUTS].values[-10:], runs[INPUTS].values[-10:])
+
+
+def same_answer(one, other):
+    columns = [INPUTS, "y", STATUS]
+    xr.testing.assert_identical(one.runs[columns], other.runs[columns])
+    xr.testing.assert_identical(one.statistics.drop_attrs(), other.statistics.drop_attrs())
+
+
+CE_OPTIONS = {"kind": "cross-entropy", "samples": 100, "batches": 2}
+
+
+def test_identical_after_a_kill_and_resume(tmp_path, monkeypatch):
+    whole, _ = run(tmp_path, R_MINUS_S, RS_INPUTS, BELOW_ZERO, CE_OPTIONS, name="whole")
+    cut = study(tmp_path, R_MINUS_S, RS_INPUTS, BELOW_ZERO, CE_OPTIONS, name="cut")
+    original = CrossEntropy.extend
+
+    def killed_after_two_rounds(self, design, runs):
+        if int(runs[ROUND].values.max()) >= 1:
+            raise KeyboardInterrupt
+        return original(self, design, runs)
+
+    monkeypatch.setattr(CrossEntropy, "extend", killed_after_two_rounds)
+    with pytest.raises(KeyboardInterrupt):
+        run_study(cut, show_progress=False, force=True)
+    monkeypatch.undo()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", AccuracyWarning)
+        resumed = run_study(load_study(tmp_path / "cut.toml"), show_progress=False,
+                            resume=True)
+    assert resumed.resumed == 200  # the two rounds the kill left in the file
+    same_answer(whole, resumed)
+
+
+@pytest.mark.slow
+def test_identical_for_workers_0_and_2(tmp_path):
+    # one cross-entropy round and two batches of the final draws: three rounds through
+    # extend, each on the dask workers
+    options = {**CE_OPTIONS, "max_rounds": 1}
+    zero, _ = run(tmp_path, R_MINUS_S, RS_INPUTS, BELOW_ZERO, options, name="w0")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", AccuracyWarning)
+        two = run_study(study(tmp_path, R_MINUS_S, RS_INPUTS, BELOW_ZERO, options,
+                              name="w2", execution={"workers": 2}),
+                        show_progress=False, force=True)
+    same_answer(zero, two)

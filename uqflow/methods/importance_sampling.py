@@ -22,17 +22,42 @@ cross-entropy method, Rubinstein 1999) and ``importance_estimate``. docs/importa
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import warnings as pywarnings
+from dataclasses import dataclass, field
+from typing import ClassVar, Literal
 
 import numpy as np
+import xarray as xr
+from pydantic import Field, model_validator
 from scipy import special
 
+from uqflow.errors import AccuracyWarning, StudyError
+from uqflow.layout import (BIASING_DENSITY, BOUND, BOUND_HIGH, BOUND_LOW, CE_ELITES, CE_ROUND,
+                           CE_THRESHOLD, CONFIDENCE, DENSITY_RUNS, EFFECTIVE_SAMPLE_SIZE,
+                           FAILURE_COV, FAILURE_INTERVAL, FAILURE_LEFT_OUT, FAILURE_NOTE,
+                           FAILURE_PROBABILITY, FAILURE_RUNS, FAILURE_STDERR, FAILURES,
+                           INPUT_CORRELATION, INPUT_STD, INPUTS, INTERVAL_METHOD, LIMIT_STATE,
+                           LOG_LIKELIHOOD_RATIO, METHOD, PARAMETER, PARAMETER_UNITS, REALIZATION,
+                           RELIABILITY_INDEX, ROUND, SAMPLING_RUNS, SOLVER_RUNS, STATISTIC,
+                           STATISTIC_MEAN, STATUS, STATUS_PENDING, THRESHOLD_REACHED, UNITS,
+                           ok_mask, output_names)
+from uqflow.methods.base import (MAX_REALIZATIONS, MethodOptions, PropagationMethod,
+                                 finish_statistics, make_design, register_method)
+from uqflow.methods.form import (DESIGN_POINT, DESIGN_POINT_U, FORM_INDEX, FORM_PROBABILITY,
+                                 STAGE, STAGE_SEARCH, STANDARD_NORMAL, Form,
+                                 cholesky_of, moving_axes, system_kind, to_inputs)
+from uqflow.probability import reliability_index
+from uqflow.report import MethodReport, number
+
 #: the least eigenvalue ``cross_entropy_fit`` leaves in a fitted covariance (standard normal
-#: units squared): a standard deviation of 0.1 in some direction. A weighted fit of fewer
-#: points than dimensions (or of points on a line) is singular; a biasing density narrower
-#: than this in a direction puts no draw where the failure domain may still extend, and its
-#: weights phi/q grow without bound off its axis.
-COVARIANCE_FLOOR = 1e-2
+#: units squared). The weights phi/q of a Gaussian q have a finite second moment under q only
+#: if every eigenvalue of its covariance exceeds 1/2 (along an eigenvector of eigenvalue l,
+#: phi^2/q grows like exp((1/(2l) - 1) x^2)); a narrower q gives an estimate of infinite
+#: variance whose standard error means nothing, and self-normalized fits that shrink round by
+#: round (a linear limit state at beta = 4.75 in 10 dims collapsed to a 0.01 variance and an
+#: estimate 1e-8 times too small). 0.6 keeps a margin above 1/2: the second moment's factor
+#: (2 - 1/l)^-1/2 per direction is at most 1.7.
+COVARIANCE_FLOOR = 0.6
 LOG_2PI = math.log(2.0 * math.pi)
 
 
@@ -175,6 +200,23 @@ def cross_entropy_fit(u, log_weights, floor: float = COVARIANCE_FLOOR) -> Gaussi
     return GaussianMixture(np.ones(1), mean[None], 0.5 * (covariance + covariance.T)[None])
 
 
+def cross_entropy_step(u, g, log_ratio, rho: float,
+                       floor: float = COVARIANCE_FLOOR) -> tuple[float, int, GaussianMixture]:
+    """One cross-entropy round from its draws ``u`` (n, d) of q_k, their margins ``g`` (NaN
+    for a run that did not finish: left out) and log phi/q_k: the threshold (the
+    rho-quantile of g, clipped at 0), the count of elite draws (g at or below it) and
+    q_k+1, the Gaussian fitted to the elites with their likelihood ratios as weights."""
+    g = np.asarray(g, dtype=float)
+    usable = np.flatnonzero(np.isfinite(g))
+    if not usable.size:
+        raise ValueError("no draw of the round has a margin")
+    threshold = max(float(np.quantile(g[usable], rho)), 0.0)
+    elite = usable[g[usable] <= threshold]
+    fitted = cross_entropy_fit(np.asarray(u, dtype=float)[elite],
+                               np.asarray(log_ratio, dtype=float)[elite], floor)
+    return threshold, int(elite.size), fitted
+
+
 @dataclass(frozen=True)
 class ImportanceEstimate:
     """An importance-sampling estimate of a probability from ``n`` weighted draws: the
@@ -226,3 +268,568 @@ def importance_estimate(failed, log_ratio, confidence: float = 0.95) -> Importan
     return ImportanceEstimate(probability, stderr, max(probability - z * stderr, 0.0),
                               min(probability + z * stderr, 1.0), stderr / probability,
                               ess, n, reason)
+
+
+# ============================================================================= the methods
+
+#: what a row of the design is besides FORM's search rows: a draw of the biasing density whose
+#: terms make the estimate, or a draw of a cross-entropy round (which only adapts the density)
+STAGE_SAMPLING, STAGE_CROSS_ENTROPY = "sampling", "cross-entropy"
+#: the draws of round r come from SeedSequence(entropy, spawn_key=(*key, SAMPLING_STREAM, r)):
+#: a spawn key longer than a realization's own (i,), so no solver seed shares their stream
+SAMPLING_STREAM = 18
+#: ESS below this share of the failing draws: the weights have degenerated. N(u*, I) at the
+#: one design point of a linear limit state keeps ESS / failures at
+#: Phi(-beta)^2 / (e^(beta^2) Phi(-2 beta) / 2), about 1.6 / beta (above 0.1 up to
+#: beta = 15); far below it a few draws carry the estimate.
+DEGENERATE_SHARE = 0.1
+#: ESS below this: the normal interval rests on too few effective draws to be trusted
+FEW_EFFECTIVE = 10.0
+INTERVAL_NORMAL = "normal"
+
+
+def round_generator(seed: np.random.SeedSequence, round_: int) -> np.random.Generator:
+    """The generator of round ``round_``'s draws: a pure function of the study's seed and the
+    round number, so the draws are the same after a resume and for any worker count."""
+    return np.random.default_rng(np.random.SeedSequence(
+        seed.entropy, spawn_key=(*seed.spawn_key, SAMPLING_STREAM, int(round_))))
+
+
+def batch_sizes(samples: int, batches: int) -> list[int]:
+    """``samples`` split into ``batches`` sizes differing by at most one."""
+    return [samples // batches + (1 if b < samples % batches else 0) for b in range(batches)]
+
+
+def moving_axes_of(runs: xr.Dataset) -> np.ndarray:
+    """The axes of u that move an input, from the input summary stored with the runs."""
+    stds = np.asarray(runs[INPUT_STD].values, dtype=float)
+    return moving_axes(stds, cholesky_of(np.asarray(runs[INPUT_CORRELATION].values,
+                                                    dtype=float)))
+
+
+def to_standard_normal(space, point: dict[str, float]) -> np.ndarray:
+    """u of a point in the inputs' units (every input with a spread named): z_k =
+    Phi^-1(F_k(x_k)) (a normal input's (x_k - mean) / std exactly), u = L^-1 z."""
+    z = np.zeros(len(space))
+    for k, inp in enumerate(space.inputs):
+        if inp.variance == 0:
+            continue
+        x = point[inp.name]
+        if inp.kind == "normal":
+            z[k] = (x - inp.mean) / inp.std
+        else:
+            p = float(inp.distribution.fwd(x))
+            if not 0.0 < p < 1.0:
+                raise StudyError(f"{x!r} is outside the support of input '{inp.name}' (its "
+                                 f"distribution function there is {p:g})",
+                                 key=f"method.design_point.{inp.name}")
+            z[k] = float(special.ndtri(p))
+    lower = cholesky_of(space.correlation)
+    return np.linalg.solve(lower, z) if lower.size else z
+
+
+class ImportanceSamplingOptions(MethodOptions):
+    # the FORM search's options (uqflow.methods.form reads them by these names), declared
+    # here so that this method's options do not change with FORM's
+    limit_state: str | None = Field(None, description="the study's limit state to analyse "
+                                    "(default: its only one)")
+    step: float = Field(0.01, gt=0, le=1, description="finite-difference step of the FORM "
+                        "gradient, in standard normal units")
+    gradient: Literal["central", "forward"] = Field(
+        "central", description="central (2n + 1 runs a round) or forward (n + 1 runs) "
+                               "differences of the FORM search")
+    u_tolerance: float = Field(1e-3, gt=0, description="largest next step |u_{k+1} - u_k| "
+                               "at the search's convergence, in standard normal units")
+    g_tolerance: float = Field(1e-3, gt=0, description="largest |g| at the search's "
+                               "convergence, as a fraction of |g| at the inputs' medians")
+    max_iterations: int = Field(30, ge=1, le=10_000, description="most rounds of the FORM "
+                                "search (line-search trials included)")
+    samples: int = Field(1000, ge=2, le=MAX_REALIZATIONS, description="draws of the biasing "
+                         "density that make the estimate")
+    batches: int = Field(1, ge=1, le=10_000, description="rounds the draws run in (target_cov "
+                         "is checked after each)")
+    defensive_weight: float = Field(0.1, ge=0, le=1, description="share w of the standard "
+                                    "normal in the biasing density (phi/q <= 1/w)")
+    scale: float = Field(1.0, gt=0, le=10, description="standard deviation of the Gaussian "
+                         "at the design point, in standard normal units")
+    confidence: float = Field(0.95, gt=0, lt=1, description="level of the normal interval "
+                              "of P[failure]")
+    target_cov: float | None = Field(None, gt=0, description="stop after the batch whose "
+                                     "c.o.v. of P[failure] is at most this")
+    design_point: dict[str, float] | None = Field(
+        None, description="the centre in the inputs' units, {name = value} for every input "
+                          "with a spread (skips the FORM search)")
+
+    @model_validator(mode="after")
+    def _batches_fit(self):
+        if self.batches > self.samples:
+            raise ValueError(f"batches = {self.batches} exceeds samples = {self.samples} "
+                             f"(a batch holds at least one draw)")
+        return self.only_where("target_cov", self.batches > 1,
+                               "batches > 1 (the c.o.v. is checked after each batch)")
+
+
+class CrossEntropyOptions(MethodOptions):
+    limit_state: str | None = Field(None, description="the study's limit state or system to "
+                                    "analyse (default: its only one)")
+    samples: int = Field(1000, ge=10, le=MAX_REALIZATIONS, description="draws of each "
+                         "cross-entropy round, and of the final estimate")
+    rho: float = Field(0.1, gt=0, le=0.5, description="quantile of g that sets each round's "
+                       "intermediate threshold")
+    max_rounds: int = Field(10, ge=1, le=100, description="most cross-entropy rounds before "
+                            "the final estimate")
+    batches: int = Field(1, ge=1, le=10_000, description="rounds the final draws run in "
+                         "(target_cov is checked after each)")
+    confidence: float = Field(0.95, gt=0, lt=1, description="level of the normal interval "
+                              "of P[failure]")
+    target_cov: float | None = Field(None, gt=0, description="stop the final draws after the "
+                                     "batch whose c.o.v. of P[failure] is at most this")
+
+    @model_validator(mode="after")
+    def _batches_fit(self):
+        if self.batches > self.samples:
+            raise ValueError(f"batches = {self.batches} exceeds samples = {self.samples} "
+                             f"(a batch holds at least one draw)")
+        return self.only_where("target_cov", self.batches > 1,
+                               "batches > 1 (the c.o.v. is checked after each batch)")
+
+
+@dataclass
+class CrossEntropyState:
+    """The cross-entropy rounds replayed from their runs: the density of the next round,
+    each round's threshold and elite count, and how the adaptation ended."""
+
+    density: GaussianMixture
+    thresholds: list = field(default_factory=list)
+    elites: list = field(default_factory=list)
+    reached: bool = False
+    stopped: str = ""
+
+
+@register_method("importance-sampling")
+class ImportanceSampling(Form):
+    """Importance sampling at FORM's design point with a defensive mixture."""
+
+    Options: ClassVar = ImportanceSamplingOptions
+    extends = True
+    curvatures: ClassVar[bool] = False
+    #: the estimator's name in the report
+    label: ClassVar[str] = "importance sampling"
+
+    # ------------------------------------------------------------------ the limit state
+    def systems_allowed(self) -> bool:
+        """Whether a series or parallel system may be analysed (no design point needed)."""
+        return self.options.design_point is not None
+
+    def check_limit_states(self, limit_states) -> None:
+        if limit_states is None or not list(limit_states.names):
+            raise StudyError(f"method '{self.name}' needs a limit state: add a "
+                             f"[[limit_states]] table", key="limit_states")
+        names = list(limit_states.names)
+        chosen = self.options.limit_state
+        if chosen is None:
+            if len(names) != 1:
+                raise StudyError(f"the study has {len(names)} limit states "
+                                 f"({', '.join(names)}) and {self.name} analyses one: name it "
+                                 f"with limit_state = \"...\"", key="method.limit_state")
+            chosen = names[0]
+        elif chosen not in names:
+            raise StudyError(f"'{chosen}' is not among the study's limit states "
+                             f"({', '.join(names)})", key="method.limit_state")
+        kind = system_kind(limit_states, chosen)
+        if kind and not self.systems_allowed():
+            raise StudyError(f"'{chosen}' is a {kind} system: the FORM search of "
+                             f"{self.name} needs one limit state; give the centre with "
+                             f"design_point = {{...}}, or use cross-entropy",
+                             key="method.limit_state")
+        self.limit_states = limit_states
+        self.limit_state = chosen
+
+    def check(self, space, fields):
+        super().check(space, fields)
+        given = getattr(self.options, "design_point", None)
+        if given is not None:
+            names = [inp.name for inp in space.inputs]
+            unknown = [k for k in given if k not in names]
+            if unknown:
+                raise StudyError(f"'{unknown[0]}' is not an input of the study "
+                                 f"({', '.join(names)})", key="method.design_point")
+            missing = [inp.name for inp in space.inputs if inp.variance > 0 and
+                       inp.name not in given]
+            if missing:
+                raise StudyError(f"give the design point's value of every input with a "
+                                 f"spread: {', '.join(missing)} missing",
+                                 key="method.design_point")
+            to_standard_normal(space, given)
+
+    # ------------------------------------------------------------------ designs
+    def plan(self, space, fields, seed):
+        self.check(space, fields)
+        if getattr(self, "limit_states", None) is None:
+            raise StudyError(f"method '{self.name}' needs a limit state: add a "
+                             f"[[limit_states]] table", key="limit_states")
+        self._space, self._seed = space, seed
+        self._axes = moving_axes(space.stds, cholesky_of(space.correlation))
+        first = self.density_rows(None, 0)
+        return first if first is not None else self.sampling_rows(None, 0, 0)
+
+    def rows(self, u, offsets, round_, stage, log_ratio=None) -> xr.Dataset:
+        """Form's rows, each with its log likelihood ratio log phi(u) - log q(u) (NaN for a
+        row that is no draw of a biasing density)."""
+        n = u.shape[0]
+        ratio = np.full(n, np.nan) if log_ratio is None else np.asarray(log_ratio, float)
+        if isinstance(self.options, ImportanceSamplingOptions):  # as the search's rows
+            design = super().rows(u, offsets, round_, stage)
+        else:
+            design = make_design(self._space, to_inputs(self._space, u), **{
+                ROUND: (REALIZATION, np.full(n, round_, dtype=np.int64))}).assign_coords({
+                    STANDARD_NORMAL: ((REALIZATION, PARAMETER), u,
+                                      {"long_name": "point in standard normal space"}),
+                    STAGE: (REALIZATION, np.full(n, stage, dtype=object))})
+        return design.assign_coords({
+            LOG_LIKELIHOOD_RATIO: (REALIZATION, ratio, {
+                "long_name": "log phi(u) - log q(u) of the density the row was drawn from"})})
+
+    def draws(self, density: GaussianMixture, size: int, round_: int, stage: str):
+        """``size`` draws of ``density`` (on the moving axes) as rows of round ``round_``."""
+        v = density.sample(round_generator(self._seed, round_), size)
+        u = np.zeros((size, len(self._space)))
+        u[:, self._axes] = v
+        log_ratio = standard_normal_log_pdf(v) - density.log_pdf(v)
+        return self.rows(u, np.zeros_like(u), round_, stage, log_ratio)
+
+    def sampling_rows(self, runs, batch: int, round_: int) -> xr.Dataset:
+        density = self.biasing_density(runs, self._axes, len(self._space))
+        size = batch_sizes(self.options.samples, self.options.batches)[batch]
+        return self.draws(density, size, round_, STAGE_SAMPLING)
+
+    def density_rows(self, runs, round_: int) -> xr.Dataset | None:
+        """The next rows that build the biasing density (None: it is built). Here: the FORM
+        search, unless the design point is given."""
+        if self.options.design_point is not None:
+            return None
+        if runs is None:
+            return self.search_rows(np.zeros(len(self._space)), round_)
+        following = self.replay(runs).next_point()
+        return None if following is None else self.search_rows(following, round_)
+
+    def biasing_density(self, runs, axes: np.ndarray, n: int) -> GaussianMixture:
+        """The defensive mixture at the design point (given, or FORM's last accepted point;
+        the origin if the search found none), on the moving axes."""
+        return defensive_mixture(self.centre(runs, n)[axes], self.options.defensive_weight,
+                                 self.options.scale)
+
+    def centre(self, runs, n: int) -> np.ndarray:
+        if self.options.design_point is not None:
+            return to_standard_normal(self._space, self.options.design_point)
+        point = self.replay(runs).point if runs is not None else None
+        return point.u if point is not None else np.zeros(n)
+
+    def extend(self, design, runs):
+        round_ = int(runs[ROUND].values.max()) + 1
+        stage = runs[STAGE].values
+        sampling = stage == STAGE_SAMPLING
+        if not sampling.any():
+            more = self.density_rows(runs, round_)
+            return more if more is not None else self.sampling_rows(runs, 0, round_)
+        done = np.unique(runs[ROUND].values[sampling]).size
+        if done >= self.options.batches:
+            return None
+        if self.options.target_cov is not None and \
+                self.estimate(runs)[0].cov <= self.options.target_cov:
+            return None
+        return self.sampling_rows(runs, done, round_)
+
+    # ------------------------------------------------------------------ the estimate
+    def estimate(self, runs) -> tuple[ImportanceEstimate, int, int]:
+        """The estimate from the sampling rows, the failing draws among them, and the draws
+        left out (their run did not finish ok, or the limit state has no value)."""
+        rows = np.flatnonzero(runs[STAGE].values == STAGE_SAMPLING)
+        g = self.margins(runs)[rows]
+        usable = np.isfinite(g)
+        failed = g[usable] <= 0
+        log_ratio = np.asarray(runs[LOG_LIKELIHOOD_RATIO].values, dtype=float)[rows][usable]
+        estimate = importance_estimate(failed, log_ratio, self.options.confidence)
+        return estimate, int(failed.sum()), int((~usable).sum())
+
+    def analyze(self, design, runs):
+        stage = runs[STAGE].values
+        sampling = stage == STAGE_SAMPLING
+        estimate, failures, left_out = self.estimate(runs)
+        warnings = self.estimate_warnings(estimate, failures, left_out, int(sampling.sum()))
+        names = [str(p) for p in design[PARAMETER].values]
+        data = {
+            FAILURE_PROBABILITY: ((LIMIT_STATE,), [estimate.probability], {
+                "long_name": f"failure probability ({self.label})", UNITS: "1"}),
+            FAILURE_STDERR: ((LIMIT_STATE,), [estimate.stderr], {
+                "long_name": "standard error of the failure probability", UNITS: "1"}),
+            FAILURE_INTERVAL: ((LIMIT_STATE, BOUND), [[estimate.low, estimate.high]], {
+                "long_name": f"normal interval of the failure probability at confidence "
+                             f"{self.options.confidence:g}", UNITS: "1"}),
+            FAILURE_COV: ((LIMIT_STATE,), [estimate.cov], {
+                "long_name": "coefficient of variation of the failure probability's "
+                             "estimate", UNITS: "1"}),
+            RELIABILITY_INDEX: ((LIMIT_STATE,), [reliability_index(estimate.probability)], {
+                "long_name": "reliability index beta = -Phi^-1(p_f)", UNITS: "1"}),
+            EFFECTIVE_SAMPLE_SIZE: ((LIMIT_STATE,), [estimate.effective_sample_size], {
+                "long_name": "effective sample size (sum y)^2 / sum y^2 of the weighted "
+                             "failing draws", UNITS: "1"}),
+            FAILURES: ((LIMIT_STATE,), np.array([failures], dtype=np.int64), {
+                "long_name": "failing draws of the biasing density"}),
+            FAILURE_RUNS: ((LIMIT_STATE,), np.array([estimate.n], dtype=np.int64), {
+                "long_name": "draws of the biasing density in the estimate"}),
+            FAILURE_LEFT_OUT: ((LIMIT_STATE,), np.array([left_out], dtype=np.int64), {
+                "long_name": "draws left out: their run did not finish ok"}),
+        }
+        stats = xr.Dataset(data, coords={LIMIT_STATE: [self.limit_state],
+                                         BOUND: [BOUND_LOW, BOUND_HIGH], PARAMETER: names})
+        warnings += self.density_statistics(stats, runs)
+        self.add_output_means(stats, runs, sampling)
+        for message in warnings:
+            pywarnings.warn(message, AccuracyWarning, stacklevel=2)
+        stats = finish_statistics(stats, design, runs, self.name, warnings)
+        state = self.limit_states[self.limit_state]
+        done = np.asarray(runs[STATUS].values != STATUS_PENDING)
+        stats.attrs.update({
+            LIMIT_STATE: self.limit_state, "limit_state_output": getattr(state, "output", ""),
+            "limit_state_event": state.describe(), INTERVAL_METHOD: INTERVAL_NORMAL,
+            CONFIDENCE: self.options.confidence,
+            FAILURE_NOTE: self.treatment_note(left_out),
+            DENSITY_RUNS: int((done & ~sampling).sum()),
+            SAMPLING_RUNS: int((done & sampling).sum()),
+            BIASING_DENSITY: self.density_words(runs)})
+        return stats
+
+    def treatment_note(self, left_out: int) -> str:
+        return (f"unbiased importance-sampling estimate mean(1[g <= 0] phi/q) over the draws "
+                f"of the biasing density; normal interval p +- z s.e. at confidence "
+                f"{self.options.confidence:g}; {left_out} draw(s) whose run did not finish "
+                f"ok left out of the mean (neither failure nor safe; this biases p if solver "
+                f"errors depend on the inputs)")
+
+    def estimate_warnings(self, estimate, failures, left_out, draws) -> list[str]:
+        warnings = []
+        if left_out:
+            warnings.append(f"{left_out} of {draws} draws of the biasing density did not run "
+                            f"ok: left out of the estimate (n = {estimate.n}), which biases "
+                            f"it if solver errors depend on the inputs")
+        if estimate.reason:
+            warnings.append(f"P[failure]: {estimate.reason}")
+        if failures:
+            ess = estimate.effective_sample_size
+            if ess < DEGENERATE_SHARE * failures:
+                warnings.append(
+                    f"the importance weights have degenerated: effective sample size "
+                    f"{ess:.3g} of {failures} failing draws; a few draws carry the estimate, "
+                    f"and the biasing density misses part of the failure domain (several "
+                    f"design points, or a wrong one): the estimate stays unbiased but its "
+                    f"standard error and interval cannot be trusted; use cross-entropy or "
+                    f"more samples")
+            elif ess < FEW_EFFECTIVE:
+                warnings.append(f"effective sample size {ess:.3g} < {FEW_EFFECTIVE:g}: the "
+                                f"normal interval rests on too few effective draws")
+        return warnings
+
+    def add_output_means(self, stats, runs, sampling) -> None:
+        """Each output's importance-weighted (self-normalized) mean over the draws that ran
+        ok: sum w_i y_i / sum w_i, w = phi/q, consistent for E[y] under the inputs."""
+        rows = np.flatnonzero(sampling & ok_mask(runs))
+        log_ratio = np.asarray(runs[LOG_LIKELIHOOD_RATIO].values, dtype=float)[rows]
+        weights = np.exp(log_ratio - log_ratio.max()) if rows.size else log_ratio
+        for out in output_names(runs):
+            values = np.asarray(runs[out].values, dtype=float)
+            mean = np.tensordot(weights / weights.sum(), values[rows], axes=1) if rows.size \
+                else np.full(values.shape[1:], np.nan)
+            stats[out] = xr.DataArray(np.asarray(mean)[None], dims=(STATISTIC,
+                                                                    *runs[out].dims[1:]),
+                                      attrs={"long_name": f"importance-weighted mean of {out}"})
+        stats.coords[STATISTIC] = [STATISTIC_MEAN]
+        for d in runs.coords:
+            if d not in (REALIZATION, PARAMETER) and d in stats.dims:
+                stats.coords[d] = runs[d]
+
+    # ------------------------------------------------------------------ FORM beside
+    def density_statistics(self, stats, runs) -> list[str]:
+        """FORM's index, its p_f and the design point (physical units and u) beside the
+        estimate; the search's warnings."""
+        n = stats.sizes[PARAMETER]
+        warnings = []
+        beta, x_star, u_star = math.nan, np.full(n, np.nan), np.full(n, np.nan)
+        given = self.options.design_point is not None
+        search_rows = runs[STAGE].values == STAGE_SEARCH
+        if given:
+            centre = runs[STAGE].values == STAGE_SAMPLING
+            x_star = np.array([self.options.design_point.get(p, math.nan)
+                               for p in stats[PARAMETER].values])
+            sampling_inputs = runs[INPUTS].values[centre]
+            if sampling_inputs.size:  # inputs without a spread sit at their only value
+                x_star = np.where(np.isnan(x_star), sampling_inputs[0], x_star)
+        elif search_rows.any():
+            search = self.replay(runs)
+            if search.point is not None:
+                gradient = search.point.gradient
+                beta = float(-gradient @ search.point.u / np.linalg.norm(gradient))
+                u_star = search.point.u
+                x_star = np.asarray(runs[INPUTS].values[self.centre_row(runs, search.point.round)],
+                                    dtype=float)
+                if not search.converged:
+                    warnings.append(f"FORM did not converge ({search.stopped or 'stopped'}): "
+                                    f"the sampling is centred at its last accepted point; the "
+                                    f"estimate stays unbiased")
+            else:
+                warnings.append(f"FORM found no design point ({search.stopped}): the draws "
+                                f"are centred at the inputs' medians (plain Monte Carlo)")
+            failed = int((~ok_mask(runs) & search_rows).sum())
+            if failed:
+                warnings.append(f"{failed} run(s) of the FORM search did not finish ok: "
+                                f"treated as trial points the line search rejects")
+        stats[FORM_INDEX] = ((LIMIT_STATE,), [beta], {
+            "long_name": "FORM reliability index alpha . u*", UNITS: "1"})
+        stats[FORM_PROBABILITY] = ((LIMIT_STATE,), [float(special.ndtr(-beta))], {
+            "long_name": "FORM failure probability Phi(-beta)", UNITS: "1"})
+        stats[DESIGN_POINT] = ((LIMIT_STATE, PARAMETER), [x_star], {
+            "long_name": "centre of the biasing density in the inputs' units"})
+        stats[DESIGN_POINT_U] = ((LIMIT_STATE, PARAMETER), [u_star], {
+            "long_name": "FORM design point u* in standard normal space", UNITS: "1"})
+        if PARAMETER_UNITS in runs.coords:
+            stats.coords[PARAMETER_UNITS] = (PARAMETER, runs[PARAMETER_UNITS].values)
+        return warnings
+
+    def density_words(self, runs) -> str:
+        where = "the given design point" if self.options.design_point is not None else \
+            "FORM's design point"
+        return (f"(1 - w) N(u*, s^2 I) + w N(0, I) at {where}, w = "
+                f"{self.options.defensive_weight:g}, s = {self.options.scale:g}")
+
+    # ------------------------------------------------------------------ report
+    @classmethod
+    def report(cls, view):
+        """p_f, its interval, c.o.v., beta and the ESS; what built the biasing density (FORM's
+        index and design point, or the cross-entropy thresholds); the runs of each stage."""
+        stats = view.stats
+        attrs = stats.attrs
+        name = str(attrs.get(LIMIT_STATE, "?"))
+        event = f" ({attrs['limit_state_event']})" if attrs.get("limit_state_event") else ""
+
+        def first(var):
+            return float(stats[var].values.ravel()[0]) if var in stats else math.nan
+
+        low, high = (stats[FAILURE_INTERVAL].values[0] if FAILURE_INTERVAL in stats
+                     else (math.nan, math.nan))
+        confidence = float(attrs.get(CONFIDENCE, math.nan))
+        kind = str(attrs.get(METHOD, cls.name))
+        notes = [f"{kind}, limit state '{name}'{event}: p_f = {number(first(FAILURE_PROBABILITY))}"
+                 f", {confidence:.0%} {attrs.get(INTERVAL_METHOD, '')} interval "
+                 f"[{number(float(low))}, {number(float(high))}], c.o.v. "
+                 f"{number(first(FAILURE_COV))}, beta = {number(first(RELIABILITY_INDEX))}",
+                 f"effective sample size {number(first(EFFECTIVE_SAMPLE_SIZE))} of "
+                 f"{int(first(FAILURES)) if FAILURES in stats else 0} failing draws among "
+                 f"{int(first(FAILURE_RUNS)) if FAILURE_RUNS in stats else 0}; "
+                 f"{int(first(FAILURE_LEFT_OUT)) if FAILURE_LEFT_OUT in stats else 0} left out "
+                 f"(run not ok)",
+                 f"biasing density: {attrs.get(BIASING_DENSITY, '')}",
+                 f"solver runs: {int(attrs.get(DENSITY_RUNS, 0))} building the density, "
+                 f"{int(attrs.get(SAMPLING_RUNS, 0))} sampling it"]
+        if FORM_INDEX in stats and np.isfinite(first(FORM_INDEX)):
+            notes.append(f"FORM beside it: beta = {number(first(FORM_INDEX))}, p_f = "
+                         f"{number(first(FORM_PROBABILITY))}")
+        if DESIGN_POINT in stats and np.any(np.isfinite(stats[DESIGN_POINT].values)):
+            units = [str(u) for u in stats[PARAMETER_UNITS].values] \
+                if PARAMETER_UNITS in stats.coords else [""] * stats.sizes[PARAMETER]
+            notes.append("design point: " + ", ".join(
+                f"{p} = {number(v)}{(' ' + u) if u else ''}" for p, v, u in zip(
+                    stats[PARAMETER].values, stats[DESIGN_POINT].values[0], units)))
+        if CE_THRESHOLD in stats:
+            reached = bool(int(attrs.get(THRESHOLD_REACHED, 0)))
+            notes.append("cross-entropy thresholds: " + ", ".join(
+                number(t) for t in stats[CE_THRESHOLD].values)
+                + ("" if reached else " (did NOT reach 0)"))
+        runs = int(attrs.get(SOLVER_RUNS, 0))
+        return MethodReport(
+            description=f"{kind} of limit state '{name}', {runs} run{'' if runs == 1 else 's'}",
+            notes=notes)
+
+
+@register_method("cross-entropy")
+class CrossEntropy(ImportanceSampling):
+    """Adaptive importance sampling by the cross-entropy method: a single Gaussian with a full
+    covariance in standard normal space, refitted round by round on the elite draws."""
+
+    Options: ClassVar = CrossEntropyOptions
+    label: ClassVar[str] = "cross-entropy importance sampling"
+
+    def systems_allowed(self) -> bool:
+        return True
+
+    def check(self, space, fields):
+        PropagationMethod.check(self, space, fields)
+
+    def check_solver(self, solver, outputs, parameter_names) -> None:
+        """Any solver: the draws need no derivatives."""
+
+    def density_rows(self, runs, round_: int) -> xr.Dataset | None:
+        m = self._axes.size
+        state = self.adapt(runs, self._axes) if runs is not None else \
+            CrossEntropyState(standard_normal(m))
+        if state.reached or state.stopped or len(state.thresholds) >= self.options.max_rounds:
+            return None
+        return self.draws(state.density, self.options.samples, round_, STAGE_CROSS_ENTROPY)
+
+    def biasing_density(self, runs, axes, n) -> GaussianMixture:
+        return self.adapt(runs, axes).density
+
+    def adapt(self, runs, axes) -> CrossEntropyState:
+        """The rounds replayed in order: round k's threshold is the rho-quantile of its g
+        (clipped at 0), its elites the draws at or below it, and round k + 1's density the
+        Gaussian fitted to them with their likelihood ratios phi/q_k as weights."""
+        state = CrossEntropyState(standard_normal(axes.size))
+        if runs is None:
+            return state
+        g = self.margins(runs)
+        rounds = runs[ROUND].values
+        stage = runs[STAGE].values
+        log_ratio = np.asarray(runs[LOG_LIKELIHOOD_RATIO].values, dtype=float)
+        u = np.asarray(runs[STANDARD_NORMAL].values, dtype=float)
+        for r in np.unique(rounds[stage == STAGE_CROSS_ENTROPY]):
+            rows = np.flatnonzero((rounds == r) & (stage == STAGE_CROSS_ENTROPY))
+            if not np.isfinite(g[rows]).any():
+                state.stopped = f"no run of cross-entropy round {len(state.thresholds)} ran ok"
+                break
+            threshold, elites, state.density = cross_entropy_step(
+                u[np.ix_(rows, axes)], g[rows], log_ratio[rows], self.options.rho)
+            state.thresholds.append(threshold)
+            state.elites.append(elites)
+            if threshold == 0.0:
+                state.reached = True
+                break
+        return state
+
+    def density_statistics(self, stats, runs) -> list[str]:
+        state = self.adapt(runs, moving_axes_of(runs))
+        warnings = []
+        if state.stopped:
+            warnings.append(f"cross-entropy stopped: {state.stopped}")
+        if not state.reached:
+            warnings.append(
+                f"the cross-entropy threshold did not reach 0 in {len(state.thresholds)} "
+                f"round(s) (max_rounds = {self.options.max_rounds}"
+                + (f", last threshold {state.thresholds[-1]:.4g}" if state.thresholds else "")
+                + "): the final draws come from the last density; the estimate stays "
+                  "unbiased, but its variance may be large and underestimated")
+        rounds = len(state.thresholds)
+        stats[CE_THRESHOLD] = ((CE_ROUND,), np.asarray(state.thresholds, dtype=float), {
+            "long_name": "intermediate threshold of g of each cross-entropy round"})
+        stats[CE_ELITES] = ((CE_ROUND,), np.asarray(state.elites, dtype=np.int64), {
+            "long_name": "elite draws (g at or below the threshold) of each round"})
+        stats.coords[CE_ROUND] = np.arange(rounds)
+        stats.attrs[THRESHOLD_REACHED] = int(state.reached)
+        failed = int((~ok_mask(runs) & (runs[STAGE].values == STAGE_CROSS_ENTROPY)).sum())
+        if failed:
+            warnings.append(f"{failed} run(s) of the cross-entropy rounds did not finish ok: "
+                            f"left out of their quantile and fit")
+        return warnings
+
+    def density_words(self, runs) -> str:
+        return (f"one Gaussian with a full covariance in standard normal space, fitted by "
+                f"cross-entropy (rho = {self.options.rho:g}, {self.options.samples} draws a "
+                f"round)")
