@@ -32,8 +32,8 @@ from uqflow.errors import ResultFileError, StudyError, UqflowError
 from uqflow.layout import (COMPLETE, CONVENTIONS, CREATED, ELAPSED_TIME, FAILED_RUNS,
                            FIELD_PREFIX, FINISHED, MESSAGE, METHOD, METHOD_OPTIONS, PARAMETER,
                            PLANNED_REALIZATIONS, REALIZATION, REALIZATION_SEED, RESUMED,
-                           RUN_COLUMNS, SEED, SEED_KEY, SENSITIVITY_DIM, SOLVER,
-                           SOLVER_DESCRIPTION, SOLVER_RUNS, STATUS, STATUS_FAILED,
+                           RUN_COLUMNS, SEED, SEED_KEY, SENSITIVITY_COORD, SENSITIVITY_DIM,
+                           SOLVER, SOLVER_DESCRIPTION, SOLVER_RUNS, STATUS, STATUS_FAILED,
                            STATUS_PENDING, STOPPED_EARLY, STUDY_FILE, STUDY_HASH, STUDY_NAME,
                            STUDY_OVERRIDES, STUDY_READ_FILES, STUDY_TEXT, STUDY_TEXT_HASH,
                            STUDY_TEXT_OMITTED, TITLE, WARNINGS, WORKERS,
@@ -266,6 +266,14 @@ def _check_stored_design(stored: xr.Dataset, fresh: xr.Dataset, study: Study,
                          file=str(study.path), key="output.path")
 
 
+def _sensitivity_runs(runs: xr.Dataset) -> xr.Dataset | None:
+    """The variables on the sensitivity-run dim (derivatives and the realization each run
+    is), or None without any."""
+    if SENSITIVITY_DIM not in runs.dims:
+        return None
+    return runs[[v for v in runs.data_vars if SENSITIVITY_DIM in runs[v].dims]]
+
+
 def _design_of(runs: xr.Dataset, study: Study) -> xr.Dataset:
     """The design inside ``runs``: everything but what a run writes (outputs, their
     derivatives, the run columns)."""
@@ -331,13 +339,25 @@ class _Execution:
     def add(self, more: xr.Dataset) -> np.ndarray:
         """Append the method's new rows ``more`` (a design) as pending runs; their indices."""
         n = self.runs.sizes[REALIZATION]
-        # added rows run without sensitivities: the first rows' sensitivity runs stay as they
-        # are (a dim of its own, not concatenated)
-        new = _runs_of(more, self.study).drop_dims(SENSITIVITY_DIM, errors="ignore") \
+        new = _runs_of(more, self.study)
+        # the sensitivity runs of added rows flagged with_sensitivities (FORM's search points)
+        # join the first rows' on their own dim, renumbered to the rows' places
+        added = _sensitivity_runs(new).assign_coords(
+            {SENSITIVITY_COORD: lambda d: d[SENSITIVITY_COORD] + n}) \
+            if new.sizes.get(SENSITIVITY_DIM, 0) else None
+        new = new.drop_dims(SENSITIVITY_DIM, errors="ignore") \
             .assign_coords({REALIZATION: np.arange(n, n + more.sizes[REALIZATION])})
-        self.runs = xr.concat([self.runs, new], dim=REALIZATION, data_vars="minimal",
-                              coords="minimal", compat="override", join="override",
-                              combine_attrs="override")
+        runs = xr.concat([self.runs, new], dim=REALIZATION, data_vars="minimal",
+                         coords="minimal", compat="override", join="override",
+                         combine_attrs="override")
+        if added is not None:
+            before = _sensitivity_runs(self.runs)
+            joined = added if before is None else xr.concat(
+                [before, added], dim=SENSITIVITY_DIM, data_vars="minimal", coords="minimal",
+                compat="override", combine_attrs="override")
+            runs = runs.drop_dims(SENSITIVITY_DIM, errors="ignore").merge(
+                joined, combine_attrs="override")
+        self.runs = runs
         self.design = _design_of(self.runs, self.study)
         self.n_total = self.runs.sizes[REALIZATION]
         self.levels = level_array(self.runs)

@@ -24,7 +24,8 @@ from uqflow.execute import run_study
 from uqflow.layout import (FAILURE_PROBABILITY, INPUTS, MESSAGE, RELIABILITY_INDEX, ROUND,
                            STATUS, STATUS_FAILED)
 from uqflow.methods import get_method
-from uqflow.methods.form import (STAGE, STAGE_CURVATURE, Form, Sorm, sorm_probabilities)
+from uqflow.methods.form import (STAGE, STAGE_CHECK, STAGE_CURVATURE, Form, Sorm,
+                                 sorm_probabilities)
 from uqflow.report import open_result, summary_table, write_figures
 from uqflow.study import load_study
 
@@ -110,7 +111,7 @@ CORR = [[1.0, 0.4, -0.3], [0.4, 1.0, 0.2], [-0.3, 0.2, 1.0]]
 C0, C = 0.5, np.array([2.0, -1.0, 3.0])
 
 
-@pytest.mark.parametrize("gradient", ["central", "forward"])
+@pytest.mark.parametrize("gradient", ["central", "forward", "solver"])
 def test_form_is_exact_for_a_linear_limit_state_in_correlated_normals(tmp_path, gradient):
     # y = c0 + c.x is normal: beta = (t - E y) / sd y, the design point mu + Sigma c beta / sd
     sigma = np.outer(STDS, STDS) * np.array(CORR)
@@ -136,8 +137,16 @@ def test_form_is_exact_for_a_linear_limit_state_in_correlated_normals(tmp_path, 
     assert np.allclose(stats["importance_factor"].values[0], share / share.sum(), atol=1e-9)
     # the first step lands on the design point; the second round only confirms it
     assert stats.attrs["iterations"] == 2
-    per_round = 2 * 3 + 1 if gradient == "central" else 3 + 1
-    assert stats.attrs["solver_runs"] == 2 * per_round
+    # the solver's derivatives (dy/dx = c) come with the one run of a round, through the
+    # chain rule grad_u g = L^T diag(std) grad_x g
+    per_round = {"central": 2 * 3 + 1, "forward": 3 + 1, "solver": 1}[gradient]
+    # the design-point check: -u* and |u*| along the axes not within 30 degrees of u*
+    checks = int((outcome.runs[STAGE].values == STAGE_CHECK).sum())
+    assert 1 <= checks <= 2 * 3 + 1 and stats.attrs["other_design_points"] == 0
+    assert stats.attrs["solver_runs"] == 2 * per_round + checks
+    assert outcome.runs["with_sensitivities"].values.sum() == (2 if gradient == "solver"
+                                                                else 0) \
+        if "with_sensitivities" in outcome.runs else gradient != "solver"
 
 
 # ----------------------------------------------------------------------------- SORM, curved
@@ -368,13 +377,16 @@ def test_sorm_of_one_moving_input_is_form(tmp_path):
                           [(0.0, 1.0), (3.0, 0.0)],
                           [{"name": "high", "output": "y", "exceeds": 9.0}], {"kind": "sorm"})
     stats = outcome.statistics
-    assert raised == [] and outcome.runs.sizes["realization"] == 2 * 3
+    # two search rounds of 3 runs, and the design-point check's one probe (-u*: the only
+    # axis is u*'s own)
+    assert raised == [] and outcome.runs.sizes["realization"] == 2 * 3 + 1
     # linear: rounding alone (eps |g| / step ~ 1e-13)
     assert np.allclose(stats["sorm_failure_probability"].values[0], sps.norm.sf(3.0),
                        rtol=1e-9)
 
 
-def test_form_maps_a_lognormal_input_through_the_copula(tmp_path):
+@pytest.mark.parametrize("gradient", ["central", "solver"])
+def test_form_maps_a_lognormal_input_through_the_copula(tmp_path, gradient):
     # x = exp(mu + sigma u): "x exceeds t" fails beyond u* = (ln t - mu) / sigma, reached by
     # HL-RF (Newton's method in one dimension) whatever the finite-difference error of g'
     mu, sigma, threshold = 0.2, 0.3, 3.0
@@ -382,7 +394,8 @@ def test_form_maps_a_lognormal_input_through_the_copula(tmp_path):
                           [{"name": "x", "distribution": "lognormal", "mu": mu,
                             "sigma": sigma}],
                           [{"name": "high", "output": "y", "exceeds": threshold}],
-                          {"kind": "form", "u_tolerance": 1e-10, "g_tolerance": 1e-10})
+                          {"kind": "form", "u_tolerance": 1e-10, "g_tolerance": 1e-10,
+                           "gradient": gradient})
     stats = outcome.statistics
     beta = (math.log(threshold) - mu) / sigma
     assert raised == [] and stats.attrs["converged"] == 1
@@ -390,3 +403,216 @@ def test_form_maps_a_lognormal_input_through_the_copula(tmp_path):
     # eps / phi(u) ~ 1e-14 in the inverse map: 1e-9 bounds both
     assert float(stats[RELIABILITY_INDEX].values[0]) == pytest.approx(beta, abs=1e-9)
     assert float(stats["design_point"].values[0, 0]) == pytest.approx(threshold, rel=1e-8)
+
+
+# ----------------------------------------------------------------------------- solver gradients
+
+DECAY = {"model": "exponential_decay", "t": {"start": 0.0, "stop": 10.0, "num": 11}}
+DECAY_INPUTS = [("alpha", 1.5, 0.2), ("beta", 0.15, 0.02)]
+
+
+def test_solver_gradient_takes_the_reduced_element_max(tmp_path):
+    """y(t) = alpha exp(-beta t): its max over t is y(0) = alpha, so "max of y exceeds 1.9"
+    is linear in alpha, beta = (1.9 - 1.5) / 0.2 = 2 exactly. The solver's derivative at
+    the max's element (t = 0: dy/dalpha = 1, dy/dbeta = 0) gives it in one run a round;
+    the derivative at any other time would not."""
+    outcome, raised = run(tmp_path, DECAY, DECAY_INPUTS,
+                          [{"name": "high", "output": "y", "reduce": "max", "exceeds": 1.9}],
+                          {"kind": "form", "gradient": "solver"})
+    stats = outcome.statistics
+    assert raised == [] and stats.attrs["converged"] == 1
+    # g linear in u with an exact gradient: the first HL-RF step lands on u* up to rounding
+    # (eps |g| / |grad g| ~ 1e-16 relative), far inside 1e-12
+    assert float(stats[RELIABILITY_INDEX].values[0]) == pytest.approx(2.0, rel=1e-12)
+    np.testing.assert_allclose(stats["importance_factor"].values[0], [1.0, 0.0], atol=1e-12)
+    search = outcome.runs[STAGE].values == "search"
+    assert np.all(outcome.runs["with_sensitivities"].values == search)
+    assert search.sum() == stats.attrs["iterations"] == 2    # one run a round
+
+
+def test_solver_gradient_through_a_nonlinear_limit_state_at_a_time(tmp_path):
+    """"y at t = 5 below 0.4": ln(alpha) - 5 beta < ln 0.4 in the two normals, a curved
+    limit state. FORM on the solver's derivatives reaches the design point that a
+    constrained minimization of |u| (SLSQP, tolerance 1e-12) finds."""
+    from scipy import optimize
+
+    outcome, raised = run(tmp_path, DECAY, DECAY_INPUTS,
+                          [{"name": "low", "output": "y", "reduce": {"at": {"t": 5.0}},
+                            "below": 0.4}],
+                          {"kind": "form", "gradient": "solver", "u_tolerance": 1e-6,
+                           "g_tolerance": 1e-12})
+    stats = outcome.statistics
+    assert raised == [] and stats.attrs["converged"] == 1
+
+    def g(u):
+        return 1.5 * (1 + 0.2 / 1.5 * u[0]) * math.exp(-5 * (0.15 + 0.02 * u[1])) - 0.4
+
+    reference = optimize.minimize(lambda u: u @ u, [-2.0, 2.0], method="SLSQP", tol=1e-14,
+                                  constraints=[{"type": "eq", "fun": g}])
+    # FORM stops with its next step below 1e-6; HL-RF contracts by a factor ~0.1 a round
+    # here, so u* is within ~1e-6 / (1 - 0.1) of the fixed point: 1e-5 bounds it. On g = 0
+    # (|g| < 1e-12 |g(0)|) |u| is stationary at the design point: beta errs by the square
+    # of that distance over beta (~1e-12), 1e-9 bounds it and SLSQP's own 1e-14 on |u|^2
+    np.testing.assert_allclose(stats["design_point_standard_normal"].values[0], reference.x,
+                               atol=1e-5)
+    # beta: |u| is stationary on g = 0, its error the square of u*'s over beta
+    assert float(stats[RELIABILITY_INDEX].values[0]) == pytest.approx(
+        float(np.linalg.norm(reference.x)), abs=1e-9)
+
+
+def test_solver_gradient_is_refused_by_a_solver_without_derivatives(tmp_path):
+    with pytest.raises(StudyError) as error:
+        study(tmp_path, {"model": "sobol_g", "a": [0.0, 1.0]}, [(0.5, 0.1)] * 2,
+              [{"name": "high", "output": "y", "exceeds": 1.5}],
+              {"kind": "form", "gradient": "solver"})
+    assert error.value.key == "method.gradient" and "\n" not in str(error.value)
+    assert "has no derivatives of its outputs" in str(error.value)
+    assert 'gradient = "central"' in str(error.value)
+
+
+def test_solver_gradient_study_resumes_to_the_uninterrupted_numbers(tmp_path):
+    """Killed with the second search round's run pending (its derivatives not yet there):
+    the resumed study runs it with its sensitivities and ends identical, bit for bit."""
+    from uqflow.store import read_runs, write_result
+
+    limit = [{"name": "low", "output": "y", "reduce": {"at": {"t": 5.0}}, "below": 0.4}]
+    whole, _ = run(tmp_path, DECAY, DECAY_INPUTS, limit,
+                   {"kind": "form", "gradient": "solver"}, name="whole")
+    rounds = whole.runs[ROUND].values
+    assert rounds.max() >= 3
+    keep = int(np.flatnonzero(rounds == 1)[-1]) + 1
+    stored, attrs = read_runs(whole.path)
+    stored = stored.isel(realization=np.arange(keep))
+    stored = stored.isel(sensitivity_run=np.flatnonzero(
+        stored["sensitivity_realization"].values < keep))
+    last = keep - 1
+    stored[STATUS].values[last] = "pending"
+    stored["y"].values[last] = np.nan
+    stored["wall_time"].values[last] = np.nan
+    stored["y__gradient"].values[-1] = np.nan
+    stored["y__hessian"].values[-1] = np.nan
+    attrs.update(complete=0)
+    attrs.pop("runs_sha256", None)
+    cut = tmp_path / "cut.nc"
+    write_result(cut, stored, None, attrs)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", AccuracyWarning)
+        resumed = run_study(load_study(tmp_path / "whole.toml"), show_progress=False,
+                            resume=True, output=cut)
+    assert resumed.resumed == keep - 1
+
+    def comparable(path):
+        tree = open_result(path)
+        runs = tree["runs"].to_dataset().drop_vars(["wall_time", "compile_time", MESSAGE])
+        stats = tree["statistics"].to_dataset()
+        for key in ("solver_wall_time", "solver_compile_time", "resumed"):
+            stats.attrs.pop(key, None)
+        return runs, stats
+
+    (runs_w, stats_w), (runs_c, stats_c) = comparable(whole.path), comparable(cut)
+    xr.testing.assert_identical(runs_w, runs_c)
+    xr.testing.assert_identical(stats_w, stats_c)
+
+
+# ----------------------------------------------------------------------------- several design points
+
+def _two_design_points(x1=0.0, x2=0.0):
+    """g = 3 - |x1 + 0.1| (x2 has no effect): two failure regions, x1 >= 2.9 and
+    x1 <= -3.1, with design points at u = (2.9, 0) and (-3.1, 0)."""
+    return 3.0 - abs(x1 + 0.1) + 0.0 * x2
+
+
+def test_form_warns_of_another_design_point(tmp_path):
+    """FORM finds u* = (2.9, 0) (the nearer region, beta 2.9); the check's probe at
+    -u* = (-2.9, 0) has g = 0.2 < g(0) = 2.9, so along that ray g reaches 0 at about
+    2.9 x 2.9 / 2.7 = 3.115 (linear between the medians and the probe): outside FORM's
+    half-space, with Phi(-3.115) / Phi(-2.9) = 0.49 of FORM's p_f: a warning."""
+    import uqflow
+
+    solver = uqflow.solver_from_function(_two_design_points, outputs="y", units="1")
+    uqflow.register_solver("form-two-design-points-test")(solver)
+
+    def form(name, **options):
+        lines = [f'name = "{name}"', 'solver = "form-two-design-points-test"', "scene = {}"]
+        for label in ("x1", "x2"):
+            lines += ["[[inputs]]", f'name = "{label}"', 'distribution = "normal"',
+                      "mean = 0.0", "std = 1.0"]
+        lines += ["[[limit_states]]", 'name = "g"', 'output = "y"', "below = 0.0",
+                  "[method]", 'kind = "form"']
+        lines += [f"{k} = {str(v).lower() if isinstance(v, bool) else toml(v)}"
+                  for k, v in options.items()]
+        lines += ["[execution]", "workers = 0", "[output]", f'path = "{name}.nc"',
+                  "figures = false"]
+        path = tmp_path / f"{name}.toml"
+        path.write_text("\n".join(lines) + "\n")
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            outcome = run_study(load_study(path), show_progress=False, force=True)
+        return outcome, [str(w.message) for w in caught
+                         if issubclass(w.category, AccuracyWarning)]
+
+    outcome, raised = form("two")
+    stats = outcome.statistics
+    # g is linear on x1 >= -0.1: exact up to rounding
+    assert float(stats[RELIABILITY_INDEX].values[0]) == pytest.approx(2.9, rel=1e-12)
+    assert stats.attrs["other_design_points"] == 1
+    expected = 2.9 * 2.9 / 2.7
+    warning = [w for w in raised if w.startswith("another design point near u = ")]
+    assert len(warning) == 1
+    assert f"near u = ({-expected:.3g}, 0) with beta about {expected:.3g}" in warning[0]
+    assert "FORM's p_f counts the failure region at u* only" in warning[0]
+    # the probes: -u*, and |u*| along x2 either way (the +x1 probe is u* itself)
+    np.testing.assert_allclose(stats["check_point"].values,
+                               [[-2.9, 0.0], [0.0, 2.9], [0.0, -2.9]], atol=1e-12)
+    assert np.isinf(stats["check_failure_distance"].values[1:]).all()
+    assert warning[0] in summary_table(open_result(outcome.path))
+    # without the check: no probe round and no warning
+    unchecked, raised = form("unchecked", design_point_check=False)
+    assert "check_point" not in unchecked.statistics
+    assert not any(w.startswith("another design point") for w in raised)
+
+
+def test_one_linear_region_seen_along_another_ray_is_no_second_design_point(tmp_path):
+    """g = 1 - a . u with a 35 degrees off the x1 axis: the probe at |u*| = 1 along x1 (outside
+    the 30-degree cone round u*) meets FORM's own half-space at t = 1 / cos 35 = 1.22, whose
+    Phi(-t) is 0.7 of Phi(-1): only the half-space test (the failure point lies on the plane
+    alpha . u = beta) keeps it from being called another design point."""
+    angle = math.radians(35.0)
+    a = [math.cos(angle), math.sin(angle)]
+    outcome, raised = run(tmp_path, {"model": "linear", "coefficients": a},
+                          [(0.0, 1.0)] * 2, [{"name": "high", "output": "y", "exceeds": 1.0}],
+                          {"kind": "form"})
+    stats = outcome.statistics
+    assert raised == [] and stats.attrs["other_design_points"] == 0
+    probes = stats["check_point"].values
+    # the probe is |u*| e_1 with |u*| = 1 up to the search's rounding (~1e-15)
+    along_x1 = int(np.flatnonzero(np.all(np.isclose(probes, [1.0, 0.0], atol=1e-9), axis=1))[0])
+    # g linear along the ray: the interpolation is exact up to rounding of g (~1e-16)
+    assert float(stats["check_failure_distance"].values[along_x1]) == pytest.approx(
+        1 / math.cos(angle), rel=1e-9)
+
+
+def test_solver_gradient_chains_through_a_lognormal_input(tmp_path):
+    """y = x1 + x2, x1 lognormal (mu 0, sigma 0.25), x2 ~ N(0, 0.3): the solver gives
+    dy/dx = (1, 1), and dx1/du1 = sigma x1 (phi(z) / f(x)) turns it into grad_u; the design
+    point is the one SLSQP finds on g(u) = 1.9 - exp(0.25 u1) - 0.3 u2 = 0."""
+    from scipy import optimize
+
+    outcome, raised = run(tmp_path, {"model": "linear", "coefficients": [1.0, 1.0]},
+                          [{"name": "x1", "distribution": "lognormal", "mu": 0.0,
+                            "sigma": 0.25}, ("x2", 0.0, 0.3)],
+                          [{"name": "high", "output": "y", "exceeds": 1.9}],
+                          {"kind": "form", "gradient": "solver", "u_tolerance": 1e-6,
+                           "g_tolerance": 1e-12})
+    stats = outcome.statistics
+    assert raised == [] and stats.attrs["converged"] == 1
+    reference = optimize.minimize(lambda u: u @ u, [1.0, 1.0], method="SLSQP", tol=1e-14,
+                                  constraints=[{"type": "eq", "fun": lambda u: 1.9 - math.exp(
+                                      0.25 * u[0]) - 0.3 * u[1]}])
+    # as in the test above: the next step below 1e-6 bounds the point by 1e-5, and beta
+    # (|u| stationary on g = 0) by its square
+    np.testing.assert_allclose(stats["design_point_standard_normal"].values[0], reference.x,
+                               atol=1e-5)
+    # beta: |u| is stationary on g = 0, its error the square of u*'s over beta
+    assert float(stats[RELIABILITY_INDEX].values[0]) == pytest.approx(
+        float(np.linalg.norm(reference.x)), abs=1e-9)

@@ -40,13 +40,15 @@ from scipy import stats as sps
 
 from uqflow.errors import AccuracyWarning, StudyError
 from uqflow.layout import (FAILURE_PROBABILITY, INPUT_CORRELATION, INPUT_STD, INPUTS,
+                           WITH_SENSITIVITIES,
                            LIMIT_STATE, PARAMETER, PARAMETER_UNITS, RELIABILITY_INDEX,
                            REALIZATION, ROUND, SOLVER_RUNS, STATISTIC, UNITS, ok_mask,
                            output_names)
-from uqflow.limit_states import LimitStateSystem
+from uqflow.limit_states import EXCEEDS, LimitStateSystem
 from uqflow.methods.base import (MethodOptions, PropagationMethod, finish_statistics,
                                  make_design, register_method)
-from uqflow.report import Column, MethodReport, Sensitivity, number
+from uqflow.realization import sensitivity_arrays
+from uqflow.report import Column, FigureSpec, MethodReport, Sensitivity, new_figure, number
 
 # Armijo's sufficient decrease: the merit must fall by this fraction of its slope times the
 # step. On a linear limit state the full HL-RF step lowers the merit by exactly half its
@@ -61,13 +63,29 @@ MAX_HALVINGS = 10
 # Relative disagreement of the three SORM formulas above which the curvatures are called
 # large: they agree to second order in kappa beta; beyond this the asymptotics are doubtful.
 SORM_AGREEMENT = 0.1
+# The design-point check: a probe direction within this angle of u* looks at FORM's own
+# failure region (cos 30 degrees); a failure point found along another probe counts as
+# another region when it lies outside FORM's half-space alpha . u >= beta by more than
+# OUTSIDE_HALF_SPACE of beta (a linear limit state's own points lie on the plane, up to
+# the search's tolerances), and is reported when its first-order share Phi(-t) is at least
+# OTHER_REGION_SHARE of FORM's Phi(-beta): a region that changes p_f by 10 % or more.
+PROBE_CONE = math.cos(math.radians(30.0))
+OUTSIDE_HALF_SPACE = 0.01
+OTHER_REGION_SHARE = 0.1
 
 #: what a row of the design is: a point of the FORM search (with its gradient stencil) or a
 #: point of the curvature stencil at the design point
-STAGE_SEARCH, STAGE_CURVATURE = "search", "curvature"
+STAGE_SEARCH, STAGE_CURVATURE, STAGE_CHECK = "search", "curvature", "design_point_check"
 #: design coordinates: the row's point in standard normal space, its stencil offset (in u for
 #: the search, in the rotated basis for the curvature round) and its stage
 STANDARD_NORMAL, STENCIL_OFFSET, STAGE = "standard_normal", "stencil_offset", "stage"
+#: design coordinate with gradient = "solver": dx_k/dz_k of each input at the row's point (the
+#: slope of the copula's marginal map, so the chain rule needs no input distribution later)
+INPUT_SLOPE = "input_slope"
+#: the statistics of the design-point check: its probe points, g there, and the estimated
+#: distance to failure along each probe's ray
+CHECK_POINT, CHECK_MARGIN, CHECK_DISTANCE = ("check_point", "check_margin",
+                                             "check_failure_distance")
 #: labels of the outputs' statistics: each output at the inputs' medians (u = 0) and at u*
 AT_MEDIANS, AT_DESIGN_POINT = "at_medians", "at_design_point"
 #: the method's statistics besides the layout's p_f and beta
@@ -84,15 +102,19 @@ class FormOptions(MethodOptions):
                                     "(default: its only one)")
     step: float = Field(0.01, gt=0, le=1, description="finite-difference step of the "
                         "gradient, in standard normal units")
-    gradient: Literal["central", "forward"] = Field(
+    gradient: Literal["central", "forward", "solver"] = Field(
         "central", description="central (2n + 1 runs a round, error O(step^2)) or forward "
-                               "(n + 1 runs, error O(step)) differences")
+                               "(n + 1 runs, error O(step)) differences, or the solver's "
+                               "own derivatives (1 run a round; local_sensitivities)")
     u_tolerance: float = Field(1e-3, gt=0, description="largest next step |u_{k+1} - u_k| "
                                "at convergence, in standard normal units")
     g_tolerance: float = Field(1e-3, gt=0, description="largest |g| at convergence, as a "
                                "fraction of |g| at the inputs' medians")
     max_iterations: int = Field(30, ge=1, le=10_000, description="most rounds of the search "
                                 "(line-search trials included)")
+    design_point_check: bool = Field(True, description="after convergence, one round of g at "
+                                     "-u* and at |u*| along the other axes, to detect "
+                                     "another design point")
 
 
 class SormOptions(FormOptions):
@@ -120,6 +142,43 @@ def to_inputs(space, u: np.ndarray) -> np.ndarray:
             p = np.clip(sps.norm.cdf(z[:, k]), 1e-15, 1 - 1e-15)
             columns.append(inp.inverse_cdf(p))
     return np.column_stack(columns) if columns else np.zeros((u.shape[0], 0))
+
+
+def input_slopes(space, u: np.ndarray) -> np.ndarray:
+    """dx_k/dz_k at points ``u`` (n_points, n_inputs): std_k for a normal input (exactly), and
+    phi(z_k) / f_k(x_k) for another (the derivative of F_k^-1(Phi(z))); 0 for an input
+    without spread. With dx/du = diag(slopes) L, the chain rule of ``solver_gradient``."""
+    u = np.atleast_2d(np.asarray(u, dtype=float))
+    z = u @ cholesky_of(space.correlation).T
+    x = to_inputs(space, u)
+    columns = []
+    for k, inp in enumerate(space.inputs):
+        if inp.variance == 0:
+            columns.append(np.zeros(u.shape[0]))
+        elif inp.kind == "normal":
+            columns.append(np.full(u.shape[0], inp.std))
+        else:
+            density = np.asarray(inp.distribution.pdf(x[:, k]), dtype=float)
+            columns.append(sps.norm.pdf(z[:, k]) / density)
+    return np.column_stack(columns) if columns else np.zeros((u.shape[0], 0))
+
+
+def reduced_element(state, values: xr.DataArray) -> int | None:
+    """The flat index, over the output's dims, of the element whose value the limit state's
+    reduction of ``values`` (one realization, with its realization dim) takes; None where the
+    reduction gives no value. Every reduction (max, min, final, at, max over labels, the worst
+    of the dims left) picks one element by selection and order alone, so reducing the
+    elements' ranks (ties broken by position) instead of their values picks the same one and
+    names it."""
+    flat = np.asarray(values.values, dtype=float).ravel()
+    ranks = np.empty(flat.size)
+    ranks[np.argsort(flat, kind="stable")] = np.arange(flat.size, dtype=float)
+    ranks[~np.isfinite(flat)] = np.nan
+    picked = np.asarray(state.reduce.apply(values.copy(data=ranks.reshape(values.shape)),
+                                           state.comparison).values, dtype=float).ravel()
+    if picked.size != 1 or not np.isfinite(picked[0]):
+        return None
+    return int(np.flatnonzero(ranks == picked[0])[0])
 
 
 def moving_axes(stds: np.ndarray, lower: np.ndarray) -> np.ndarray:
@@ -248,6 +307,28 @@ class Form(PropagationMethod):
     curvatures: ClassVar[bool] = False
 
     # ------------------------------------------------------------------ the limit state
+    #: the solver's ``local_sensitivities()`` and the uncertain inputs (``check_solver``),
+    #: for gradient = "solver"
+    derivatives: dict | None = None
+    uncertain: tuple = ()
+
+    def solver_gradients(self) -> bool:
+        """Whether the search takes g's gradient from the solver (gradient = "solver"; a
+        subclass whose options have no gradient never does)."""
+        return getattr(self.options, "gradient", "") == "solver"
+
+    def check_solver(self, solver, outputs, parameter_names) -> None:
+        if not self.solver_gradients():
+            return
+        available = solver.local_sensitivities() if hasattr(solver, "local_sensitivities") \
+            else {}
+        if not available:
+            label = getattr(solver, "name", "") or type(solver).__name__
+            raise StudyError(f"solver '{label}' has no derivatives of its outputs "
+                             f"(local_sensitivities is empty): use gradient = \"central\"",
+                             key="method.gradient")
+        self.derivatives, self.uncertain = dict(available), tuple(parameter_names)
+
     def check_limit_states(self, limit_states) -> None:
         if limit_states is None or not list(limit_states.names):
             raise StudyError(f"method '{self.name}' needs a limit state: add a "
@@ -268,6 +349,20 @@ class Form(PropagationMethod):
             raise StudyError(f"'{chosen}' is a {kind} system: {self.name} linearizes one limit "
                              f"state at one design point; use monte-carlo (or name one member "
                              f"with limit_state = \"...\")", key="method.limit_state")
+        if hasattr(limit_states, "require_continuous"):
+            limit_states.require_continuous(chosen, self.name)
+        if self.derivatives is not None:
+            output = limit_states[chosen].output
+            if output not in self.derivatives:
+                raise StudyError(f"the solver has no derivatives of '{output}', the output of "
+                                 f"limit state '{chosen}' (it has them of "
+                                 f"{', '.join(self.derivatives)}): use gradient = \"central\"",
+                                 key="method.gradient")
+            missing = [p for p in self.uncertain if p not in self.derivatives[output]]
+            if missing:
+                raise StudyError(f"the solver has no derivative of '{output}' with respect to "
+                                 f"input '{missing[0]}': use gradient = \"central\"",
+                                 key="method.gradient")
         self.limit_states = limit_states
         self.limit_state = chosen
 
@@ -292,7 +387,9 @@ class Form(PropagationMethod):
         lower = cholesky_of(space.correlation)
         h = self.options.step
         offsets = [np.zeros(len(space))]
-        for k in moving_axes(space.stds, lower):
+        # the solver's derivatives come with the centre's run: no stencil
+        axes = [] if self.solver_gradients() else moving_axes(space.stds, lower)
+        for k in axes:
             for sign in ((1.0, -1.0) if self.options.gradient == "central" else (1.0,)):
                 row = np.zeros(len(space))
                 row[k] = sign * h
@@ -328,8 +425,18 @@ class Form(PropagationMethod):
 
     def rows(self, u, offsets, round_, stage) -> xr.Dataset:
         n = u.shape[0]
+        extra = {}
+        if self.solver_gradients():
+            # a search point runs with the solver's derivatives; every row says whether, so
+            # the rounds' designs concatenate
+            extra[WITH_SENSITIVITIES] = (REALIZATION, np.full(n, stage == STAGE_SEARCH))
         design = make_design(self._space, to_inputs(self._space, u),
-                             **{ROUND: (REALIZATION, np.full(n, round_, dtype=np.int64))})
+                             **{ROUND: (REALIZATION, np.full(n, round_, dtype=np.int64))},
+                             **extra)
+        if self.solver_gradients():
+            design = design.assign_coords({INPUT_SLOPE: (
+                (REALIZATION, PARAMETER), input_slopes(self._space, u),
+                {"long_name": "dx/dz of each input at the row's point (copula marginal map)"})})
         # coordinates, not data variables: everything in the runs with a realization dim
         # is taken for a solver output
         return design.assign_coords({
@@ -346,6 +453,11 @@ class Form(PropagationMethod):
         following = search.next_point()
         if following is not None:
             return self.search_rows(following, rounds + 1)
+        if getattr(self.options, "design_point_check", False) and search.converged and \
+                not np.any(runs[STAGE].values == STAGE_CHECK):
+            probes = self.probe_points(search)
+            if probes.size:
+                return self.rows(probes, np.zeros_like(probes), rounds + 1, STAGE_CHECK)
         # one moving axis has no curvature to measure: SORM is FORM there
         curved = len(moving_axes(self._space.stds, cholesky_of(self._space.correlation))) > 1
         if self.curvatures and search.converged and curved and \
@@ -361,6 +473,9 @@ class Form(PropagationMethod):
         offsets = runs[STENCIL_OFFSET].values[rows]
         centre = int(np.flatnonzero(~offsets.any(axis=1))[0])
         n = u.shape[1]
+        if self.solver_gradients():
+            return u[centre], float(g[rows[centre]]), self.solver_gradient(runs, rows[centre]), \
+                rows[centre]
         gradient = np.zeros(n)
         for k in range(n):
             plus = np.flatnonzero(offsets[:, k] > 0)
@@ -372,6 +487,48 @@ class Form(PropagationMethod):
             # the realized spacing of the stored points, not the nominal step
             gradient[k] = (g[rows[top]] - g[rows[bottom]]) / (u[top, k] - u[bottom, k])
         return u[centre], float(g[rows[centre]]), gradient, rows[centre]
+
+    def solver_gradient(self, runs: xr.Dataset, row: int) -> np.ndarray:
+        """grad_u g at realization ``row`` from the solver's derivatives of the limit state's
+        output: the derivative at the element the reduction picked (the max's argmax, the
+        value at the coordinates), signed as g (-dy/dx for exceeds), then the chain rule
+        through the copula, grad_u g = L^T (dx/dz * grad_x g). NaN if the run failed."""
+        state = self.limit_states[self.limit_state]
+        n = runs.sizes[PARAMETER]
+        indices, gradients, _ = sensitivity_arrays(runs, state.output)
+        found = np.flatnonzero(indices == row)
+        if not found.size:
+            return np.full(n, np.nan)
+        values = runs[state.output].isel({REALIZATION: [row]})
+        element = reduced_element(state, values)
+        if element is None:
+            return np.full(n, np.nan)
+        dy_dx = gradients[found[0]].reshape(-1, n)[element]
+        dg_dx = -dy_dx if state.comparison == EXCEEDS else dy_dx
+        slopes = np.asarray(runs[INPUT_SLOPE].values[row], dtype=float)
+        # an input without spread does not move: its (possibly NaN) derivative does not count
+        dg_dz = np.where(slopes == 0, 0.0, slopes * dg_dx)
+        lower = cholesky_of(np.asarray(runs[INPUT_CORRELATION].values, dtype=float))
+        return lower.T @ dg_dz
+
+    def probe_points(self, search: Search) -> np.ndarray:
+        """The design-point check's points: the mirror -u*, and |u*| along each moving axis
+        either way, but those within PROBE_CONE of u* (FORM's own region) and repeats."""
+        u_star = search.point.u
+        beta = float(np.linalg.norm(u_star))
+        if beta == 0:
+            return np.zeros((0, u_star.size))
+        lower = cholesky_of(self._space.correlation)
+        found = [-u_star]
+        for k in moving_axes(self._space.stds, lower):
+            for sign in (1.0, -1.0):
+                probe = np.zeros(u_star.size)
+                probe[k] = sign * beta
+                if probe @ u_star / beta**2 >= PROBE_CONE or \
+                        any(np.allclose(probe, f, rtol=0, atol=1e-12 * beta) for f in found):
+                    continue
+                found.append(probe)
+        return np.array(found)
 
     def replay(self, runs: xr.Dataset) -> Search:
         """The search state after the finished rounds, computed from the runs alone (so a
@@ -478,6 +635,8 @@ class Form(PropagationMethod):
                                          PARAMETER: space_names})
         if self.curvatures:
             warnings += self.add_sorm(stats, runs, search, beta)
+        if point is not None:
+            warnings += self.add_check(stats, runs, search, beta, alpha)
         for out in output_names(runs):
             values = np.asarray(runs[out].values, dtype=float)
             ok = ok_mask(runs)
@@ -500,8 +659,63 @@ class Form(PropagationMethod):
                            limit_state_event=state.describe(),
                            converged=int(search.converged), stop_reason=search.stopped,
                            iterations=len(search.iterations), step=self.options.step,
-                           gradient=self.options.gradient)
+                           gradient=self.options.gradient,
+                           g_tolerance=self.options.g_tolerance,
+                           u_tolerance=self.options.u_tolerance)
+        stats.attrs.update(convergence_diagnostics(search, alpha))
         return stats
+
+    def add_check(self, stats, runs, search, beta, alpha) -> list[str]:
+        """The design-point check's round: along each probe's ray from the origin, the
+        distance t where g, interpolated linearly between the medians and the probe, reaches
+        0; a failure point t p/|p| outside FORM's half-space, whose Phi(-t) is a tenth of
+        Phi(-beta) or more, is another design point: a warning says where."""
+        rows = np.flatnonzero(runs[STAGE].values == STAGE_CHECK)
+        if not rows.size:
+            return []
+        g = self.margins(runs)
+        probes = np.asarray(runs[STANDARD_NORMAL].values[rows], dtype=float)
+        at_probe = g[rows]
+        g0 = float(search.iterations[0].g)
+        radius = np.linalg.norm(probes, axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            distance = np.where((at_probe < g0) & np.isfinite(at_probe),
+                                radius * g0 / (g0 - at_probe), np.inf)
+        if not (g0 > 0 and beta > 0):
+            distance[:] = np.nan   # the medians fail: no region "beyond" them to compare
+        stats[CHECK_POINT] = (("check", PARAMETER), probes, {
+            "long_name": "probe point of the design-point check in standard normal space",
+            UNITS: "1"})
+        stats[CHECK_MARGIN] = (("check",), at_probe, {"long_name": "g at the probe point"})
+        stats[CHECK_DISTANCE] = (("check",), distance, {
+            "long_name": "distance to g = 0 along the probe's ray (g linear between the "
+                         "medians and the probe; inf: g does not fall)", UNITS: "1"})
+        others = []
+        for k in np.argsort(distance):
+            t = distance[k]
+            if not np.isfinite(t):
+                continue
+            failure = t * probes[k] / radius[k]
+            outside = float(alpha @ failure) < (1 - OUTSIDE_HALF_SPACE) * beta
+            if outside and sps.norm.sf(t) >= OTHER_REGION_SHARE * sps.norm.sf(beta):
+                others.append((t, failure, k))
+        stats.attrs["other_design_points"] = len(others)
+        names = [str(p) for p in runs[PARAMETER].values]
+        found = []
+
+        def point(u):
+            return ", ".join(f"{v + 0.0:.3g}" for v in u)   # + 0.0: no "-0"
+
+        for t, failure, k in others:
+            x = np.asarray(runs[INPUTS].values[rows[k]], dtype=float)
+            found.append(
+                f"another design point near u = ({point(failure)}) "
+                f"with beta about {t:.3g} (FORM's beta {beta:.3g}): g = {at_probe[k]:.3g} at "
+                f"the probe u = ({point(probes[k])}), "
+                + ", ".join(f"{p} = {v + 0.0:.4g}" for p, v in zip(names, x))
+                + "; FORM's p_f counts the failure region at u* only (use monte-carlo or "
+                  "importance sampling)")
+        return found
 
     def centre_row(self, runs, round_: int) -> int:
         rows = np.flatnonzero((runs[ROUND].values == round_) &
@@ -637,6 +851,22 @@ class Form(PropagationMethod):
             notes.append("design point: " + ", ".join(
                 f"{p} = {number(v)}{(' ' + u) if u else ''}" for p, v, u in zip(
                     stats[PARAMETER].values, stats[DESIGN_POINT].values[0], units)))
+        if "final_step" in attrs:
+            how = "from the solver" if attrs.get("gradient") == "solver" else \
+                f"by {attrs.get('gradient', '?')} differences"
+            notes.append(
+                f"convergence: |g(u*)| / |g(medians)| = "
+                f"{number(float(attrs['final_relative_margin']))} (g_tolerance "
+                f"{number(float(attrs.get('g_tolerance', math.nan)))}), next step |d| = "
+                f"{number(float(attrs['final_step']))} (u_tolerance "
+                f"{number(float(attrs.get('u_tolerance', math.nan)))}), 1 - cos(u*, -grad g) "
+                f"= {number(float(attrs['alignment_error']))}; gradients {how}")
+        if CHECK_MARGIN in stats:
+            count = int(attrs.get("other_design_points", 0))
+            notes.append(f"design-point check: g at {stats.sizes['check']} probe points at "
+                         f"|u*| (-u* and along the other axes): "
+                         + ("no other design point found" if not count else
+                            f"{count} other design point(s), see the warnings"))
         output = str(attrs.get("limit_state_output", ""))
 
         def importance(out):
@@ -652,7 +882,54 @@ class Form(PropagationMethod):
             description=f"{kind} of limit state '{name}', {runs} run{'' if runs == 1 else 's'}",
             columns=[Column("at design point [u]", lambda out, focus: number(
                 stats[out].sel({STATISTIC: AT_DESIGN_POINT}).isel(focus)), right_aligned=True)],
-            notes=notes, sensitivities=importance)
+            notes=notes, sensitivities=importance,
+            figures=[FigureSpec("form_convergence", convergence_figure, per_output=False)])
+
+
+def convergence_diagnostics(search: Search, alpha: np.ndarray) -> dict:
+    """How close the last accepted point is to a design point, as attributes: |g| there over
+    |g(0)| (the unit of g_tolerance), the next HL-RF step |d| (u_tolerance), and the angle
+    between u and -grad g, 1 - alpha . u / |u| (0 at a design point, where u = beta alpha)."""
+    point = search.point
+    if point is None:
+        return {}
+    norm = float(np.linalg.norm(point.u))
+    return {"final_relative_margin": abs(point.g) / search.scale if search.scale else math.nan,
+            "final_step": float(np.linalg.norm(search.direction)),
+            "alignment_error": 1.0 - float(alpha @ point.u) / norm if norm > 0 else 0.0}
+
+
+def convergence_figure(view, _output=None):
+    """The search round by round: |g| / |g(0)| on a log axis and |u| of each trial point,
+    the trials the line search rejected marked apart."""
+    stats = view.stats
+    if "iteration_margin" not in stats or stats.sizes.get("iteration", 0) < 1:
+        return None
+    g = np.abs(np.asarray(stats["iteration_margin"].values, dtype=float))
+    scale = g[0] if g.size and g[0] > 0 else 1.0
+    distance = np.asarray(stats["iteration_distance"].values, dtype=float)
+    accepted = np.asarray(stats["iteration_accepted"].values, dtype=bool)
+    rounds = np.arange(g.size)
+    fig, (top, bottom) = new_figure(height=5.2, rows=2)
+    relative = np.where(g > 0, g / scale, np.nan)
+    top.semilogy(rounds[accepted], relative[accepted], "o-", color="#1f4e79",
+                 label="accepted point")
+    top.semilogy(rounds[~accepted], relative[~accepted], "x", color="#c0392b",
+                 label="trial the line search rejected")
+    tolerance = stats.attrs.get("g_tolerance")
+    if tolerance:
+        top.axhline(float(tolerance), color="0.4", linestyle="--", linewidth=1,
+                    label="g_tolerance")
+    top.set_ylabel("|g| / |g(medians)|")
+    top.legend(loc="best", fontsize="small")
+    bottom.plot(rounds[accepted], distance[accepted], "o-", color="#2e7d32")
+    bottom.plot(rounds[~accepted], distance[~accepted], "x", color="#c0392b")
+    bottom.set_ylabel("|u| of the trial point")
+    bottom.set_xlabel("search round")
+    converged = "converged" if int(stats.attrs.get("converged", 0)) else "NOT converged"
+    top.set_title(f"{view.study}: FORM search of '{stats.attrs.get(LIMIT_STATE, '?')}' "
+                  f"({converged})")
+    return fig
 
 
 def _signs(n: int, which: dict[int, int]) -> np.ndarray:
