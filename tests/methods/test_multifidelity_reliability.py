@@ -243,6 +243,43 @@ def test_the_reported_standard_error_matches_the_spread_over_seeds():
     assert int(np.sum((low <= exact) & (exact <= high))) >= 34
 
 
+def test_a_search_cut_short_says_so_and_stays_unbiased():
+    # one cross-entropy round cannot reach the coarse failure region (its tenth-quantile of g
+    # is near 1.7): the density is that round's fit, the result says so, and the defensive
+    # share keeps the estimate unbiased
+    method = configured(max_search_rounds=1, samples=4000, costs=[1.0, 10.0])
+    design = method.plan(space(), None, np.random.SeedSequence(5))
+    stats, runs = drive(method, biased, seed=5)
+    assert stats.attrs["guide_reached"] == 0 and stats.attrs["guide_search_rounds"] == 1
+    assert "did not reach the coarse level's failure region in max_search_rounds = 1" in \
+        stats.attrs["warnings"]
+    p, stderr = estimate(stats)
+    assert abs(p - sps.norm.sf(BETA)) <= 4 * stderr    # 4 standard errors: 1 in 16,000
+    assert design.sizes["realization"] == 500
+
+
+def test_finest_runs_that_failed_are_left_out_and_counted():
+    method = configured(search="form", costs=[1.0, 10.0])
+    stats, runs = drive(method, biased, seed=3)
+    broken = runs.copy(deep=True)
+    rows = np.flatnonzero(broken[STAGE].values == STAGE_ESTIMATE)[:25]
+    broken[STATUS].values[rows] = "failed"
+    broken["g"].values[rows] = np.nan
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", AccuracyWarning)
+        again = method.analyze(broken, broken)
+    assert int(again["failure_probability_left_out"].values[0]) == 25
+    assert int(again["failure_probability_runs"].values[0]) == 975
+    assert "25 finest-level runs did not run ok and are left out" in again.attrs["warnings"]
+    assert again.attrs["failed_runs"] == 25
+    # the others make the estimate: the same as the draws without those 25
+    kept = runs.isel(realization=np.setdiff1d(np.arange(runs.sizes["realization"]), rows))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", AccuracyWarning)
+        alone = method.analyze(kept, kept)
+    assert estimate(again) == estimate(alone)
+
+
 def test_the_outputs_moments_are_weighted_back_to_the_inputs_distribution():
     # g = 3.5 - u1 at the finest level: mean 3.5, std 1 under the inputs' distribution,
     # although the draws sit near u1 = 3.5 where g is near 0
