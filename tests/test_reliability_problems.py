@@ -122,3 +122,20 @@ def test_the_lognormal_copula_is_the_normal_scores_correlation():
     assert np.allclose(np.corrcoef(scores.T), problem.correlation, atol=0.01)
     assert sps.norm.cdf(-problems.lognormal_beta()) == pytest.approx(
         REFERENCES["correlated_lognormals"]["p_f"], rel=1e-12)
+
+
+def test_the_table_of_docs_reliability_is_the_references():
+    text = (ROOT / "docs" / "reliability.md").read_text()
+    section = text.split("## Benchmark: uqflow against OpenTURNS", 1)[1]
+    rows = {}
+    for line in section.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) == 4 and cells[0].startswith("`"):
+            rows[cells[0].strip("`")] = cells[2]
+    assert sorted(rows) == sorted(PROBLEMS)
+    for name, shown in rows.items():
+        # a figure shown to its last digit: within half a unit of that digit
+        mantissa, _, exponent = shown.partition("e")
+        decimals = len(mantissa.split(".")[1]) if "." in mantissa else 0
+        unit = 10.0 ** (int(exponent or 0) - decimals)
+        assert abs(float(shown) - REFERENCES[name]["p_f"]) <= 0.5 * unit, name
