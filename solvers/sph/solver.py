@@ -55,7 +55,18 @@ OUTPUTS = {
     "modulus_hs_upper": ("Pa", "Hashin–Shtrikman upper bound of the effective Young's "
                                "modulus"),
     "inclusion_detach_step": ("1", "load step at which the inclusion fully debonds (0: never)"),
+    "debonding_onset_strain": ("1", "applied strain of the load step at which the first "
+                                    "interface pair breaks (one step past the loading: none "
+                                    "within it)"),
+    "detachment_onset_strain": ("1", "applied strain of the load step at which the first "
+                                     "inclusion fully debonds (one step past the loading: none "
+                                     "within it)"),
 }
+#: outputs that take discrete values: steps, counts, and the applied strain of a load step
+DISCRETE = ("pair_break_step", "intact_pairs", "detached_inclusions", "inclusion_detach_step",
+            "debonding_onset_strain", "detachment_onset_strain")
+#: the applied strain at which an event happens, with the strain past the loading for none
+ONSETS = ("debonding_onset_strain", "detachment_onset_strain")
 
 
 @register_solver("sph")
@@ -154,9 +165,15 @@ class SPHSolver(Solver):
                 "effective_modulus", "modulus_reuss_bound", "modulus_voigt_bound",
                 "modulus_hs_lower", "modulus_hs_upper")})
             data["inclusion_detach_step"] = (("inclusion",), np.full(n_incl, nan))
+            data.update({name: ((), nan) for name in ONSETS})
             coords.update({"step": np.arange(1, c.steps + 1), "inclusion": np.arange(n_incl)})
-        return xr.Dataset({name: xr.Variable(dims, values, output_attributes(name))
-                           for name, (dims, values) in data.items()}, coords=coords)
+        ds = xr.Dataset({name: xr.Variable(dims, values, output_attributes(name))
+                         for name, (dims, values) in data.items()}, coords=coords)
+        if c.loading == "tension":
+            beyond = strain_past_loading(self.layout, c.step, c.steps)
+            for name in ONSETS:
+                ds[name].attrs[result_layout.NOT_WITHIN_LOADING] = beyond
+        return ds
 
     # -- one realization -------------------------------------------------------------------
 
@@ -243,17 +260,19 @@ class SPHSolver(Solver):
     def _tension(self, problem, layout, strength):
         c = self.cfg
         h = run_tension(problem, layout, strength, c.step, c.steps)
-        out = {"strain": h.strain, "macro_stress": h.macro_stress,
-               "intact_pairs": h.intact_pairs, "detached_inclusions": h.detached_inclusions,
-               "effective_modulus": h.effective_modulus,
-               "inclusion_detach_step": h.inclusion_detach_step,
-               "constraint_residual": float(h.constraint_residual.max()),
-               "pair_error": float(h.pair_error.max()),
-               "pair_break_step": h.pair_break_step,
-               # a detached inclusion carries no stress and its rigid position is undetermined:
-               # reported as 0 (results hold no NaN: uqflow counts a NaN output as a failure)
-               "displacement": np.nan_to_num(h.last.displacement, nan=0.0),
-               "stress": np.nan_to_num(h.last.stress, nan=0.0)}
+        out = onset_strains(h, strain_past_loading(layout, c.step, c.steps))
+        out.update({"strain": h.strain, "macro_stress": h.macro_stress,
+                   "intact_pairs": h.intact_pairs, "detached_inclusions": h.detached_inclusions,
+                   "effective_modulus": h.effective_modulus,
+                   "inclusion_detach_step": h.inclusion_detach_step,
+                   "constraint_residual": float(h.constraint_residual.max()),
+                   "pair_error": float(h.pair_error.max()),
+                   "pair_break_step": h.pair_break_step,
+                   # a detached inclusion carries no stress and its rigid position is
+                   # undetermined: reported as 0 (results hold no NaN: uqflow counts a NaN
+                   # output as a failure)
+                   "displacement": np.nan_to_num(h.last.displacement, nan=0.0),
+                   "stress": np.nan_to_num(h.last.stress, nan=0.0)})
         out.update(self._timings(h.timings))
         return out
 
@@ -280,11 +299,34 @@ class SPHSolver(Solver):
 
 
 def output_attributes(name: str) -> dict:
-    """An output's ``units``, ``long_name`` and, for a diagnostic, its ``output_kind``."""
+    """An output's ``units``, ``long_name`` and, for a diagnostic, its ``output_kind``; for
+    a step, a count or an onset ``output_values = discrete`` (a limit state on it counts
+    events and has no gradient)."""
     units, long_name = OUTPUTS[name]
     kind = {result_layout.OUTPUT_KIND: result_layout.DIAGNOSTIC_KIND} if name in DIAGNOSTICS \
         else {}
+    if name in DISCRETE:
+        kind[result_layout.OUTPUT_VALUES] = result_layout.DISCRETE_VALUES
     return {result_layout.UNITS: units, result_layout.LONG_NAME: long_name, **kind}
+
+
+def onset_strains(history, beyond: float) -> dict[str, float]:
+    """The applied strain of the load step where the first pair broke and where the first
+    inclusion detached (``history``: a ``TensionHistory``), ``beyond`` where none did."""
+    broke = history.pair_break_step[history.pair_break_step > 0]
+    detached = history.inclusion_detach_step[history.inclusion_detach_step > 0]
+    return {"debonding_onset_strain": float(history.strain[broke.min() - 1]) if broke.size
+            else beyond,
+            "detachment_onset_strain": float(history.strain[detached.min() - 1])
+            if detached.size else beyond}
+
+
+def strain_past_loading(layout, step: float, steps: int) -> float:
+    """The applied strain of load step ``steps + 1``, the one after the loading: an onset
+    that did not happen within the loading is reported as this (finite, above every strain
+    the loading reaches; computed as ``run_tension`` computes a step's strain)."""
+    y = np.asarray(layout.x, dtype=float)[:, 1]
+    return 2.0 * step * (steps + 1) / float(y.max() - y.min())
 
 
 def _bounds(layout, E, nu, state) -> dict:
