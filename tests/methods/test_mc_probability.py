@@ -472,9 +472,11 @@ def test_kl_weibull_reports_the_failure_lines_it_inherits():
 
     _, _, _, stats = run_with_states(LINEAR3, linear_space(), y_exceeds(), seed=5,
                                      samples=256)
-    notes = KLWeibull.report(SimpleNamespace(stats=stats)).notes
-    assert [n for n in notes if "failure" in n] == failure_lines(stats)
+    hook = KLWeibull.report(SimpleNamespace(stats=stats))
+    assert [n for n in hook.notes if "failure" in n] == failure_lines(stats)
     assert KLWeibull.uses_limit_states
+    # and the exceedance curve of each limit state, stored by Monte Carlo's analyze
+    assert "failure_exceedance_y_high" in [f.kind for f in hook.figures]
 
 
 def test_a_control_variates_control_runs_are_not_draws():

@@ -20,7 +20,8 @@ from uqflow.fields import germ_seed, germ_variable
 from uqflow.methods.base import make_design, register_method
 from uqflow.layout import REALIZATION, SOLVER_RUNS, WARNINGS
 from uqflow.methods.monte_carlo import (MonteCarlo, SampleStatisticsOptions,
-                                        convergence_figure, failure_lines, sample_notes)
+                                        convergence_figure, failure_exceedance_figures,
+                                        failure_lines, sample_notes)
 from uqflow.report import FigureSpec, MethodReport
 from uqflow.sampling import unit_hypercube
 
@@ -123,7 +124,8 @@ class KLWeibull(MonteCarlo):
             description=f"Monte Carlo over the {fields} (KL expansion), {runs} "
                         f"run{'' if runs == 1 else 's'}",
             runs_are_draws=True, notes=sample_notes(view) + failure_lines(stats),
-            figures=[FigureSpec("convergence", convergence_figure)])
+            figures=[FigureSpec("convergence", convergence_figure)]
+            + failure_exceedance_figures(stats))
 
 
 def fields_described(design) -> dict:
