@@ -323,6 +323,7 @@ def run_problem(name: str, methods: list[str], repetitions: int, case_seconds: f
             print(f"{name} uqflow {kind}: {result['errors'][kind]}", flush=True)
             continue
         result["uqflow"][kind] = summarize(runs, reference)
+        result["uqflow"][kind]["seconds"] = time.perf_counter() - start
         result["warnings"][kind] = runs[0]["warnings"]
         print(f"{name} uqflow {kind}: {result['uqflow'][kind]} "
               f"({time.perf_counter() - start:.0f} s)", flush=True)
@@ -347,15 +348,20 @@ def _row(side: str, method: str, s: dict, band) -> str:
         low, high, _ = band(s["repetitions"])
         mark = "" if low <= fraction <= high else " **(outside)**"
         covered = f"{s['covered']}/{s['repetitions']} = {fraction:.3f}{mark}"
-    bias = _cell(s, "bias", "+.3f")
     if "bias_stderr" in s:
-        bias += f" ± {s['bias_stderr']:.3f}"
-    return (f"| {side} | {method} | {s['calls']:.0f} | {s['p_mean']:.4g} | {bias} | "
+        bias = _cell(s, "bias", "+.3f") + f" ± {s['bias_stderr']:.3f}"
+    else:                                   # one deterministic answer: its relative error
+        bias = _cell(s, "bias", "+.2g")
+    return (f"| {side} | {method} | {s['repetitions']} | {s['calls']:.0f} | "
+            f"{s['p_mean']:.4g} | {bias} | "
             f"{_cell(s, 'cov_reported', '.3f')} | {_cell(s, 'cov_empirical', '.3f')} | "
             f"{covered} |\n")
 
 
-def report(results: dict, repetitions: int, case_seconds: float) -> str:
+TITLE = "Reliability: uqflow against OpenTURNS on exact problems"
+
+
+def report(results: dict, repetitions: int, case_seconds: float, checkout: str = "") -> str:
     low, high, mass = binomial_band(repetitions)
     body = (
         "Each problem runs as a uqflow study (a `solver_from_function` margin, `[[inputs]]`, "
@@ -363,7 +369,7 @@ def report(results: dict, repetitions: int, case_seconds: float) -> str:
         "event in OpenTURNS "
         f"{_openturns_version()}, at the same budgets in the same run (samples of MC and "
         "IS; samples per level and p0 = 0.1 of subset simulation). Sampling methods run "
-        f"with seeds 0 … R − 1 (R = {repetitions} unless the row says fewer); 'calls' is "
+        f"with seeds 0 … R − 1 (R = {repetitions}, or the fewer its column R says); 'calls' is "
         "the mean number of margin evaluations (OpenTURNS' IS includes its FORM search), "
         "'p_f' the mean estimate, 'bias' mean / reference − 1 ± its standard error, "
         "'c.o.v. rep.' the mean reported c.o.v., 'c.o.v. emp.' the spread of p_f over the "
@@ -376,24 +382,29 @@ def report(results: dict, repetitions: int, case_seconds: float) -> str:
         "Only p_f, c.o.v. and calls are figures here, no time: other load on the machine "
         "changes none of them. References: `benchmarks/reliability_references.json` "
         "(exact formulas or quadrature; 10⁸-sample numpy Monte Carlo checks beside them). "
-        f"Measured with {_checkout()}.\n")
+        f"Measured with {checkout or _checkout()}.\n")
     if any(r["stopped"] for r in results.values()):
+        full = sum(s["seconds"] / s["repetitions"] * repetitions
+                   for r in results.values() for kind, s in r["uqflow"].items()
+                   if kind in r["stopped"])
         body += (f"\nA uqflow method's repetitions stop after {case_seconds:.0f} s of runs "
-                 "(`--case-seconds`); those rows say how many ran. The full "
-                 f"{repetitions}: `python benchmarks/reliability.py --case-seconds 1e9`.\n")
+                 "(`--case-seconds`: every repetition is a whole study through the executor, "
+                 "about 0.5 to 1 ms per solver call on this shared machine); those rows say "
+                 f"how many ran. All {repetitions} of the stopped rows would take about "
+                 f"{full / 3600:.1f} h here: `python benchmarks/reliability.py`.\n")
     for name, res in results.items():
         budget = BUDGETS[name]
         body += (f"\n### {PROBLEMS[name].title}\n\nReference p_f = {res['reference']:.6g} "
                  f"({REFERENCES[name]['how']}). Budget: {budget['samples']} samples, "
                  f"{budget['per_level']} per subset level.\n\n"
-                 "| | method | calls | p_f | bias | c.o.v. rep. | c.o.v. emp. | coverage |\n"
-                 "|---|---|---|---|---|---|---|---|\n")
+                 "| | method | R | calls | p_f | bias | c.o.v. rep. | c.o.v. emp. | coverage |\n"
+                 "|---|---|---|---|---|---|---|---|---|\n")
         for kind, s in res["uqflow"].items():
             body += _row("uqflow", kind, s, binomial_band)
         for label, s in res["openturns"].items():
             body += _row("OpenTURNS", label, s, binomial_band)
         for kind, error in res["errors"].items():
-            body += f"| uqflow | {kind} | | not run: {error} | | | | |\n"
+            body += f"| uqflow | {kind} | | | not run: {error} | | | | |\n"
         notes = [f"{k}: {w.splitlines()[0]}" for k, w in res["warnings"].items() if w]
         if notes:
             body += "\nuqflow warnings (first repetition): " + " / ".join(notes) + "\n"
@@ -434,12 +445,21 @@ def main(argv=None) -> dict:
     ap.add_argument("--case-seconds", type=float, default=math.inf,
                     help="stop a uqflow method's repetitions after this many seconds")
     ap.add_argument("--no-openturns", action="store_true")
+    ap.add_argument("--save", type=Path, help="also write the raw figures to this JSON file")
+    ap.add_argument("--report-from", type=Path,
+                    help="write BENCHMARKS.md from a --save file (no run), with its command")
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args(argv)
     methods = args.methods or (QUICK_METHODS if args.quick else available_methods())
     problems = ["r_minus_s"] if args.quick else args.problems
     repetitions = 2 if args.quick else args.repetitions
     with_openturns = not (args.quick or args.no_openturns)
+    if args.report_from:
+        saved = json.loads(args.report_from.read_text())
+        sys.argv = saved["argv"]            # the section names the command that measured it
+        write_section("reliability", TITLE, report(saved["results"], saved["repetitions"],
+                                                   saved["case_seconds"], saved["checkout"]))
+        return saved["results"]
     results = {}
     with tempfile.TemporaryDirectory() as tmp:
         for name in problems:
@@ -447,8 +467,13 @@ def main(argv=None) -> dict:
                                         Path(tmp), with_openturns,
                                         QUICK_BUDGET if args.quick else BUDGETS[name])
     if not args.quick:
-        write_section("reliability", "Reliability: uqflow against OpenTURNS on exact problems",
-                      report(results, repetitions, args.case_seconds))
+        checkout = _checkout()
+        if args.save:
+            args.save.write_text(json.dumps(
+                {"argv": sys.argv, "results": results, "repetitions": repetitions,
+                 "case_seconds": args.case_seconds, "checkout": checkout}, indent=1))
+        write_section("reliability", TITLE, report(results, repetitions, args.case_seconds,
+                                                   checkout))
     return results
 
 

@@ -32,7 +32,7 @@ def test_reliability_benchmark_runs_in_quick_mode(monkeypatch):
     assert abs(mc["p_mean"] - reference) < 4 * math.sqrt(reference * (1 - reference) / 200)
     assert 0 <= mc["covered"] <= 2 and mc["cov_reported"] > 0
     text = bench.report({"r_minus_s": results}, 2, math.inf)
-    assert "| uqflow | form |" in text and "| uqflow | monte-carlo | 100 |" in text
+    assert "| uqflow | form | 1 |" in text and "| uqflow | monte-carlo | 2 | 100 |" in text
 
 
 def test_the_coverage_band_is_the_binomial_one():
