@@ -95,33 +95,33 @@ def space():
                                               "mean": 0.0, "std": 1.0}) for n in ("u1", "u2")])
 
 
-def configured(**options) -> MultifidelityImportanceSampling:
+def configured(levels=LEVELS, **options) -> MultifidelityImportanceSampling:
     method = MultifidelityImportanceSampling(**options)
     template = BiasedSolver.from_scene({}).outputs()
     method.check_limit_states(LimitStates.from_tables(LIMIT_STATE, template))
-    method.check_levels(resolve_levels(LevelsSpec(key="resolution", values=list(LEVELS)),
+    method.check_levels(resolve_levels(LevelsSpec(key="resolution", values=list(levels)),
                                        {}, BiasedSolver, ["g"], "scene"))
     return method
 
 
-def evaluate(design, problem):
+def evaluate(design, problem, levels=LEVELS):
     runs = empty_runs(design, BiasedSolver.from_scene({}).outputs())
-    h = _resolution(np.asarray(LEVELS)[design[LEVEL].values])
+    h = _resolution(np.asarray(levels)[design[LEVEL].values])
     runs["g"].values[:] = problem(design[INPUTS].values, h)
     runs[STATUS].values[:] = STATUS_OK
     runs["wall_time"].values[:] = 0.0
     return runs
 
 
-def drive(method, problem, seed):
+def drive(method, problem, seed, levels=LEVELS):
     design = method.plan(space(), None, np.random.SeedSequence(seed))
-    runs = evaluate(design, problem)
+    runs = evaluate(design, problem, levels)
     glue = dict(dim="realization", data_vars="minimal", coords="minimal", compat="override",
                 join="override")
     while (more := method.extend(design, runs)) is not None:
         n = design.sizes["realization"]
         more = more.assign_coords(realization=np.arange(n, n + more.sizes["realization"]))
-        runs = xr.concat([runs, evaluate(more, problem)], **glue)
+        runs = xr.concat([runs, evaluate(more, problem, levels)], **glue)
         design = xr.concat([design, more], **glue)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", AccuracyWarning)
@@ -172,6 +172,30 @@ def test_the_finest_probability_is_unbiased_where_the_coarse_level_is_biased(sea
         assert guide == pytest.approx(sps.norm.sf(BETA - BIAS), rel=0.01)
     else:
         assert guide == pytest.approx(coarse_biased_probability(), rel=0.3)
+
+
+@pytest.mark.parametrize("search_levels", ["coarsest", "all"])
+def test_with_three_levels_the_rounds_climb_the_levels_before_the_finest(search_levels):
+    # resolutions 0.25, 0.5, 1: h = 3, 1, 0, coarse design points at u1 = 2, 3 and the
+    # finest's at 3.5; with "all" the rounds reach level 0's failures, then level 1's
+    levels = (0.25, 0.5, 1.0)
+    stats, runs = drive(configured(levels, search_levels=search_levels,
+                                   costs=[1.0, 2.0, 10.0]), biased, seed=7, levels=levels)
+    p, stderr = estimate(stats)
+    assert abs(p - sps.norm.sf(BETA)) <= 4 * stderr    # 4 standard errors: 1 in 16,000
+    stage, level = runs[STAGE].values, runs[LEVEL].values
+    assert set(level[stage == STAGE_ESTIMATE]) == {2}
+    used = {"coarsest": {0}, "all": {0, 1}}[search_levels]
+    assert set(level[stage != STAGE_ESTIMATE]) == used
+    if search_levels == "all":
+        # level 1's rounds start from level 0's failures: their first round is its last
+        # (the tenth of its draws nearest failure already fail there), and the guide is the
+        # middle level's own P, the biased family at h = 1 (within 30 %: 500 draws)
+        rounds_at_1 = np.unique(runs[ROUND].values[(level == 1)])
+        assert rounds_at_1.size == 1
+        guide = float(stats[GUIDE_PROBABILITY].values[0])
+        assert guide == pytest.approx(coarse_biased_probability(), rel=0.3)
+    assert list(stats[FIDELITY_RUNS].values)[2] == 1000
 
 
 def test_forgetting_the_likelihood_ratio_would_be_far_off():
@@ -251,7 +275,7 @@ def test_a_search_cut_short_says_so_and_stays_unbiased():
     design = method.plan(space(), None, np.random.SeedSequence(5))
     stats, runs = drive(method, biased, seed=5)
     assert stats.attrs["guide_reached"] == 0 and stats.attrs["guide_search_rounds"] == 1
-    assert "did not reach the coarse level's failure region in max_search_rounds = 1" in \
+    assert "did not reach the failure region of level 0 in max_search_rounds = 1" in \
         stats.attrs["warnings"]
     p, stderr = estimate(stats)
     assert abs(p - sps.norm.sf(BETA)) <= 4 * stderr    # 4 standard errors: 1 in 16,000

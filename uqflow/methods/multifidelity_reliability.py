@@ -85,6 +85,9 @@ class MultifidelityImportanceOptions(MethodOptions):
                                      "level: cross-entropy rounds, or FORM's design point")
     coarse_samples: int = Field(500, ge=10, le=MAX_REALIZATIONS, description="coarse-level "
                                 "runs of each cross-entropy round")
+    search_levels: Literal["coarsest", "all"] = Field(
+        "coarsest", description="levels the cross-entropy rounds run at: the coarsest, or "
+                                "every level but the finest in turn, coarsest first")
     quantile: float = Field(0.1, gt=0, lt=0.5, description="share of a cross-entropy round's "
                             "draws whose margin sets the next intermediate threshold")
     min_spread: float = Field(1.0, gt=0, le=10, description="least standard deviation of "
@@ -109,7 +112,7 @@ class MultifidelityImportanceOptions(MethodOptions):
     def _applies(self):
         self.only_where("coarse_samples", self.search == SEARCH_CROSS_ENTROPY,
                         'search = "cross-entropy"')
-        for key in ("quantile", "min_spread"):
+        for key in ("quantile", "min_spread", "search_levels"):
             self.only_where(key, self.search == SEARCH_CROSS_ENTROPY,
                             'search = "cross-entropy"')
         self.only_where("max_samples", self.target_cov is not None, "target_cov")
@@ -129,6 +132,7 @@ class Guide:
     coarse_probability: float = math.nan  # stage 1's own P[failure] at the coarse level
     note: str = ""                       # why stage 1 did not reach it, in words
     next_density: GaussianMixture | None = None  # what the next cross-entropy round draws
+    next_level: int = 0                  # and at which level
 
 
 @register_method("multifidelity-importance-sampling")
@@ -213,7 +217,7 @@ class MultifidelityImportanceSampling(PropagationMethod):
                 search = self.stage_rows(runs, stage == STAGE_SEARCH)
                 return self.at_level(self._form.extend(search, search), GUIDE_LEVEL)
             return self.draw_rows(guide.next_density, CROSS_ENTROPY_STREAM, guide.rounds,
-                                  self.options.coarse_samples, GUIDE_LEVEL,
+                                  self.options.coarse_samples, guide.next_level,
                                   STAGE_CROSS_ENTROPY)
         estimate = stage == STAGE_ESTIMATE
         batches = np.unique(runs[ROUND].values[estimate]).size
@@ -279,6 +283,10 @@ class MultifidelityImportanceSampling(PropagationMethod):
         u_all = np.asarray(runs[STANDARD_NORMAL].values, dtype=float)
         done_rounds = np.unique(rounds_of[mask])
         fitted, probability = density, math.nan
+        # the level the rounds run at: the next one up each time a level's failure region
+        # is reached, until the last level before the finest (search_levels = "all")
+        level = GUIDE_LEVEL
+        last = self.n_levels - 2 if opts.search_levels == "all" else GUIDE_LEVEL
         for r in done_rounds:
             rows = np.flatnonzero(mask & (rounds_of == r))
             g, u = g_all[rows], u_all[rows]
@@ -291,6 +299,10 @@ class MultifidelityImportanceSampling(PropagationMethod):
             elite = judged & (g <= threshold)
             fitted = cross_entropy_fit(u[elite], log_ratio[elite],
                                        floor=opts.min_spread**2)
+            if threshold == 0.0 and level < last:
+                level += 1
+                density = fitted
+                continue
             if threshold == 0.0:
                 failed = np.asarray(g[judged] <= 0)
                 probability = importance_estimate(failed, log_ratio[judged],
@@ -300,10 +312,10 @@ class MultifidelityImportanceSampling(PropagationMethod):
             density = fitted
         rounds = int(done_rounds.size)
         if rounds >= opts.max_search_rounds:
-            note = (f"the cross-entropy rounds did not reach the coarse level's failure "
-                    f"region in max_search_rounds = {opts.max_search_rounds}")
+            note = (f"the cross-entropy rounds did not reach the failure region of level "
+                    f"{last} in max_search_rounds = {opts.max_search_rounds}")
             return Guide(rounds, True, self.biasing(fitted), note=note)
-        return Guide(rounds, False, None, next_density=density)
+        return Guide(rounds, False, None, next_density=density, next_level=level)
 
     # ------------------------------------------------------------------ stage 2
     def estimate(self, runs: xr.Dataset, guide: Guide):
@@ -489,9 +501,9 @@ class MultifidelityImportanceSampling(PropagationMethod):
             f"{number(value(RELIABILITY_INDEX))}; {int(value(FAILURES))} failures in "
             f"{int(value(FAILURE_RUNS))} finest-level runs, effective sample size "
             f"{number(value(EFFECTIVE_SAMPLE_SIZE))}",
-            f"stage 1 ({attrs.get('search', '?')}) on the coarsest level: "
+            f"stage 1 ({attrs.get('search', '?')}) on {guide_levels(runs)}: "
             f"{int(attrs.get(GUIDE_ROUNDS, 0))} rounds, "
-            f"{runs[0] if runs else 0} runs, its own P[failure] there "
+            f"{sum(runs[:-1])} runs, its own P[failure] there "
             f"{number(value(GUIDE_PROBABILITY))}"
             + ("" if int(attrs.get(GUIDE_REACHED, 0)) else " (failure region NOT reached)")
             + f"; defensive weight {number(attrs.get(GUIDE_DEFENSIVE_WEIGHT, math.nan))}",
@@ -506,6 +518,14 @@ class MultifidelityImportanceSampling(PropagationMethod):
         return MethodReport(
             description=f"multifidelity importance sampling of '{name}', {total} runs",
             notes=notes, figures=[FigureSpec("stages", stages_figure, per_output=False)])
+
+
+def guide_levels(runs: list[int]) -> str:
+    """The levels stage 1 ran at, in words, from the runs per level (the finest last)."""
+    used = [lv for lv, n in enumerate(runs[:-1]) if n]
+    if used in ([], [0]):
+        return "the coarsest level"
+    return "levels " + ", ".join(map(str, used))
 
 
 def stages_figure(view, output=None):
@@ -523,7 +543,7 @@ def stages_figure(view, output=None):
     finest = np.asarray(runs[STAGE].values == STAGE_ESTIMATE)
     fig, ax = new_figure(width=5.6, height=5.0)
     ax.scatter(u[~finest, 0], u[~finest, 1], s=6, color="#9e9e9e", alpha=0.6,
-               label=f"stage 1, coarsest level ({int((~finest).sum())} runs)")
+               label=f"stage 1, coarser level(s) ({int((~finest).sum())} runs)")
     ax.scatter(u[finest, 0], u[finest, 1], s=6, color="#1f4e79", alpha=0.6,
                label=f"stage 2, finest level ({int(finest.sum())} runs)")
     ax.scatter(means[:-1, axes[0]], means[:-1, axes[1]], marker="x", s=80, color="#c0392b",
