@@ -532,9 +532,10 @@ def test_identical_after_a_kill_and_resume(tmp_path, monkeypatch):
 
 @pytest.mark.slow
 def test_identical_for_workers_0_and_2(tmp_path):
-    # one cross-entropy round and two batches of the final draws: three rounds through
-    # extend, each on the dask workers
-    options = {**CE_OPTIONS, "max_rounds": 1}
+    # two batches of draws at a given centre: a planned round and one through extend, both
+    # on the dask workers (the densities' replay is checked in process above)
+    options = {"kind": "importance-sampling", "samples": 100, "batches": 2,
+               "design_point": {"x1": 3.0, "x2": 3.0}}
     zero, _ = run(tmp_path, R_MINUS_S, RS_INPUTS, BELOW_ZERO, options, name="w0")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", AccuracyWarning)
@@ -542,3 +543,62 @@ def test_identical_for_workers_0_and_2(tmp_path):
                               name="w2", execution={"workers": 2}),
                         show_progress=False, force=True)
     same_answer(zero, two)
+
+
+def test_target_cov_stops_after_the_first_batch_that_reaches_it(tmp_path):
+    options = {"kind": "importance-sampling", "samples": 1000, "batches": 10,
+               "target_cov": 0.1}
+    outcome, _ = run(tmp_path, R_MINUS_S, RS_INPUTS, BELOW_ZERO, options)
+    stats, runs = outcome.statistics, outcome.runs
+    drawn = stats.attrs["sampling_runs"]
+    assert drawn < 1000 and drawn % 100 == 0 and first(stats, FAILURE_COV) <= 0.1
+    # one batch fewer had not reached it: the stop is the first that does
+    sampling = np.flatnonzero(runs[STAGE].values == STAGE_SAMPLING)[:drawn - 100]
+    y = runs["y"].values[sampling]
+    earlier = importance_estimate(y <= 0.0, runs[LOG_LIKELIHOOD_RATIO].values[sampling])
+    assert earlier.cov > 0.1
+
+
+@pytest.mark.parametrize("kind, options, key, words", [
+    ("importance-sampling", {"samples": 1}, "method.samples", "greater than or equal to 2"),
+    ("importance-sampling", {"samples": 4, "batches": 5}, "method",
+     "batches = 5 exceeds samples = 4"),
+    ("importance-sampling", {"target_cov": 0.1}, "method", "'target_cov' applies to batches > 1"),
+    ("importance-sampling", {"defensive_weight": 1.5}, "method.defensive_weight",
+     "less than or equal to 1"),
+    ("importance-sampling", {"design_point": {"x1": 1.0}}, "method.design_point",
+     "x2 missing"),
+    ("importance-sampling", {"design_point": {"x1": 1.0, "x2": 1.0, "x9": 0.0}},
+     "method.design_point", "'x9' is not an input"),
+    ("cross-entropy", {"rho": 0.7}, "method.rho", "less than or equal to 0.5"),
+    ("cross-entropy", {"samples": 100, "max_rounds": 0}, "method.max_rounds",
+     "greater than or equal to 1"),
+])
+def test_bad_options_are_one_line_errors_naming_the_key(tmp_path, kind, options, key, words):
+    with pytest.raises(StudyError) as error:
+        study(tmp_path, R_MINUS_S, RS_INPUTS, BELOW_ZERO, {"kind": kind, **options})
+    assert error.value.key == key and "\n" not in str(error.value)
+    assert words in str(error.value)
+
+
+def test_importance_sampling_of_a_system_needs_a_design_point(tmp_path):
+    with pytest.raises(StudyError) as error:
+        study(tmp_path, {}, [("x1", 0.0, 1.0), ("x2", 0.0, 1.0)], FOUR_BRANCH_STATES,
+              {"kind": "importance-sampling", "limit_state": "system"},
+              solver="four-branch-test")
+    assert error.value.key == "method.limit_state" and "\n" not in str(error.value)
+    assert "series system" in str(error.value) and "cross-entropy" in str(error.value)
+
+
+def test_report_lines(tmp_path):
+    outcome, _ = run(tmp_path, R_MINUS_S, RS_INPUTS, BELOW_ZERO,
+                     {"kind": "cross-entropy", "samples": 100})
+    text = summary_table(open_result(outcome.path))
+    stats = outcome.statistics
+    assert (f"cross-entropy, limit state 'negative' (y < 0): p_f = "
+            f"{first(stats, FAILURE_PROBABILITY):.6g}, 95% normal interval") in text
+    # p ~ 0.08 < rho: round 0's threshold is above 0, round 1's reaches it
+    thresholds = stats[CE_THRESHOLD].values
+    assert thresholds.size == 2 and thresholds[0] > 0 and thresholds[1] == 0
+    assert f"cross-entropy thresholds: {thresholds[0]:.6g}, 0\n" in text
+    assert "solver runs: 200 building the density, 100 sampling it" in text
