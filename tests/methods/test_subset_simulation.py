@@ -238,25 +238,26 @@ def test_gamma_of_stuck_chains_and_of_independent_states():
 
 @pytest.mark.slow
 def test_reported_cov_agrees_with_the_spread_over_repetitions():
-    # 40 independent runs at p_f = 1e-3 in 10 dims: the spread of ln p_f against the spread
-    # the reported c.o.v. implies. The sample sd of 40 near-normal values errs by about
-    # 1/sqrt(2 x 39) = 11 % (relative); the reported c.o.v. ignores the levels' correlation
-    # and is a lower estimate (Au & Beck): the ratio must lie in [0.75, 1.5] (more than 2
-    # of those standard errors below 1, 4.5 above). Ignoring the chains' correlation
-    # (gamma = 0) makes the ratio about 1.8.
-    beta, n = 3.09, 10
+    # 30 independent runs at p_f = 1e-3 in 10 dims (3 levels of 200): the spread of ln p_f
+    # against the spread the reported c.o.v. implies, sqrt(mean of ln(1 + cov^2)). The sample
+    # sd of 30 near-normal values errs by about 1/sqrt(2 x 29) = 13 % (relative), and the
+    # reported c.o.v. ignores the levels' correlation (a lower estimate, Au & Beck), so the
+    # ratio sits a little above 1: [0.75, 1.35] is about 2.5 of those standard errors below
+    # 1.1 and 1.9 above (fails about 1 seed set in 30). Leaving out the chains' correlation
+    # (gamma = 0) gives 1.48 on these seeds, and fails.
+    beta, n, repetitions = 3.09, 10, 30
     function, tables = linear(beta, n)
     logs, reported = [], []
-    for seed in range(40):
+    for seed in range(repetitions):
         _, stats = drive(method_for(tables, samples_per_level=200), n, function, seed=seed)
         logs.append(math.log(value(stats, FAILURE_PROBABILITY)))
         reported.append(math.log1p(value(stats, FAILURE_COV) ** 2))
     ratio = np.std(logs, ddof=1) / math.sqrt(np.mean(reported))
-    assert 0.75 <= ratio <= 1.5, ratio
-    # unbiased to its spread: the mean of 40 ln p_f within 3 standard errors of ln p
-    # (ln of a ratio estimator is biased by about -cov^2/2, inside that)
+    assert 0.75 <= ratio <= 1.35, ratio
+    # the mean of ln p_f within 3 of its standard errors of ln p, plus the bias of ln of a
+    # product estimator (about -cov^2 / 2)
     assert abs(np.mean(logs) - math.log(sps.norm.sf(beta))) < \
-        3 * np.std(logs, ddof=1) / math.sqrt(40) + 0.5 * np.mean(reported)
+        3 * np.std(logs, ddof=1) / math.sqrt(repetitions) + 0.5 * np.mean(reported)
 
 
 def test_lognormal_interval_has_median_p_and_the_cov():
@@ -287,6 +288,8 @@ def test_failed_runs_are_counted_apart_and_rejected_proposals():
     assert counted[0] == int(failed[level == 0].sum()) > 0
     assert stats[SUBSET_SAMPLES].values[0] == 500 - counted[0]
     assert counted[1:].sum() == int(failed[level > 0].sum()) > 0
+    # a failed proposal is rejected: every state of every chain ran ok
+    assert np.all(stats[SUBSET_SAMPLES].values[1:] == 500)
     assert stats.attrs[FAILED_RUNS] == int(failed.sum())
     # level 0's first probability is p0 N over the samples that ran ok
     assert stats[SUBSET_PROBABILITY].values[0] == pytest.approx(50 / (500 - counted[0]))
@@ -391,7 +394,9 @@ def test_a_killed_study_resumes_to_the_uninterrupted_numbers(tmp_path):
 
 @pytest.mark.slow
 def test_no_worker_and_two_workers_give_identical_results(tmp_path):
-    paths = [run(study_file(tmp_path, f"w{w}", workers=w)).path for w in (0, 2)]
+    # p_f = 0.05: two levels in 5 rounds (dask starts its cluster once; each round's
+    # proposals are spread over both workers)
+    paths = [run(study_file(tmp_path, f"w{w}", workers=w, beta=1.645)).path for w in (0, 2)]
     (runs0, stats0), (runs2, stats2) = map(comparable, paths)
     xr.testing.assert_identical(runs0, runs2)
     xr.testing.assert_identical(stats0, stats2)
