@@ -243,6 +243,11 @@ def test_form_converges_on_a_curved_limit_state_to_the_nearest_failure_point(tmp
         np.linalg.norm(u_star), abs=2e-3)
     history = stats["iteration_margin"].values
     assert history[0] == 2.0 and abs(history[-1]) <= 1e-3 * 2.0
+    # the convergence diagnostics are the last accepted point's, within the tolerances
+    assert stats.attrs["final_relative_margin"] == abs(history[-1]) / 2.0 <= 1e-3
+    assert 0 <= stats.attrs["final_step"] <= 1e-3
+    # at a converged point u* is parallel to -grad g to the order of the next step / beta
+    assert abs(stats.attrs["alignment_error"]) <= 1e-3
 
 
 def test_form_says_when_it_did_not_converge(tmp_path):
@@ -253,9 +258,14 @@ def test_form_says_when_it_did_not_converge(tmp_path):
     assert any("FORM did not converge (max_iterations = 4 rounds reached)" in w
                for w in raised)
     assert any("SORM needs a converged design point" in w for w in outcome.warnings)
-    # no curvature round after a search that did not converge
+    # no curvature round and no design-point check after a search that did not converge
     assert not np.any(outcome.runs[STAGE].values == STAGE_CURVATURE)
+    assert not np.any(outcome.runs[STAGE].values == STAGE_CHECK)
     assert np.isnan(float(stats[FAILURE_PROBABILITY].values[0]))
+    # the diagnostics say how far from converged: the next step is above u_tolerance
+    assert stats.attrs["final_step"] > 1e-3
+    text = summary_table(open_result(outcome.path))
+    assert f"next step |d| = {stats.attrs['final_step']:.6g} (u_tolerance 0.001)" in text
     text = summary_table(open_result(outcome.path))
     assert "NOT converged: max_iterations = 4 rounds reached" in text
 
@@ -328,8 +338,10 @@ def test_report_gives_beta_design_point_and_importance_bars(tmp_path):
     assert "SORM, limit state 'negative' (y < 0): beta = " in text
     assert "design point: x1 = 2.12132 m, x2 = 2.12132 m, x3 = 0 m" in text
     assert "importance factor alpha²" in text
+    assert "design-point check: g at " in text and "no other design point found" in text
+    assert "convergence: |g(u*)| / |g(medians)| = " in text
     written = [p.name for p in write_figures(tree, tmp_path / "figures")]
-    assert "y_sensitivities.png" in written
+    assert "y_sensitivities.png" in written and "form_convergence.png" in written
 
 
 def test_sorm_finds_unequal_curvatures_along_axes_of_their_own(tmp_path):
