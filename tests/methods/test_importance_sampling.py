@@ -306,6 +306,39 @@ def test_cross_entropy_rounds_reach_a_linear_limit_state_in_ten_dimensions():
     assert estimate.cov < 0.2
 
 
+def cross_entropy_estimate(margin, d, n, rng, rho=0.1, max_rounds=10):
+    """The cross-entropy method as the study runs it, in numpy: rounds of n draws until the
+    threshold reaches 0, then n draws of the last Gaussian for the estimate."""
+    density = GaussianMixture([1.0], np.zeros((1, d)), np.eye(d)[None])
+    for _ in range(max_rounds):
+        u = density.sample(rng, n)
+        log_ratio = standard_normal_log_pdf(u) - density.log_pdf(u)
+        threshold, _, density = cross_entropy_step(u, margin(u), log_ratio, rho)
+        if threshold == 0:
+            break
+    u = density.sample(rng, n)
+    return importance_estimate(margin(u) <= 0, standard_normal_log_pdf(u) - density.log_pdf(u))
+
+
+def test_cross_entropy_reported_cov_matches_its_spread_over_repetitions():
+    # 40 repetitions of the whole method on the linear limit state at beta = 4.75 in 10
+    # dimensions (500 draws a round): the mean reported c.o.v. against the spread of the
+    # estimates. The spread's relative sampling error over 40 repetitions is about
+    # 1/sqrt(78) = 11 %: a factor 1.5 either way is more than 3 of them.
+    d, beta, reps = 10, 4.75, 40
+    a = np.ones(d) / math.sqrt(d)
+    rng = np.random.default_rng(31)
+    estimates = [cross_entropy_estimate(lambda u: beta - u @ a, d, 500, rng)
+                 for _ in range(reps)]
+    values = np.array([e.probability for e in estimates])
+    spread = values.std(ddof=1) / values.mean()
+    reported = np.mean([e.cov for e in estimates])
+    assert spread / 1.5 < reported < 1.5 * spread
+    # and the repetitions' mean is Phi(-beta) within 4 of its standard errors
+    exact = sps.norm.sf(beta)
+    assert abs(values.mean() - exact) <= SE4 * values.std(ddof=1) / math.sqrt(reps)
+
+
 # ============================================================================= the methods
 
 def toml(value) -> str:
