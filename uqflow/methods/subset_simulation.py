@@ -441,6 +441,10 @@ class SubsetSimulation(PropagationMethod):
             "level_probability_p0": opts.level_probability,
             "samples_per_level": opts.samples_per_level,
             INTERVAL_METHOD: "lognormal from the c.o.v.",
+            EXCEEDANCE_NOTE: ("Au & Beck's construction: each level's samples above its "
+                              "threshold at p_0 ... p_(j-1) times their rank among the level's "
+                              "samples; pointwise band lognormal with the c.o.v. of the levels "
+                              "before and of the level's own fraction"),
             FAILURE_NOTE: (f"subset simulation, {n_levels} levels of "
                            f"{opts.samples_per_level} samples, p0 = "
                            f"{opts.level_probability:g}; p_f = product of the levels' "
