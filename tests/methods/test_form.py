@@ -628,3 +628,20 @@ def test_solver_gradient_chains_through_a_lognormal_input(tmp_path):
     # beta: |u| is stationary on g = 0, its error the square of u*'s over beta
     assert float(stats[RELIABILITY_INDEX].values[0]) == pytest.approx(
         float(np.linalg.norm(reference.x)), abs=1e-9)
+
+
+def test_solver_gradient_needs_derivatives_of_every_output_the_study_keeps():
+    """A search point runs with the derivatives of every (non-diagnostic) output: one the
+    solver cannot differentiate, or an input it cannot differentiate by, is refused."""
+    from types import SimpleNamespace
+
+    solver = SimpleNamespace(name="stub", local_sensitivities=lambda: {"a": ("x1", "x2")})
+    method = Form(gradient="solver")
+    method.check_solver(solver, ["a"], ["x1", "x2"])
+    for outputs, inputs, words in ((["a", "b"], ["x1"], "output 'b' has no derivative"),
+                                   (["a"], ["x1", "x3"], "with respect to input 'x3'")):
+        with pytest.raises(StudyError) as error:
+            Form(gradient="solver").check_solver(solver, outputs, inputs)
+        assert error.value.key == "method.gradient" and words in str(error.value)
+    # finite differences need nothing of the solver
+    Form().check_solver(SimpleNamespace(local_sensitivities=dict), ["b"], ["x3"])

@@ -40,10 +40,9 @@ from scipy import stats as sps
 
 from uqflow.errors import AccuracyWarning, StudyError
 from uqflow.layout import (FAILURE_PROBABILITY, INPUT_CORRELATION, INPUT_STD, INPUTS,
-                           WITH_SENSITIVITIES,
                            LIMIT_STATE, PARAMETER, PARAMETER_UNITS, RELIABILITY_INDEX,
-                           REALIZATION, ROUND, SOLVER_RUNS, STATISTIC, UNITS, ok_mask,
-                           output_names)
+                           REALIZATION, ROUND, SOLVER_RUNS, STATISTIC, UNITS,
+                           WITH_SENSITIVITIES, is_diagnostic, ok_mask, output_names)
 from uqflow.limit_states import EXCEEDS, LimitStateSystem
 from uqflow.methods.base import (MethodOptions, PropagationMethod, finish_statistics,
                                  make_design, register_method)
@@ -322,11 +321,28 @@ class Form(PropagationMethod):
             return
         available = solver.local_sensitivities() if hasattr(solver, "local_sensitivities") \
             else {}
+        label = getattr(solver, "name", "") or type(solver).__name__
         if not available:
-            label = getattr(solver, "name", "") or type(solver).__name__
             raise StudyError(f"solver '{label}' has no derivatives of its outputs "
                              f"(local_sensitivities is empty): use gradient = \"central\"",
                              key="method.gradient")
+        # a search point runs with the derivatives of every output the study keeps (but
+        # diagnostics): the solver must have them all, or that run fails
+        template = solver.outputs() if hasattr(solver, "outputs") else {}
+        for out in outputs:
+            if out in template and is_diagnostic(template[out]):
+                continue
+            if out not in available:
+                raise StudyError(f"output '{out}' has no derivative in solver '{label}' "
+                                 f"(those with one: {', '.join(available)}), and with "
+                                 f"gradient = \"solver\" every output of the study runs with "
+                                 f"its derivatives: list only those in outputs, or use "
+                                 f"gradient = \"central\"", key="method.gradient")
+            missing = [p for p in parameter_names if p not in available[out]]
+            if missing:
+                raise StudyError(f"output '{out}' has no derivative with respect to input "
+                                 f"'{missing[0]}' in solver '{label}': use gradient = "
+                                 f"\"central\"", key="method.gradient")
         self.derivatives, self.uncertain = dict(available), tuple(parameter_names)
 
     def check_limit_states(self, limit_states) -> None:
