@@ -64,6 +64,8 @@ def test_four_branch_reference_is_the_literature_value():
     # Waarts (2000) and Au & Beck (2001) give 4.46e-3 (k = 6) and 2.22e-3 (k = 7), rounded
     assert four_branch_exact(6.0) == pytest.approx(4.46e-3, abs=0.005e-3)
     assert four_branch_exact(7.0) == pytest.approx(2.22e-3, abs=0.005e-3)
+    # the value docs/importance_sampling.md quotes (the integral is good to ~1e-13)
+    assert four_branch_exact(6.0) == pytest.approx(4.457e-3, abs=0.0005e-3)
 
 
 # ----------------------------------------------------------------------------- the mixture
@@ -442,7 +444,8 @@ def test_importance_sampling_of_a_linear_limit_state_at_beta_4_75_in_ten_dimensi
                           {"kind": "importance-sampling", "samples": 500})
     stats = outcome.statistics
     p, stderr = first(stats, FAILURE_PROBABILITY), first(stats, FAILURE_STDERR)
-    exact = sps.norm.sf(4.75)  # 1.017e-6
+    exact = sps.norm.sf(4.75)
+    assert exact == pytest.approx(1.017e-6, abs=0.0005e-6)  # the value the docs quote
     assert abs(p - exact) <= SE4 * stderr and stderr / p < 0.15 and raised == []
     # FORM beside it is exact for a linear limit state (finite differences of a linear g:
     # rounding only, eps |g| / step ~ 1e-13)
@@ -635,3 +638,20 @@ def test_report_lines(tmp_path):
     assert thresholds.size == 2 and thresholds[0] > 0 and thresholds[1] == 0
     assert f"cross-entropy thresholds: {thresholds[0]:.6g}, 0\n" in text
     assert "solver runs: 200 building the density, 100 sampling it" in text
+
+
+def test_a_form_search_that_finds_nothing_leaves_plain_monte_carlo_and_says_so(tmp_path):
+    # every run above x = 0.005 fails, the start's neighbour x = 0.01 among them: no gradient
+    # at the start, no design point, so the draws come from the defensive mixture centred at
+    # the medians (the standard normal); about half of them fail too
+    outcome, raised = run(tmp_path, {"model": "faulty", "raise_above": 0.005},
+                          [("x", 0.0, 1.0)], [{"name": "low", "output": "y", "below": -2.0}],
+                          {"kind": "importance-sampling", "samples": 50},
+                          execution={"max_failure_fraction": 0.9})
+    stats, runs = outcome.statistics, outcome.runs
+    assert any("FORM found no design point" in w for w in raised)
+    assert stats.attrs["density_runs"] == 3  # the start and its two neighbours
+    sampling = runs[STAGE].values == STAGE_SAMPLING
+    # q is phi itself: every log ratio is 0 up to the rounding of two log densities
+    assert np.allclose(runs[LOG_LIKELIHOOD_RATIO].values[sampling], 0.0, atol=1e-12)
+    assert np.isnan(first(stats, FORM_INDEX))

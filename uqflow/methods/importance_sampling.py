@@ -56,7 +56,7 @@ from uqflow.report import MethodReport, number
 #: variance whose standard error means nothing, and self-normalized fits that shrink round by
 #: round (a linear limit state at beta = 4.75 in 10 dims collapsed to a 0.01 variance and an
 #: estimate 1e-8 times too small). 0.6 keeps a margin above 1/2: the second moment's factor
-#: (2 - 1/l)^-1/2 per direction is at most 1.7.
+#: (2 - 1/l)^-1/2 per direction is at most sqrt(3).
 COVARIANCE_FLOOR = 0.6
 LOG_2PI = math.log(2.0 * math.pi)
 
