@@ -645,3 +645,30 @@ def test_solver_gradient_needs_derivatives_of_every_output_the_study_keeps():
         assert error.value.key == "method.gradient" and words in str(error.value)
     # finite differences need nothing of the solver
     Form().check_solver(SimpleNamespace(local_sensitivities=dict), ["b"], ["x3"])
+
+
+@pytest.mark.slow
+def test_solver_gradient_study_is_the_same_on_two_workers(tmp_path):
+    """The rounds with the solver's derivatives (two search rounds and the check round),
+    run on two dask workers, give the runs and statistics of the in-process run bit for
+    bit."""
+    limit = [{"name": "high", "output": "y", "reduce": "max", "exceeds": 1.9}]
+    outcomes = []
+    for workers in (0, 2):
+        spec = study(tmp_path, DECAY, DECAY_INPUTS, limit, {"kind": "form",
+                                                            "gradient": "solver"},
+                     name=f"w{workers}")
+        spec.path.write_text(spec.path.read_text().replace("workers = 0",
+                                                           f"workers = {workers}"))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", AccuracyWarning)
+            outcomes.append(run_study(load_study(spec.path), show_progress=False,
+                                      force=True).path)
+    trees = [open_result(path) for path in outcomes]
+    runs = [t["runs"].to_dataset().drop_vars(["wall_time", "compile_time"]) for t in trees]
+    stats = [t["statistics"].to_dataset() for t in trees]
+    for s in stats:
+        for key in ("solver_wall_time", "solver_compile_time"):
+            s.attrs.pop(key, None)
+    xr.testing.assert_identical(runs[0], runs[1])
+    xr.testing.assert_identical(stats[0], stats[1])
