@@ -182,10 +182,28 @@ def curve_levels(values, threshold: float, comparison: str,
     distinct = np.unique(np.asarray(values, dtype=float)[np.isfinite(values)])
     if distinct.size > max_levels:
         tail = distinct[::-1] if comparison == AT_OR_ABOVE else distinct
-        ranks = np.unique(np.round(np.geomspace(1, distinct.size, max_levels)).astype(int))
+        ranks = _geometric_ranks(distinct.size, max_levels)
         distinct = tail[ranks - 1]
     levels = np.append(distinct, threshold) if np.isfinite(threshold) else distinct
     return np.unique(levels)
+
+
+def _geometric_ranks(size: int, most: int) -> np.ndarray:
+    """Up to ``most`` distinct ranks in 1 .. ``size``, 1 and ``size`` among them, on a
+    geometric grid: rounding merges the grid's first points (every rank of the tail is
+    kept), so the grid is made finer until the distinct ranks number ``most`` or one more
+    point would pass it."""
+    def grid(count):
+        return np.unique(np.round(np.geomspace(1, size, count)).astype(int))
+
+    best, count = grid(most), most
+    while best.size < most:
+        count += most - best.size
+        finer = grid(count)
+        if finer.size > most or finer.size == best.size:
+            break
+        best = finer
+    return best
 
 
 def exceedance_curve(values, threshold: float, comparison: str,

@@ -32,6 +32,13 @@ rule:
 * ``sobol``/``halton``: the mean of the replicates' failure fractions, a Student t interval
   over their spread (R - 1 degrees of freedom), the c.o.v. their standard error / P.
 
+``interval = "wilson"`` replaces Clopper–Pearson for independent points (refused for
+randomized QMC). Each limit state's whole exceedance curve is stored too (P[Y >= y] of its
+reduced output for ``exceeds``, P[Y <= y] for ``below``, a system's margin G as P[G <= y]),
+at the distinct values thinned to at most ``uqflow.probability.MAX_CURVE_LEVELS`` and the
+threshold, with the same interval at every level (a pointwise band); the report draws it on
+a log axis (``uqflow.report.framework_figures.exceedance_log_figure``).
+
 ``target_cov`` stops, at the same ``stop_points`` as ``target_rel_stderr``, once every limit
 state's c.o.v. is at most the target (both targets must hold when both are set).
 """
