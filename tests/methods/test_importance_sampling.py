@@ -28,7 +28,7 @@ from uqflow.layout import (CE_THRESHOLD, EFFECTIVE_SAMPLE_SIZE, FAILURE_COV, FAI
                            FAILURES, INPUTS, LOG_LIKELIHOOD_RATIO, RELIABILITY_INDEX, ROUND,
                            STATUS, STATUS_FAILED)
 from uqflow.methods import get_method
-from uqflow.methods.form import DESIGN_POINT, FORM_INDEX, STAGE
+from uqflow.methods.form import DESIGN_POINT, FORM_INDEX, IMPORTANCE, STAGE
 from uqflow.methods.importance_sampling import (COVARIANCE_FLOOR, DEGENERATE_SHARE,
                                                 STAGE_SAMPLING, CrossEntropy,
                                                 GaussianMixture, ImportanceEstimate,
@@ -452,6 +452,10 @@ def test_importance_sampling_of_a_linear_limit_state_at_beta_4_75_in_ten_dimensi
     assert first(stats, FORM_INDEX) == pytest.approx(4.75, rel=1e-9)
     assert np.allclose(stats[DESIGN_POINT].values[0], 4.75 / math.sqrt(10), rtol=1e-9)
     assert first(stats, EFFECTIVE_SAMPLE_SIZE) > 50
+    # FORM's importance factors: 1/10 each (alpha = a / |a|); rounding as for the index
+    assert np.allclose(stats[IMPORTANCE].values[0], 0.1, rtol=1e-9)
+    # the report's table of them (the framework draws their bar chart from the same hook)
+    assert "importance factor alpha²" in summary_table(open_result(outcome.path))
 
 
 def test_cross_entropy_finds_the_four_branch_system_where_form_is_wrong(tmp_path):

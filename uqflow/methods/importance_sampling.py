@@ -44,10 +44,11 @@ from uqflow.layout import (BIASING_DENSITY, BOUND, BOUND_HIGH, BOUND_LOW, CE_ELI
 from uqflow.methods.base import (MAX_REALIZATIONS, MethodOptions, PropagationMethod,
                                  finish_statistics, make_design, register_method)
 from uqflow.methods.form import (DESIGN_POINT, DESIGN_POINT_U, FORM_INDEX, FORM_PROBABILITY,
-                                 STAGE, STAGE_SEARCH, STANDARD_NORMAL, Form,
-                                 cholesky_of, moving_axes, system_kind, to_inputs)
+                                 IMPORTANCE, STAGE, STAGE_SEARCH, STANDARD_NORMAL, Form,
+                                 cholesky_of, importance_factors, moving_axes, system_kind,
+                                 to_inputs)
 from uqflow.probability import reliability_index
-from uqflow.report import MethodReport, number
+from uqflow.report import MethodReport, Sensitivity, number
 
 #: the least eigenvalue ``cross_entropy_fit`` leaves in a fitted covariance (standard normal
 #: units squared). The weights phi/q of a Gaussian q have a finite second moment under q only
@@ -655,6 +656,7 @@ class ImportanceSampling(Form):
         n = stats.sizes[PARAMETER]
         warnings = []
         beta, x_star, u_star = math.nan, np.full(n, np.nan), np.full(n, np.nan)
+        importance = np.full(n, np.nan)
         given = self.options.design_point is not None
         search_rows = runs[STAGE].values == STAGE_SEARCH
         if given:
@@ -668,8 +670,11 @@ class ImportanceSampling(Form):
             search = self.replay(runs)
             if search.point is not None:
                 gradient = search.point.gradient
-                beta = float(-gradient @ search.point.u / np.linalg.norm(gradient))
+                alpha = -gradient / np.linalg.norm(gradient)
+                beta = float(alpha @ search.point.u)
                 u_star = search.point.u
+                importance = importance_factors(alpha, cholesky_of(np.asarray(
+                    runs[INPUT_CORRELATION].values, dtype=float)))
                 x_star = np.asarray(runs[INPUTS].values[self.centre_row(runs, search.point.round)],
                                     dtype=float)
                 if not search.converged:
@@ -691,6 +696,9 @@ class ImportanceSampling(Form):
             "long_name": "centre of the biasing density in the inputs' units"})
         stats[DESIGN_POINT_U] = ((LIMIT_STATE, PARAMETER), [u_star], {
             "long_name": "FORM design point u* in standard normal space", UNITS: "1"})
+        stats[IMPORTANCE] = ((LIMIT_STATE, PARAMETER), [importance], {
+            "long_name": "FORM importance factor gamma^2 (alpha^2 for independent inputs)",
+            UNITS: "1"})
         if PARAMETER_UNITS in runs.coords:
             stats.coords[PARAMETER_UNITS] = (PARAMETER, runs[PARAMETER_UNITS].values)
         return warnings
@@ -745,9 +753,21 @@ class ImportanceSampling(Form):
                 number(t) for t in stats[CE_THRESHOLD].values)
                 + ("" if reached else " (did NOT reach 0)"))
         runs = int(attrs.get(SOLVER_RUNS, 0))
+        output = str(attrs.get("limit_state_output", ""))
+
+        def importance(out):
+            if IMPORTANCE not in stats or not np.any(np.isfinite(stats[IMPORTANCE].values)) \
+                    or (output and out != output):
+                return None
+            values = stats[IMPORTANCE].isel({LIMIT_STATE: 0}).expand_dims(
+                {"index": ["importance factor alpha²"]}, axis=1)
+            return Sensitivity(title=f"FORM importance factors of '{name}' (the design point "
+                                     f"{kind} is centred at)", values=values,
+                               quantity="share of beta² (sums to 1)")
+
         return MethodReport(
             description=f"{kind} of limit state '{name}', {runs} run{'' if runs == 1 else 's'}",
-            notes=notes)
+            notes=notes, sensitivities=importance)
 
 
 @register_method("cross-entropy")
