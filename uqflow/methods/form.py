@@ -942,6 +942,9 @@ def convergence_figure(view, _output=None):
     bottom.plot(rounds[~accepted], distance[~accepted], "x", color="#c0392b")
     bottom.set_ylabel("|u| of the trial point")
     bottom.set_xlabel("search round")
+    from matplotlib.ticker import MaxNLocator   # rounds are whole numbers
+
+    bottom.xaxis.set_major_locator(MaxNLocator(integer=True))
     converged = "converged" if int(stats.attrs.get("converged", 0)) else "NOT converged"
     top.set_title(f"{view.study}: FORM search of '{stats.attrs.get(LIMIT_STATE, '?')}' "
                   f"({converged})")
