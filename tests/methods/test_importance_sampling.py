@@ -28,7 +28,7 @@ from uqflow.layout import (CE_THRESHOLD, EFFECTIVE_SAMPLE_SIZE, FAILURE_COV, FAI
                            FAILURES, INPUTS, LOG_LIKELIHOOD_RATIO, RELIABILITY_INDEX, ROUND,
                            STATUS, STATUS_FAILED)
 from uqflow.methods import get_method
-from uqflow.methods.form import DESIGN_POINT, FORM_INDEX, IMPORTANCE, STAGE
+from uqflow.methods.form import DESIGN_POINT, FORM_INDEX, IMPORTANCE, STAGE, STAGE_SEARCH
 from uqflow.methods.importance_sampling import (COVARIANCE_FLOOR, DEGENERATE_SHARE,
                                                 STAGE_SAMPLING, CrossEntropy,
                                                 GaussianMixture, ImportanceEstimate,
@@ -535,8 +535,13 @@ def test_every_round_replays_from_the_runs_before_it(tmp_path, kind):
                               runs[LOG_LIKELIHOOD_RATIO].values[rounds == r + 1],
                               equal_nan=True)  # NaN: a search row is no draw
     assert method.extend(runs, runs) is None
-    other, _ = run(tmp_path, R_MINUS_S, RS_INPUTS, BELOW_ZERO, options, seed=4, name="b")
-    assert not np.array_equal(other.runs[INPUTS].values[-10:], runs[INPUTS].values[-10:])
+    # another seed: the same prefix gives other draws in the first round that draws
+    method.plan(fresh.space, None, np.random.SeedSequence(4))
+    drawn = int(rounds[runs[STAGE].values != STAGE_SEARCH].min())
+    prefix = runs.isel(realization=np.flatnonzero(rounds < drawn))
+    other = method.extend(prefix, prefix) if drawn else \
+        method.plan(fresh.space, None, np.random.SeedSequence(4))
+    assert not np.array_equal(other[INPUTS].values, runs[INPUTS].values[rounds == drawn])
 
 
 def same_answer(one, other):
