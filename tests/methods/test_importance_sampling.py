@@ -664,3 +664,25 @@ def test_a_form_search_that_finds_nothing_leaves_plain_monte_carlo_and_says_so(t
     # q is phi itself: every log ratio is 0 up to the rounding of two log densities
     assert np.allclose(runs[LOG_LIKELIHOOD_RATIO].values[sampling], 0.0, atol=1e-12)
     assert np.isnan(first(stats, FORM_INDEX))
+
+
+def test_a_design_point_in_the_inputs_units_maps_back_through_the_copula():
+    from uqflow.inputs import InputSpace, RandomInput
+    from uqflow.methods.form import to_inputs
+    from uqflow.methods.importance_sampling import to_standard_normal
+    space = InputSpace([
+        RandomInput.from_spec({"name": "a", "distribution": "lognormal", "mean": 2.0,
+                               "cv": 0.3}),
+        RandomInput.from_spec({"name": "b", "distribution": "normal", "mean": 1.0,
+                               "std": 0.5}),
+        RandomInput.from_spec({"name": "c", "distribution": "uniform", "lower": 0.0,
+                               "upper": 4.0})],
+        np.array([[1.0, 0.5, 0.2], [0.5, 1.0, -0.3], [0.2, -0.3, 1.0]]))
+    point = {"a": 3.1, "b": 0.2, "c": 3.5}
+    u = to_standard_normal(space, point)
+    # the round trip x -> u -> x: a few roundings through Phi, its inverse and chaospy's
+    # inverse distribution functions, each good to ~1e-12 relative here
+    assert np.allclose(to_inputs(space, u)[0], list(point.values()), rtol=1e-9)
+    with pytest.raises(StudyError, match="outside the support of input 'c'") as error:
+        to_standard_normal(space, {"a": 3.1, "b": 0.2, "c": 5.0})
+    assert error.value.key == "method.design_point.c"
