@@ -439,6 +439,20 @@ def test_a_study_runs_each_stage_on_its_level_and_reports_the_saving(tmp_path):
     assert "stages.png" in written
 
 
+def test_measured_costs_are_each_levels_median_run_time_less_compile_time(tmp_path):
+    method = {"search": "form", "costs": "measured"}
+    outcome = run(study_file(tmp_path, "measured", method))
+    runs, stats = outcome.runs, outcome.statistics
+    seconds = runs["wall_time"].values - np.nan_to_num(runs["compile_time"].values)
+    level = runs[LEVEL].values
+    for lv in (0, 1):
+        assert float(stats[FIDELITY_COST].values[lv]) == float(np.median(seconds[level == lv]))
+    assert stats[FIDELITY_COST].attrs["units"] == "s"
+    spent = float(np.dot(stats[FIDELITY_RUNS].values, stats[FIDELITY_COST].values))
+    # two products and a sum, perhaps fused in the dot: an ulp or two
+    assert stats.attrs[GUIDE_TOTAL_COST] == pytest.approx(spent, rel=1e-14)
+
+
 def test_a_killed_study_resumes_to_the_uninterrupted_numbers(tmp_path):
     path = study_file(tmp_path, "whole")
     whole = run(path)
