@@ -615,6 +615,8 @@ def test_target_cov_stops_after_the_first_batch_that_reaches_it(tmp_path):
      "x2 missing"),
     ("importance-sampling", {"design_point": {"x1": 1.0, "x2": 1.0, "x9": 0.0}},
      "method.design_point", "'x9' is not an input"),
+    ("importance-sampling", {"step": 0.1, "design_point": {"x1": 1.0, "x2": 1.0}}, "method",
+     "'step' applies to the FORM search, which a given design_point skips"),
     ("cross-entropy", {"rho": 0.7}, "method.rho", "less than or equal to 0.5"),
     ("cross-entropy", {"samples": 100, "max_rounds": 0}, "method.max_rounds",
      "greater than or equal to 1"),

@@ -369,6 +369,13 @@ class ImportanceSamplingOptions(MethodOptions):
         return self.only_where("target_cov", self.batches > 1,
                                "batches > 1 (the c.o.v. is checked after each batch)")
 
+    @model_validator(mode="after")
+    def _search_options_need_a_search(self):
+        for key in ("step", "gradient", "u_tolerance", "g_tolerance", "max_iterations"):
+            self.only_where(key, self.design_point is None,
+                            "the FORM search, which a given design_point skips")
+        return self
+
 
 class CrossEntropyOptions(MethodOptions):
     limit_state: str | None = Field(None, description="the study's limit state or system to "
