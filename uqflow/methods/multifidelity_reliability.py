@@ -59,8 +59,9 @@ from uqflow.layout import (BIASING_COMPONENT, BIASING_MEAN, BIASING_WEIGHT, BOUN
                            ok_mask, output_names)
 from uqflow.methods.base import (MAX_REALIZATIONS, MethodOptions, PropagationMethod,
                                  finish_statistics, make_design, register_method)
+from uqflow.methods.fidelity_sampling import MAX_COST
 from uqflow.methods.form import (STAGE, STAGE_SEARCH, STANDARD_NORMAL, STENCIL_OFFSET, Form,
-                                 system_kind, to_inputs)
+                                 to_inputs)
 from uqflow.methods.importance_sampling import (GaussianMixture, cross_entropy_fit,
                                                 defensive_mixture, importance_estimate,
                                                 standard_normal, standard_normal_log_pdf)
@@ -116,8 +117,10 @@ class MultifidelityImportanceOptions(MethodOptions):
             self.only_where(key, self.search == SEARCH_CROSS_ENTROPY,
                             'search = "cross-entropy"')
         self.only_where("max_samples", self.target_cov is not None, "target_cov")
-        if isinstance(self.costs, list) and not all(c > 0 for c in self.costs):
-            raise ValueError(f"every cost must be > 0, got {self.costs}")
+        if isinstance(self.costs, list) and not all(0 < c <= MAX_COST for c in self.costs):
+            raise ValueError(f"every cost must be > 0 and <= {MAX_COST:.2g} (costs are "
+                             f"relative, any unit; the study's total must stay a finite "
+                             f"number), got {self.costs}")
         return self
 
 
