@@ -638,6 +638,9 @@ def test_interval_option_wilson_and_its_refusals():
     assert stats.attrs["interval_method"] == WILSON
     assert "Wilson score" in stats.attrs["failure_probability_note"]
     assert "Wilson interval at each level" in stats.attrs["exceedance_note"]
+    from uqflow.methods.monte_carlo import exceedance_figure_of
+    legend = exceedance_figure_of(stats, "y_high").axes[0].get_legend_handles_labels()[1]
+    assert "95 % pointwise band (Wilson)" in legend
     with pytest.raises(ValueError, match=r"'interval' applies to independent points \(rule "
                                          r"random or lhs\); rule 'sobol' is randomized QMC"):
         MonteCarlo(samples=64, rule="sobol", interval="wilson")

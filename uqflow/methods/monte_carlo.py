@@ -682,9 +682,9 @@ def exceedance_figure_of(stats, name: str, study: str = ""):
     band = np.asarray(at[EXCEEDANCE_INTERVAL].values, dtype=float)[keep]
     comparison = str(at[EXCEEDANCE_COMPARISON].values)
     pf_low, pf_high = np.asarray(at[FAILURE_INTERVAL].values, dtype=float)
-    note = str(stats.attrs.get(EXCEEDANCE_NOTE, ""))
-    how = "Student t over the replicates" if "replicates" in note else \
-        "Wilson" if "Wilson" in note else "Clopper-Pearson"
+    how = {probability.CLOPPER_PEARSON: "Clopper-Pearson", probability.WILSON: "Wilson",
+           probability.REPLICATE_T: "Student t over the replicates"}.get(
+        str(stats.attrs.get(INTERVAL_METHOD, "")), "as stated in exceedance_note")
     level = f"{100 * float(stats.attrs.get(CONFIDENCE, 0.95)):g} %"
     runs = int(at[FAILURE_RUNS].values)
     quantity = str(at[EXCEEDANCE_QUANTITY].values)
