@@ -528,10 +528,10 @@ def test_solver_gradient_study_resumes_to_the_uninterrupted_numbers(tmp_path):
 
 # ----------------------------------------------------------------------------- several design points
 
-def _two_design_points(x1=0.0, x2=0.0):
-    """g = 3 - |x1 + 0.1| (x2 has no effect): two failure regions, x1 >= 2.9 and
-    x1 <= -3.1, with design points at u = (2.9, 0) and (-3.1, 0)."""
-    return 3.0 - abs(x1 + 0.1) + 0.0 * x2
+def _two_design_points(x1=0.0, x2=0.0, shift=0.1):
+    """g = 3 - |x1 + shift| (x2 has no effect): two failure regions, x1 >= 3 - shift and
+    x1 <= -3 - shift, with design points at u = (3 - shift, 0) and (-3 - shift, 0)."""
+    return 3.0 - abs(x1 + shift) + 0.0 * x2
 
 
 def test_form_warns_of_another_design_point(tmp_path):
@@ -544,8 +544,9 @@ def test_form_warns_of_another_design_point(tmp_path):
     solver = uqflow.solver_from_function(_two_design_points, outputs="y", units="1")
     uqflow.register_solver("form-two-design-points-test")(solver)
 
-    def form(name, **options):
-        lines = [f'name = "{name}"', 'solver = "form-two-design-points-test"', "scene = {}"]
+    def form(name, scene="{}", **options):
+        lines = [f'name = "{name}"', 'solver = "form-two-design-points-test"',
+                 f"scene = {scene}"]
         for label in ("x1", "x2"):
             lines += ["[[inputs]]", f'name = "{label}"', 'distribution = "normal"',
                       "mean = 0.0", "std = 1.0"]
@@ -582,6 +583,14 @@ def test_form_warns_of_another_design_point(tmp_path):
     unchecked, raised = form("unchecked", design_point_check=False)
     assert "check_point" not in unchecked.statistics
     assert not any(w.startswith("another design point") for w in raised)
+    # exactly symmetric, g = 3 - |x1|: central differences see no slope at the medians (g is
+    # even there), forward ones do; u* = (3, 0) and g(-u*) = 0, so the other region is at
+    # beta 3 exactly (g linear along the ray)
+    symmetric, raised = form("symmetric", scene="{ shift = 0.0 }", gradient="forward")
+    assert float(symmetric.statistics[RELIABILITY_INDEX].values[0]) == pytest.approx(
+        3.0, rel=1e-12)   # g linear on x1 >= 0: exact up to rounding
+    assert any(w.startswith("another design point near u = (-3, 0) with beta about 3 ")
+               for w in raised)
 
 
 def test_one_linear_region_seen_along_another_ray_is_no_second_design_point(tmp_path):
