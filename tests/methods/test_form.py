@@ -591,6 +591,10 @@ def test_form_warns_of_another_design_point(tmp_path):
         3.0, rel=1e-12)   # g linear on x1 >= 0: exact up to rounding
     assert any(w.startswith("another design point near u = (-3, 0) with beta about 3 ")
                for w in raised)
+    central, raised = form("symmetric_central", scene="{ shift = 0.0 }")
+    assert central.statistics.attrs["converged"] == 0
+    assert any("g or its gradient at the inputs' medians is not available" in w
+               for w in raised)
 
 
 def test_one_linear_region_seen_along_another_ray_is_no_second_design_point(tmp_path):
