@@ -494,6 +494,12 @@ def test_a_control_variates_control_runs_are_not_draws():
     # Clopper-Pearson at k = n: [(alpha/2)^(1/n), 1]; see the closed-form test's bound
     assert at["failure_probability_interval"].values == pytest.approx(
         [0.025 ** (1 / 64), 1.0], rel=1e-12)
+    # the exceedance curve is over the 64 draws too: their values and the threshold are its
+    # levels, not the control run's y = 0 at the means
+    levels = at["exceedance_level"].values
+    samples = runs["y"].values[1:]
+    np.testing.assert_array_equal(levels[np.isfinite(levels)],
+                                  np.unique(np.append(samples, -100.0)))
 
 
 # ----------------------------------------------------------------------------- exceedance figure
