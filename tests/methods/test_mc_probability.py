@@ -526,6 +526,13 @@ def test_exceedance_log_figure_draws_the_curve_band_threshold_and_p_on_a_log_axi
     assert np.isnan(curve.get_ydata()[2]) and curve.get_ydata()[1] == 0.1
     assert exceedance_log_figure([1.0], [0.0], [0.0], [0.0], threshold=1.0,
                                  failure_probability=0.0) is None
+    # no failure seen: the upper bound of p_f is marked at the threshold
+    fig = exceedance_log_figure([1.0, 2.0], [0.5, 0.0], [0.3, 0.0], [0.7, 0.02],
+                                threshold=3.0, failure_probability=0.0,
+                                failure_interval=(0.0, 0.02))
+    bound = next(line for line in fig.axes[0].lines if line.get_label().startswith(
+        "p_f = 0, no failure seen (upper bound 0.02)"))
+    np.testing.assert_allclose(bound.get_xydata(), [[3.0, 0.02]])
 
 
 # ----------------------------------------------------------------------------- exceedance curve

@@ -363,6 +363,10 @@ def exceedance_log_figure(levels, probability, lower, upper, *, threshold: float
                     color="#7b2d26", capsize=4, zorder=5,
                     label=f"p_f = {failure_probability:.3g}" + (
                         f" ({low_pf:.3g} .. {high_pf:.3g})" if errors is not None else ""))
+    elif failure_probability == 0 and np.isfinite(high_pf) and high_pf > 0:
+        # no failure seen: the estimate has no place on the log axis, its upper bound has
+        ax.plot([threshold * scale], [high_pf], "v", color="#7b2d26", zorder=5,
+                label=f"p_f = 0, no failure seen (upper bound {high_pf:.3g})")
     ax.set_yscale("log")
     ax.set_ylim(floor, min(1.5, 2.0 * float(positive.max())))
     ax.set_xlabel(quantity_label(f"y: {name}", shown_units))
