@@ -168,6 +168,15 @@ BIASING_COMPONENT, BIASING_WEIGHT, BIASING_MEAN = ("biasing_component", "biasing
 GUIDE_ROUNDS, GUIDE_REACHED = "guide_search_rounds", "guide_reached"
 GUIDE_DEFENSIVE_WEIGHT, GUIDE_TOTAL_COST = "guide_defensive_weight", "guide_total_cost"
 
+# multilevel-subset-simulation (uqflow.methods.multilevel_subset_simulation; it writes the
+# subset_* and fidelity_* names above too)
+#: (subset_level): the fidelity level each subset's event is defined on, and at a level
+#: change the correction P[previous event | this one] with its c.o.v. (1 and 0 elsewhere)
+SUBSET_FIDELITY = "subset_fidelity_level"
+SUBSET_CORRECTION, SUBSET_CORRECTION_COV = "subset_correction", "subset_correction_cov"
+#: attributes: the chains' burn-in steps at a level change, and the cost of all the runs
+SUBSET_BURN_IN, MULTILEVEL_TOTAL_COST = "subset_burn_in", "multilevel_total_cost"
+
 # importance-sampling and cross-entropy (uqflow.methods.importance_sampling; they write
 # FAILURE_STDERR and EFFECTIVE_SAMPLE_SIZE above too)
 #: design coordinate (realization): log phi(u) - log q(u) of the density a row was drawn from
