@@ -190,8 +190,10 @@ class OpenTurnsProblem:
 
     def _search(self):
         algorithm = self.ot.AbdoRackwitz()
-        # from the medians, as uqflow's search starts (u = 0)
-        algorithm.setStartingPoint([0.0] * self.problem.dimension)
+        # from the medians, as uqflow's search starts (u = 0); OpenTURNS takes the starting
+        # point in the inputs' physical space
+        algorithm.setStartingPoint([self.distribution.getMarginal(k).computeQuantile(0.5)[0]
+                                    for k in range(self.problem.dimension)])
         return algorithm
 
     def form(self, seed: int) -> dict:
@@ -255,20 +257,30 @@ def _simulation_result(result) -> dict:
             "high": p + half}
 
 
-def run_openturns(problem, budget: dict, repetitions: int) -> dict:
+def run_openturns(problem, budget: dict, repetitions: int) -> tuple[dict, dict]:
+    """The runs of each OpenTURNS algorithm, and the error of each that could not run (its
+    FORM search stops where the gradient is zero, as at the four-branch system's origin)."""
     side = OpenTurnsProblem(problem)
-    form = side.form(0)
-    out = {"FORM": [form], "SORM": [side.sorm(0)]}
+    out, errors = {}, {}
+    for label, algorithm in (("FORM", side.form), ("SORM", side.sorm)):
+        try:
+            out[label] = [algorithm(0)]
+        except RuntimeError as exc:
+            errors[label] = str(exc).splitlines()[0]
     out["MC"] = [side.monte_carlo(seed, budget["samples"]) for seed in range(repetitions)]
-    out["IS at FORM point"] = []
-    for seed in range(repetitions):
-        got = side._counted(lambda: side.importance_sampling(seed, budget["samples"],
-                                                             form["design_point"]))
-        got["calls"] += form["calls"]
-        out["IS at FORM point"].append(got)
+    if "FORM" in out:
+        form = out["FORM"][0]
+        out["IS at FORM point"] = []
+        for seed in range(repetitions):
+            got = side._counted(lambda: side.importance_sampling(seed, budget["samples"],
+                                                                 form["design_point"]))
+            got["calls"] += form["calls"]
+            out["IS at FORM point"].append(got)
+    else:
+        errors["IS at FORM point"] = "no FORM design point to centre on"
     out["SubsetSampling"] = [side.subset(seed, budget["per_level"])
                              for seed in range(repetitions)]
-    return out
+    return out, errors
 
 
 # -------------------------------------------------------------------------- summaries
@@ -328,9 +340,12 @@ def run_problem(name: str, methods: list[str], repetitions: int, case_seconds: f
         print(f"{name} uqflow {kind}: {result['uqflow'][kind]} "
               f"({time.perf_counter() - start:.0f} s)", flush=True)
     if with_openturns:
-        for label, runs in run_openturns(problem, budget, repetitions).items():
+        runs_of, result["openturns_errors"] = run_openturns(problem, budget, repetitions)
+        for label, runs in runs_of.items():
             result["openturns"][label] = summarize(runs, reference)
             print(f"{name} OpenTURNS {label}: {result['openturns'][label]}", flush=True)
+        for label, error in result["openturns_errors"].items():
+            print(f"{name} OpenTURNS {label}: not run: {error}", flush=True)
     return result
 
 
@@ -403,6 +418,8 @@ def report(results: dict, repetitions: int, case_seconds: float, checkout: str =
             body += _row("uqflow", kind, s, binomial_band)
         for label, s in res["openturns"].items():
             body += _row("OpenTURNS", label, s, binomial_band)
+        for label, error in res.get("openturns_errors", {}).items():
+            body += f"| OpenTURNS | {label} | | | not run: {error} | | | | |\n"
         for kind, error in res["errors"].items():
             body += f"| uqflow | {kind} | | | not run: {error} | | | | |\n"
         notes = [f"{k}: {w.splitlines()[0]}" for k, w in res["warnings"].items() if w]
@@ -446,8 +463,10 @@ def main(argv=None) -> dict:
                     help="stop a uqflow method's repetitions after this many seconds")
     ap.add_argument("--no-openturns", action="store_true")
     ap.add_argument("--save", type=Path, help="also write the raw figures to this JSON file")
-    ap.add_argument("--report-from", type=Path,
-                    help="write BENCHMARKS.md from a --save file (no run), with its command")
+    ap.add_argument("--report-from", type=Path, nargs="*",
+                    help="write BENCHMARKS.md from --save files (no run; several: problems "
+                         "run by separate processes, in the order given), with the command "
+                         "of the first")
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args(argv)
     methods = args.methods or (QUICK_METHODS if args.quick else available_methods())
@@ -455,11 +474,17 @@ def main(argv=None) -> dict:
     repetitions = 2 if args.quick else args.repetitions
     with_openturns = not (args.quick or args.no_openturns)
     if args.report_from:
-        saved = json.loads(args.report_from.read_text())
-        sys.argv = saved["argv"]            # the section names the command that measured it
-        write_section("reliability", TITLE, report(saved["results"], saved["repetitions"],
-                                                   saved["case_seconds"], saved["checkout"]))
-        return saved["results"]
+        saved = [json.loads(path.read_text()) for path in args.report_from]
+        results = {name: r for part in saved for name, r in part["results"].items()}
+        first = saved[0]
+        sys.argv = first["argv"]            # the section names the command that measured it
+        if len(saved) > 1:                  # one command for all: drop the split's --problems
+            sys.argv = [a for a in first["argv"] if a not in PROBLEMS and a != "--problems"]
+            sys.argv = [a for i, a in enumerate(sys.argv) if not (
+                a.endswith(".json") or (i and sys.argv[i - 1] == "--save") or a == "--save")]
+        write_section("reliability", TITLE, report(results, first["repetitions"],
+                                                   first["case_seconds"], first["checkout"]))
+        return results
     results = {}
     with tempfile.TemporaryDirectory() as tmp:
         for name in problems:
