@@ -482,8 +482,12 @@ def main(argv=None) -> dict:
             sys.argv = [a for a in first["argv"] if a not in PROBLEMS and a != "--problems"]
             sys.argv = [a for i, a in enumerate(sys.argv) if not (
                 a.endswith(".json") or (i and sys.argv[i - 1] == "--save") or a == "--save")]
-        write_section("reliability", TITLE, report(results, first["repetitions"],
-                                                   first["case_seconds"], first["checkout"]))
+        body = report(results, first["repetitions"], first["case_seconds"], first["checkout"])
+        if len(saved) > 1:
+            body += (f"\nRun as {len(saved)} processes at once, the problems split among them "
+                     "by `--problems` (each with `--save`), merged by `--report-from`: every "
+                     "problem's figures are its own, the same as from the one command.\n")
+        write_section("reliability", TITLE, body)
         return results
     results = {}
     with tempfile.TemporaryDirectory() as tmp:
