@@ -117,6 +117,12 @@ METHODS = {
         {"coarse_samples": 20, "samples": 20, "costs": [1.0, 4.0]},
         {"levels": [4, 16], "random_plan": True,
          "limit_states": [{"name": "high", "output": "y", "exceeds": 6.0}]}),
+    # levels and a limit state: 20 samples a subset in 5 chains of 4, 2 burn-in steps
+    "multilevel-subset-simulation": (
+        {"samples_per_level": 20, "level_probability": 0.25, "burn_in": 2,
+         "costs": [1.0, 4.0]},
+        {"levels": [4, 16], "random_plan": True,
+         "limit_states": [{"name": "high", "output": "y", "exceeds": 6.0}]}),
 }
 
 

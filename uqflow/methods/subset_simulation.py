@@ -307,10 +307,12 @@ class SubsetSimulation(PropagationMethod):
                 return progress
 
     def next_level(self, progress, previous, seed_rows, g_all, u_all, level_of, step_of,
-                   chain_of) -> SubsetLevel:
+                   chain_of, length: int | None = None) -> SubsetLevel:
         """Level ``previous.index + 1``: its chains from ``seed_rows`` as far as they ran;
-        ``progress.pending`` names the next round if they have not finished."""
-        index, threshold, length = previous.index + 1, previous.threshold, self.length
+        ``progress.pending`` names the next round if they have not finished. ``length``:
+        states per chain, the seed included (default N / (p0 N))."""
+        index, threshold = previous.index + 1, previous.threshold
+        length = self.length if length is None else length
         chains = seed_rows.size
         states = np.full((chains, length), -1, dtype=np.int64)
         states[:, 0] = seed_rows
