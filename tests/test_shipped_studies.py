@@ -38,7 +38,12 @@ EXPECT = re.compile(r"#\s*expect:\s*exit\s+(\d+)\s+—\s+\S")
 # steps through fewer levels of that range. Its first realizations are those of the full
 # study, so the reduced run meets the bars the shipped one does.
 SHRUNK_COUNTS = {"samples": 16, "realizations": 2, "min_samples": 8, "trace_points": 4,
-                 "resamples": 50, "pilot": 4}
+                 "resamples": 50, "pilot": 4,
+                 # reliability (issue 18): a FORM/SORM search of a few rounds (unconverged
+                 # is a warning, not an error), subset levels of two Markov chains, two
+                 # cross-entropy rounds
+                 "max_iterations": 2, "samples_per_level": 20, "max_levels": 3,
+                 "max_rounds": 2}
 # A study with fidelity levels keeps its two coarsest (the methods need two): the coupling,
 # allocation and estimators run as shipped, without the finest level's cost.
 SHRUNK_LEVELS = 2
@@ -193,6 +198,9 @@ REFERENCE = Path(__file__).resolve().parent / "data" / "shipped_statistics.json"
 # The costs of a level study without stated costs are its measured wall times, and what
 # derives from them (the allocation's cost ratio): they differ from run to run by design.
 MEASURED_COST_UNITS = "s"
+# Folders of studies added after the digests were recorded: no revision before the redesign
+# ran them, so there is nothing to compare bit for bit; they must still run to their exit code.
+ADDED_AFTER_RECORDING = ("reliability/",)
 
 
 def _digest_tool():
@@ -254,4 +262,6 @@ def test_shipped_study_runs_to_its_exit_code(path, tmp_path, capsys):
     if code == 0:
         result = tmp_path / f"{path.stem}.nc"
         assert result.is_file()
-        assert_statistics_as_recorded(str(path.relative_to(STUDIES)), result)
+        name = path.relative_to(STUDIES).as_posix()
+        if not name.startswith(ADDED_AFTER_RECORDING):
+            assert_statistics_as_recorded(name, result)
