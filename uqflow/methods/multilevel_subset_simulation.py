@@ -363,7 +363,7 @@ class MultilevelSubsetSimulation(SubsetSimulation):
         replay = self.replay(runs)
         opts = self.options
         subsets = replay.subsets
-        warnings = self.failure_notes([self.as_subset_level(s) for s in subsets])
+        warnings = self.failed_run_notes(runs)
         probabilities = np.array([s.probability for s in subsets])
         corrections = np.array([s.correction for s in subsets])
         covs = np.array([s.cov for s in subsets])
@@ -460,6 +460,24 @@ class MultilevelSubsetSimulation(SubsetSimulation):
                            f"Beck, terms uncorrelated (fully correlated: "
                            f"{cov_correlated:.3g})")})
         return stats
+
+    @staticmethod
+    def failed_run_notes(runs: xr.Dataset) -> list[str]:
+        """What became of the runs that did not finish ok, by the stage they ran in."""
+        stage = np.asarray(runs[STAGE].values)
+        failed = ~ok_mask(runs) & np.asarray(runs[STATUS].values != STATUS_PENDING)
+        what = {STAGE_DRAW: "first-subset draws did not run ok: neither failure nor safe, "
+                            "left out of the subset's N (p_f is biased if solver errors "
+                            "depend on the inputs)",
+                STAGE_CHAIN: "chain proposals did not run ok: each was rejected (its chain "
+                             "stayed), so the chains sample the events without the region "
+                             "where the solver fails",
+                STAGE_UPDATE: "update runs (samples re-run at the next level) did not run "
+                              "ok: those samples are left out of the next subset's fraction",
+                STAGE_CHECK: "check runs (samples re-run at the previous level) did not run "
+                             "ok: those samples are left out of the correction"}
+        return [f"{int(np.sum(failed & (stage == kind)))} {words}"
+                for kind, words in what.items() if np.any(failed & (stage == kind))]
 
     def draw_moments(self, stats, runs) -> None:
         """Each output's mean and std over the first subset's draws (the inputs'
