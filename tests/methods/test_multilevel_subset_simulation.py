@@ -24,6 +24,7 @@ import warnings
 import numpy as np
 import pytest
 import xarray as xr
+from scipy import integrate
 from scipy import stats as sps
 
 import uqflow
@@ -33,7 +34,8 @@ from uqflow.inputs import InputSpace, RandomInput
 from uqflow.layout import (CHAIN_STEP, EQUIVALENT_FINEST_COST, EQUIVALENT_FINEST_RUNS,
                            FAILURE_COV, FAILURE_PROBABILITY, FIDELITY_COST, FIDELITY_RUNS,
                            FINEST_COST_RATIO, INPUTS, LEVEL, MULTILEVEL_TOTAL_COST, SEED_KEY,
-                           STATUS, STATUS_FAILED, STATUS_OK, SUBSET_CORRECTION, SUBSET_FIDELITY,
+                           STATUS, STATUS_FAILED, STATUS_OK, SUBSET_CORRECTION,
+                           SUBSET_CORRECTION_COV, SUBSET_FIDELITY, SUBSET_THRESHOLD,
                            SUBSET_LEVEL, SUBSET_PROBABILITY, WARNINGS)
 from uqflow.levels import LevelsSpec, resolve_levels
 from uqflow.limit_states import LimitStates
@@ -195,25 +197,55 @@ def narrow_repetitions(**options):
     return [drive(configured(**options), narrow, seed)[0] for seed in range(6)]
 
 
+def narrow_correction():
+    """P[coarse failure | finest failure] on the narrow family, what its level change's
+    correction estimates (the finest subset is the finest failure domain there, the last
+    coarse one the coarse failure domain): P[u1 >= max(3.5, 3 + 3 u2^2)] / Phi(-3.5)."""
+    knot = 1.0 / math.sqrt(6.0)     # where the parabola crosses u1 = 3.5
+
+    def integrand(v):
+        return sps.norm.pdf(v) * sps.norm.sf(max(3.5, 3.0 + 3.0 * v * v))
+    # smooth pieces decaying like a Gaussian: quad's 1e-12 relative is far inside the
+    # corrections' 3 % standard error below
+    return sum(integrate.quad(integrand, a, b, epsabs=0, epsrel=1e-12)[0]
+               for a, b in ((-np.inf, -knot), (-knot, knot), (knot, np.inf))) / EXACT
+
+
+def corrections(repetitions):
+    """The mean of the level change's correction over repetitions over the exact one, and
+    its standard error from the reported c.o.v.s."""
+    c = np.array([s[SUBSET_CORRECTION].values[-1] for s in repetitions])
+    cov = np.array([s[SUBSET_CORRECTION_COV].values[-1] for s in repetitions])
+    exact = narrow_correction()
+    return float(c.mean() / exact), float(np.sqrt(np.sum((c * cov) ** 2)) / c.size / exact)
+
+
 @pytest.mark.slow
 def test_narrow_coarse_level_unbiased_with_the_burn_in_and_not_without():
     burnt = narrow_repetitions()                 # the default burn-in, 40 steps
+    for s in burnt:
+        # a level change straight into the finest failure domain, whose samples lie mostly
+        # outside the coarse parabola: the correction is far from 1
+        assert s[SUBSET_FIDELITY].values[-1] == 1 and s[SUBSET_THRESHOLD].values[-1] == 0
+        assert s[SUBSET_FIDELITY].values[-2] == 0 and s[SUBSET_THRESHOLD].values[-2] == 0
+    # the correction itself against its exact value, within 3 standard errors of the mean
+    # of 6 (fails 1 in 370 if the reported c.o.v.s are right; the seeds are fixed)
+    ratio, stderr = corrections(burnt)
+    assert abs(ratio - 1) <= 3 * stderr
     p = [value(s, FAILURE_PROBABILITY) for s in burnt]
     cov = [value(s, FAILURE_COV) for s in burnt]
-    for s in burnt:
-        # a level change at the finest subset, whose samples lie mostly outside the coarse
-        # parabola: the correction is far from 1
-        assert s[SUBSET_FIDELITY].values[-1] == 1 and s[SUBSET_CORRECTION].values[-1] < 0.7
     mean, stderr = log_errors(p, cov)
-    # 3 standard errors of the mean of 6 lognormal estimates (fails 1 in 370 if the
-    # reported c.o.v. is right; the seeds are fixed, so the test is deterministic)
+    # and p_f: 3 standard errors of the mean of 6 lognormal estimates, as above
     assert abs(mean) <= 3 * stderr
-    # the same estimate without the correction in its denominator is far low
+    # the same estimates without the correction in their denominator are far low
     dropped = [value(s, FAILURE_PROBABILITY) * s[SUBSET_CORRECTION].values.prod()
                for s in burnt]
     assert log_errors(dropped, cov)[0] < -3 * stderr
-    # chains that do not forget their start (no burn-in) overestimate the correction
+    # chains that do not forget their start (no burn-in) overestimate the correction, and
+    # p_f falls low
     fresh = narrow_repetitions(burn_in=0)
+    ratio0, stderr0 = corrections(fresh)
+    assert ratio0 - 1 > 3 * stderr0
     mean0, stderr0 = log_errors([value(s, FAILURE_PROBABILITY) for s in fresh],
                                 [value(s, FAILURE_COV) for s in fresh])
     assert mean0 < -3 * stderr0

@@ -58,16 +58,16 @@ from uqflow.layout import (BOUND, BOUND_HIGH, BOUND_LOW, CHAIN, CHAIN_STEP, CONF
                            FAILURE_COV_CORRELATED, FAILURE_INTERVAL, FAILURE_NOTE,
                            FAILURE_PROBABILITY, FAILURES, FIDELITY_COST, FIDELITY_RUNS,
                            FIDELITY_VALUE, FINEST_COST_RATIO, INTERVAL_METHOD, LEVEL,
-                           LIMIT_STATE, MULTILEVEL_TOTAL_COST, REALIZATION,
+                           LIMIT_STATE, MULTILEVEL_TOTAL_COST, PARAMETER, REALIZATION,
                            RELIABILITY_INDEX, SEED_KEY, SOLVER_RUNS, STATUS, STATUS_PENDING,
                            SUBSET_ACCEPTANCE, SUBSET_BURN_IN, SUBSET_CORRECTION,
                            SUBSET_CORRECTION_COV, SUBSET_COV, SUBSET_FIDELITY, SUBSET_GAMMA,
                            SUBSET_LEVEL, SUBSET_PROBABILITY, SUBSET_SAMPLES, SUBSET_SCALE,
                            SUBSET_THRESHOLD, STATISTIC, STATISTIC_MEAN, STATISTIC_STD, UNITS,
                            ok_mask, output_names)
-from uqflow.methods.base import finish_statistics, register_method
+from uqflow.methods.base import finish_statistics, make_design, register_method
 from uqflow.methods.fidelity_sampling import MAX_COST
-from uqflow.methods.form import STAGE, STANDARD_NORMAL
+from uqflow.methods.form import STAGE, STANDARD_NORMAL, to_inputs
 from uqflow.methods.multifidelity_reliability import MultifidelityImportanceSampling
 from uqflow.methods.subset_simulation import (INITIAL_SCALE, SubsetLevel, SubsetSimulation,
                                               SubsetSimulationOptions, correlation_factor,
@@ -193,15 +193,24 @@ class MultilevelSubsetSimulation(SubsetSimulation):
 
     def level_rows(self, u, stage, subset, level, chains, steps, keys) -> xr.Dataset:
         """Rows of ``stage`` at fidelity ``level`` (one each, or one per row); ``keys`` the
-        seed_key of each: the row of the point it runs (its own row for a new point)."""
-        rows = self.rows(u, subset, chains, steps)
+        seed_key of each: the row of the point it runs (its own row for a new point). The
+        coordinates of subset simulation's rows, and ``stage``."""
         n = u.shape[0]
-        rows = rows.assign_coords({STAGE: (REALIZATION, np.broadcast_to(
-            np.asarray(stage, dtype=object), (n,)).copy())})
-        rows[LEVEL] = (REALIZATION, np.broadcast_to(np.asarray(level, dtype=np.int64),
-                                                    (n,)).copy())
-        rows[SEED_KEY] = (REALIZATION, np.asarray(keys, dtype=np.int64))
-        return rows
+
+        def each(value, dtype):
+            return np.broadcast_to(np.asarray(value, dtype=dtype), (n,)).copy()
+        design = make_design(self._space, to_inputs(self._space, u), **{
+            LEVEL: (REALIZATION, each(level, np.int64)),
+            SEED_KEY: (REALIZATION, np.asarray(keys, dtype=np.int64))})
+        # coordinates, not data variables: everything in the runs with a realization dim
+        # is taken for a solver output
+        return design.assign_coords({
+            STANDARD_NORMAL: ((REALIZATION, PARAMETER), u,
+                              {"long_name": "point in standard normal space"}),
+            SUBSET_LEVEL: (REALIZATION, each(subset, np.int64)),
+            CHAIN: (REALIZATION, np.asarray(chains, dtype=np.int64)),
+            CHAIN_STEP: (REALIZATION, np.asarray(steps, dtype=np.int64)),
+            STAGE: (REALIZATION, each(stage, object))})
 
     def extend(self, design, runs):
         replay = self.replay(runs)
