@@ -305,6 +305,8 @@ def summarize(runs: list[dict], reference: float) -> dict:
         # the mean's own standard error, to say whether a bias is real
         out["bias_stderr"] = float(np.std(p, ddof=1) / math.sqrt(len(p)) / reference)
     cov = np.array([r.get("cov", math.nan) for r in runs], dtype=float)
+    # OpenTURNS reports a c.o.v. of -1 where none is defined (no failure seen)
+    cov[cov < 0] = math.nan
     if np.isfinite(cov).any():
         out["cov_reported"] = float(np.mean(cov[np.isfinite(cov)]))
     low = np.array([r.get("low", math.nan) for r in runs], dtype=float)
@@ -357,6 +359,8 @@ def _cell(summary: dict, key: str, fmt: str) -> str:
 
 
 def _row(side: str, method: str, s: dict, band) -> str:
+    if s.get("cov_reported", 0) < 0:        # figures saved before negative ones were dropped
+        s = {k: v for k, v in s.items() if k != "cov_reported"}
     covered = ""
     if "covered" in s:
         fraction = s["covered"] / s["repetitions"]
