@@ -81,9 +81,10 @@ STAGE_DRAW, STAGE_CHAIN, STAGE_UPDATE, STAGE_CHECK = "draw", "chain", "update", 
 RERUN = "rerun"
 #: a word of the proposals' spawn key, apart from subset-simulation's and the executor's
 RNG_WORD = 0x4D4C
-#: burn-in steps per chain at a level change (see BurnIn in docs/rare_events_across_levels.md:
-#: on the tests' narrow coarse level, 40 steps bring the bias within the spread of 80
-#: repetitions, 20 leave it at -7 %, 10 at -17 %, none at -45 %)
+#: burn-in steps per chain at a level change: twice the 20 that brought the correction
+#: within its standard error of the exact one on the tests' narrow coarse level (10 left
+#: it 18 % high, none 73 %), a margin for slower-mixing families
+#: (docs/rare_events_across_levels.md)
 DEFAULT_BURN_IN = 40
 
 
