@@ -547,7 +547,8 @@ class MultilevelSubsetSimulation(SubsetSimulation):
                 f"{number(float(stats[EQUIVALENT_FINEST_RUNS].values[0]))} runs for this "
                 f"c.o.v. (cost {number(float(stats[EQUIVALENT_FINEST_COST].values[0]))}); "
                 f"this study cost {number(float(attrs.get(MULTILEVEL_TOTAL_COST, math.nan)))}"
-                f": {number(float(stats[FINEST_COST_RATIO].values[0]))} times less")
+                f" (their ratio {number(float(stats[FINEST_COST_RATIO].values[0]))}: above 1, "
+                f"this study was the cheaper)")
         if attrs.get(FAILURE_NOTE):
             notes.append(f"p_f: {attrs[FAILURE_NOTE]}")
         total = int(attrs.get(SOLVER_RUNS, 0))
