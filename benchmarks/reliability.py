@@ -266,20 +266,31 @@ def run_openturns(problem, budget: dict, repetitions: int) -> tuple[dict, dict]:
         try:
             out[label] = [algorithm(0)]
         except RuntimeError as exc:
-            errors[label] = str(exc).splitlines()[0]
-    out["MC"] = [side.monte_carlo(seed, budget["samples"]) for seed in range(repetitions)]
+            errors[label] = "not run: " + str(exc).splitlines()[0]
+    def repeat(label, run):
+        out[label], stopped = [], []
+        for seed in range(repetitions):
+            try:
+                out[label].append(run(seed))
+            except (RuntimeError, TypeError, ValueError) as exc:   # OpenTURNS' exceptions
+                stopped.append(str(exc).splitlines()[0])
+        if stopped:
+            errors[label] = (f"{len(stopped)} of {repetitions} repetitions stopped with "
+                             f"'{stopped[0]}'; the row is the others'")
+
+    repeat("MC", lambda seed: side.monte_carlo(seed, budget["samples"]))
     if "FORM" in out:
         form = out["FORM"][0]
-        out["IS at FORM point"] = []
-        for seed in range(repetitions):
+
+        def importance(seed):
             got = side._counted(lambda: side.importance_sampling(seed, budget["samples"],
                                                                  form["design_point"]))
             got["calls"] += form["calls"]
-            out["IS at FORM point"].append(got)
+            return got
+        repeat("IS at FORM point", importance)
     else:
-        errors["IS at FORM point"] = "no FORM design point to centre on"
-    out["SubsetSampling"] = [side.subset(seed, budget["per_level"])
-                             for seed in range(repetitions)]
+        errors["IS at FORM point"] = "not run: no FORM design point to centre on"
+    repeat("SubsetSampling", lambda seed: side.subset(seed, budget["per_level"]))
     return out, errors
 
 
@@ -347,7 +358,7 @@ def run_problem(name: str, methods: list[str], repetitions: int, case_seconds: f
             result["openturns"][label] = summarize(runs, reference)
             print(f"{name} OpenTURNS {label}: {result['openturns'][label]}", flush=True)
         for label, error in result["openturns_errors"].items():
-            print(f"{name} OpenTURNS {label}: not run: {error}", flush=True)
+            print(f"{name} OpenTURNS {label}: {error}", flush=True)
     return result
 
 
@@ -423,7 +434,14 @@ def report(results: dict, repetitions: int, case_seconds: float, checkout: str =
         for label, s in res["openturns"].items():
             body += _row("OpenTURNS", label, s, binomial_band)
         for label, error in res.get("openturns_errors", {}).items():
-            body += f"| OpenTURNS | {label} | | | not run: {error} | | | | |\n"
+            if not error.startswith("not run"):     # figures saved before the prefix
+                error = error if " repetitions stopped " in error else "not run: " + error
+            if error.startswith("not run"):
+                body += f"| OpenTURNS | {label} | | | {error} | | | | |\n"
+        stopped = {k: e for k, e in res.get("openturns_errors", {}).items()
+                   if " repetitions stopped " in e}
+        if stopped:
+            body += "\nOpenTURNS: " + " / ".join(f"{k}: {e}" for k, e in stopped.items()) + "\n"
         for kind, error in res["errors"].items():
             body += f"| uqflow | {kind} | | | not run: {error} | | | | |\n"
         notes = [f"{k}: {w.splitlines()[0]}" for k, w in res["warnings"].items() if w]
