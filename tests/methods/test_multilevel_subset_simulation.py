@@ -192,9 +192,9 @@ def test_failed_runs_are_left_out_and_counted_by_stage():
     assert abs(math.log(p / EXACT)) <= 4 * math.sqrt(math.log1p(cov**2))
 
 
-def narrow_repetitions(**options):
+def narrow_repetitions(repetitions=6, **options):
     options = {"samples_per_level": 500, "costs": [1.0, 10.0], **options}
-    return [drive(configured(**options), narrow, seed)[0] for seed in range(6)]
+    return [drive(configured(**options), narrow, seed)[0] for seed in range(repetitions)]
 
 
 def narrow_correction():
@@ -242,8 +242,8 @@ def test_narrow_coarse_level_unbiased_with_the_burn_in_and_not_without():
                for s in burnt]
     assert log_errors(dropped, cov)[0] < -3 * stderr
     # chains that do not forget their start (no burn-in) overestimate the correction, and
-    # p_f falls low
-    fresh = narrow_repetitions(burn_in=0)
+    # p_f falls low (so far that 3 repetitions show it)
+    fresh = narrow_repetitions(3, burn_in=0)
     ratio0, stderr0 = corrections(fresh)
     assert ratio0 - 1 > 3 * stderr0
     mean0, stderr0 = log_errors([value(s, FAILURE_PROBABILITY) for s in fresh],
