@@ -46,7 +46,7 @@ from uqflow.methods.multilevel_subset_simulation import (STAGE_CHAIN, STAGE_CHEC
                                                          MultilevelSubsetSimulation)
 from uqflow.methods.subset_simulation import SubsetSimulation
 from uqflow.realization import empty_runs
-from uqflow.report import open_result, summary_table
+from uqflow.report import open_result, summary_table, write_figures
 from uqflow.store import read_runs, write_result
 from uqflow.study import load_study
 
@@ -368,6 +368,8 @@ def test_a_study_changes_level_and_reports_it(tmp_path):
     text = summary_table(open_result(outcome.path))
     assert "multilevel subset simulation, limit state 'fails': p_f at the finest level" in text
     assert "plain Monte Carlo at the finest level needs" in text
+    written = [p.name for p in write_figures(open_result(outcome.path), tmp_path / "figures")]
+    assert "multilevel_subsets.png" in written
 
 
 def test_a_killed_study_resumes_to_the_uninterrupted_numbers(tmp_path):

@@ -72,7 +72,7 @@ from uqflow.methods.multifidelity_reliability import MultifidelityImportanceSamp
 from uqflow.methods.subset_simulation import (INITIAL_SCALE, SubsetLevel, SubsetSimulation,
                                               SubsetSimulationOptions, correlation_factor,
                                               lognormal_interval)
-from uqflow.report import MethodReport, number
+from uqflow.report import FigureSpec, MethodReport, new_figure, number
 
 #: what a row is: a first-subset draw, a chain's proposal, a sample re-run at the next level
 #: (update), or a sample of the new subset re-run at the previous level (check)
@@ -553,4 +553,48 @@ class MultilevelSubsetSimulation(SubsetSimulation):
             notes.append(f"p_f: {attrs[FAILURE_NOTE]}")
         total = int(attrs.get(SOLVER_RUNS, 0))
         return MethodReport(description=f"multilevel subset simulation of '{name}', "
-                                        f"{total} runs", runs_are_draws=False, notes=notes)
+                                        f"{total} runs", runs_are_draws=False, notes=notes,
+                            figures=[FigureSpec("multilevel_subsets", subsets_figure,
+                                                per_output=False)])
+
+
+def subsets_figure(view, output=None):
+    """The estimate after each subset on a log scale (the fractions so far over the
+    corrections so far), each subset coloured by its fidelity level, the level changes
+    marked with their correction, and p_f with its interval at the end."""
+    stats = view.stats
+    if SUBSET_PROBABILITY not in stats or not stats.sizes.get(SUBSET_LEVEL, 0):
+        return None
+    fractions = np.asarray(stats[SUBSET_PROBABILITY].values, dtype=float)
+    corrections = np.asarray(stats[SUBSET_CORRECTION].values, dtype=float)
+    fidelity = np.asarray(stats[SUBSET_FIDELITY].values, dtype=int)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        reached = np.cumprod(fractions) / np.cumprod(corrections)
+    subsets = np.arange(fractions.size)
+    fig, ax = new_figure(width=6.0, height=4.2)
+    colours = ["#9e9e9e", "#e08e2b", "#1f4e79", "#2ca02c", "#c0392b", "#8e44ad"]
+    values = stats[FIDELITY_VALUE].values if FIDELITY_VALUE in stats.coords else []
+    for lv in np.unique(fidelity):
+        on = fidelity == lv
+        label = f"level {lv}" + (f" ({number(float(values[lv]))})" if len(values) > lv
+                                 else "")
+        ax.plot(subsets[on], reached[on], marker="o", linestyle="none",
+                color=colours[lv % len(colours)], label=label)
+    ax.plot(subsets, reached, color="#7f7f7f", linewidth=1)
+    for k in np.flatnonzero(corrections != 1.0):
+        ax.annotate(f"÷ {number(float(corrections[k]))}", (subsets[k], reached[k]),
+                    textcoords="offset points", xytext=(6, 6), fontsize="small")
+    low, high = stats[FAILURE_INTERVAL].values[0]
+    if np.isfinite(low) and np.isfinite(high):
+        ax.errorbar([subsets[-1]], [reached[-1]],
+                    yerr=[[reached[-1] - low], [high - reached[-1]]], color="#000000",
+                    capsize=4, label=f"p_f, {100 * float(stats.attrs.get(CONFIDENCE, 0.95)):g}"
+                                     f" % interval")
+    ax.set_yscale("log")
+    ax.set_xticks(subsets)
+    ax.set_xlabel("subset")
+    ax.set_ylabel("P[event of the subset] (fractions / corrections so far)")
+    ax.set_title(f"{view.study}: multilevel subsets of "
+                 f"'{stats.attrs.get(LIMIT_STATE, '')}'")
+    ax.legend(loc="best", fontsize="small")
+    return fig
