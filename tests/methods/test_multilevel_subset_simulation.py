@@ -189,6 +189,17 @@ def test_three_nested_levels_climb_one_after_the_other():
     assert abs(math.log(p / EXACT)) <= 4 * math.sqrt(math.log1p(cov**2))
 
 
+def test_max_levels_reached_says_it_did_not_converge():
+    stats, _ = drive(configured(burn_in=0, samples_per_level=100, max_levels=2,
+                                costs=[1.0, 10.0]), nested, 2)
+    # P = Phi(-3) at the coarse level takes three subsets at p0 = 0.1: two stop short
+    assert stats.attrs["converged"] == 0 and stats.sizes[SUBSET_LEVEL] == 2
+    assert "max_levels = 2 subsets reached at level 0" in stats.attrs["stop_reason"]
+    assert "did not reach the finest level's failure domain" in stats.attrs[WARNINGS]
+    # the last fraction is of the coarse failures among its samples
+    assert stats[SUBSET_PROBABILITY].values[-1] < 0.1
+
+
 def test_failed_runs_are_left_out_and_counted_by_stage():
     # the coarse solver fails wherever u2 < -1.5, the finest wherever u2 > 1.5: regions
     # independent of the failure events (u1 only), so leaving them out changes no

@@ -276,15 +276,21 @@ class MultilevelSubsetSimulation(SubsetSimulation):
                     correlation_factor(current.g <= current.threshold)
             finest = current.level == self.n_levels - 1
             last = reached and finest
-            if not last and len(replay.subsets) >= self.options.max_levels:
-                replay.stopped = (f"max_levels = {self.options.max_levels} subsets reached "
-                                  f"with the threshold still at {current.threshold:.6g} > 0")
-                return replay
             previous = replay.subsets[-2] if len(replay.subsets) > 1 else None
-            if previous is not None and not current.changed and \
-                    current.threshold >= previous.threshold:
-                replay.stopped = (f"the threshold stopped falling at {current.threshold:.6g} "
-                                  f"> 0 (g ties there)")
+            stuck = previous is not None and not current.changed and \
+                current.threshold >= previous.threshold
+            if not last and (stuck or len(replay.subsets) >= self.options.max_levels):
+                replay.stopped = (
+                    f"the threshold stopped falling at {current.threshold:.6g} > 0 (g ties "
+                    f"there)" if stuck else
+                    f"max_levels = {self.options.max_levels} subsets reached at level "
+                    f"{current.level} with the threshold still at {current.threshold:.6g}")
+                # as subset simulation does: the last fraction is that of failures at the
+                # subset's level, so p_f is what was reached, flagged as not converged
+                current.probability = float(np.sum(ranked[:n_ok] <= 0)) / n_ok
+                with np.errstate(invalid="ignore"):
+                    current.gamma = 0.0 if current.index == 0 else \
+                        correlation_factor(current.g <= 0)
                 return replay
             if last and not current.changed:
                 replay.converged = True
