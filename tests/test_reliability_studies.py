@@ -4,7 +4,8 @@ The thin plate under the TNT charge at CI size: the SORM estimate of P[plastic s
 limit] near 1e-2 lies within plain Monte Carlo's exact interval, both run from the shipped
 study files; Monte Carlo accounts for every realization (failures, safe runs and runs left
 out add up to the runs, and the failures are those the runs' own strains say). The shipped
-files agree on their limits, so the estimates they give are of the same events.
+files agree on their limits, so the estimates they give are of the same events. The gamut
+bar's broken bars are failure events, not failed realizations.
 """
 
 from __future__ import annotations
@@ -126,3 +127,28 @@ def test_the_thin_plate_studies_share_their_limits():
     # the 1e-5 limits lie beyond the 1e-2 ones, for both events
     for output, probe in {(o, p) for o, p, _ in mc}:
         assert mc[(output, probe, "1e-5")] > mc[(output, probe, "1e-2")]
+
+
+BROKEN_STUDY = STUDIES / "gamut_bar_broken_before_cycle.toml"
+
+
+@pytest.mark.slow
+def test_broken_bars_are_failure_events_and_no_realization_is_lost(tmp_path):
+    """The cyclic M2 bar at CI size (3 cycles, 3 realizations, at least one breaks): a broken
+    bar is a failure of 'broken' and, by its cycle, of 'broken_before_cycle_4', never a
+    failed realization; failures, safe runs and runs left out add up to the runs."""
+    study = uqflow.load_study(BROKEN_STUDY, overrides={
+        "scene.cycles": 3, "method.realizations": 3, "execution.workers": 0})
+    out = tmp_path / "broken.nc"
+    uqflow.run_study(study, output=out, show_progress=False)
+    tree = uqflow.open_result(out)
+    runs, stats = tree["runs"].to_dataset(), tree["statistics"].to_dataset()
+    ok = ok_mask(runs)
+    assert ok.all() and int(stats.attrs[FAILED_RUNS]) == 0
+    broken = runs["broken"].values == 1
+    early = runs["break_cycle"].values <= 3
+    assert broken.sum() >= 1
+    for name, expected in (("broken", broken), ("broken_before_cycle_4", early)):
+        assert int(stats[FAILURES].sel({LIMIT_STATE: name})) == int(expected.sum()), name
+        assert int(stats[FAILURE_RUNS].sel({LIMIT_STATE: name})) == runs.sizes[REALIZATION]
+        assert int(stats[FAILURE_LEFT_OUT].sel({LIMIT_STATE: name})) == 0
