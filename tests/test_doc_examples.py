@@ -755,8 +755,10 @@ LINK = re.compile(r"\]\(([^)\s]+)\)")
 
 
 def _anchors(page: Path) -> set[str]:
-    """GitHub's heading anchors: lower case, punctuation dropped, spaces to hyphens."""
-    return {re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+    """GitHub's heading anchors: of the heading as rendered (a link shows its text only),
+    lower case, punctuation dropped, spaces to hyphens."""
+    return {re.sub(r"[^\w\- ]", "", re.sub(r"\[([^\]]*)\]\([^)]*\)", r"\1",
+                                           heading.strip()).lower()).replace(" ", "-")
             for heading in re.findall(r"^#+\s+(.*)$", page.read_text(encoding="utf-8"), re.M)}
 
 
