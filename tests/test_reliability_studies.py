@@ -134,7 +134,7 @@ BROKEN_STUDY = STUDIES / "gamut_bar_broken_before_cycle.toml"
 
 @pytest.mark.slow
 def test_broken_bars_are_failure_events_and_no_realization_is_lost(tmp_path):
-    """The cyclic M2 bar at CI size (3 cycles, 3 realizations, at least one breaks): a broken
+    """The cyclic M2 bar at CI size (3 levels, 3 realizations, at least one breaks): a broken
     bar is a failure of 'broken' and, by its cycle, of 'broken_before_cycle_4', never a
     failed realization; failures, safe runs and runs left out add up to the runs."""
     study = uqflow.load_study(BROKEN_STUDY, overrides={
@@ -146,7 +146,7 @@ def test_broken_bars_are_failure_events_and_no_realization_is_lost(tmp_path):
     ok = ok_mask(runs)
     assert ok.all() and int(stats.attrs[FAILED_RUNS]) == 0
     broken = runs["broken"].values == 1
-    early = runs["break_cycle"].values <= 3
+    early = runs["break_cycle"].values <= 3          # cycles 1 to 3 of the 6
     assert broken.sum() >= 1
     for name, expected in (("broken", broken), ("broken_before_cycle_4", early)):
         assert int(stats[FAILURES].sel({LIMIT_STATE: name})) == int(expected.sum()), name
