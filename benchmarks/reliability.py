@@ -25,6 +25,7 @@ measured, never time: other processes on the machine change no figure here.
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import math
 import sys
@@ -41,6 +42,7 @@ from _record import write_section  # noqa: E402
 from reliability_problems import PROBLEMS  # noqa: E402
 
 import uqflow  # noqa: E402
+from uqflow import testing  # noqa: E402
 from uqflow.errors import StudyError  # noqa: E402
 from uqflow.layout import (BOUND, BOUND_HIGH, BOUND_LOW, FAILURE_COV,  # noqa: E402
                            FAILURE_INTERVAL, FAILURE_PROBABILITY, SOLVER_RUNS, WARNINGS)
@@ -136,11 +138,30 @@ def write_study(folder: Path, problem, kind: str, options: dict, seed: int) -> P
 
 
 def run_uqflow(folder: Path, problem, kind: str, options: dict, seed: int) -> dict:
+    """One repetition as a whole study through the executor (result file, checkpoints)."""
     study = uqflow.load_study(write_study(folder, problem, kind, options, seed))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")     # the method's own warnings are in the result
         outcome = uqflow.run_study(study, show_progress=False, force=True)
-    stats = outcome.statistics
+    return _figures(outcome.statistics)
+
+
+def run_in_memory(study, problem, seed: int) -> dict:
+    """One repetition in memory (``uqflow.testing.run_in_memory``): a copy of the study's
+    method as loaded, driven through its contract as the executor drives it, the
+    problem's vectorized margin in place of the solver, no result file. The same figures
+    as ``run_uqflow`` for the same seed, bit for bit (``run_problem`` asserts it once per
+    method and problem)."""
+    method = copy.deepcopy(study.method)        # as loaded: nothing run yet
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        _, stats = testing.run_in_memory(
+            method, study.space, study.limit_states, lambda x: {"g": problem.margin(x)},
+            seed, outputs=study.solver.outputs()[study.outputs])
+    return _figures(stats)
+
+
+def _figures(stats) -> dict:
     got = {"p": float(stats[FAILURE_PROBABILITY].values[0]),
            "calls": int(stats.attrs[SOLVER_RUNS]), "low": math.nan, "high": math.nan,
            "cov": math.nan, "warnings": stats.attrs.get(WARNINGS, "")}
@@ -327,6 +348,21 @@ def summarize(runs: list[dict], reference: float) -> dict:
     return out
 
 
+class NotTheExecutorsFigures(AssertionError):
+    """The in-memory path gave other figures than the executor for the same seed."""
+
+
+def same_as_executor(executor: dict, in_memory: dict, what: str) -> None:
+    """The figures of seed 0 through the executor and in memory, bit for bit."""
+    differ = [k for k in ("p", "low", "high", "cov", "calls")
+              if not (executor[k] == in_memory[k] or (np.isnan(executor[k]) and
+                                                      np.isnan(in_memory[k])))]
+    if differ:
+        raise NotTheExecutorsFigures(
+            f"{what}, seed 0: in memory {[in_memory[k] for k in differ]} where the executor "
+            f"gave {[executor[k] for k in differ]} ({', '.join(differ)})")
+
+
 def run_problem(name: str, methods: list[str], repetitions: int, case_seconds: float,
                 folder: Path, with_openturns: bool, budget: dict) -> dict:
     problem = PROBLEMS[name]
@@ -337,8 +373,14 @@ def run_problem(name: str, methods: list[str], repetitions: int, case_seconds: f
         options, repeated = UQFLOW_METHODS[kind]
         runs, start = [], time.perf_counter()
         try:
+            # seed 0 through the executor, as a study; every repetition (seed 0 again
+            # included) in memory, which must give the executor's figures bit for bit
+            through_executor = run_uqflow(folder, problem, kind, options(budget), 0)
+            study = uqflow.load_study(folder / f"{problem.name}-{kind}.toml")
             for seed in range(repetitions if repeated else 1):
-                runs.append(run_uqflow(folder, problem, kind, options(budget), seed))
+                runs.append(run_in_memory(study, problem, seed))
+                if seed == 0:
+                    same_as_executor(through_executor, runs[0], f"{name} {kind}")
                 if time.perf_counter() - start > case_seconds and seed + 1 < repetitions:
                     result["stopped"][kind] = time.perf_counter() - start
                     break
@@ -475,6 +517,26 @@ def _openturns_version() -> str:
     return ot.__version__
 
 
+def merged(parts) -> dict:
+    """The results of several ``--save`` files as one: a problem's rows from every file
+    that ran it (methods split among processes), uqflow's in the table's order."""
+    results: dict = {}
+    for part in parts:
+        for name, result in part.items():
+            into = results.setdefault(name, {"reference": result["reference"]})
+            for key, value in result.items():
+                if isinstance(value, dict):
+                    into.setdefault(key, {}).update(value)
+                else:
+                    into[key] = value
+    for result in results.values():
+        result["uqflow"] = {k: result["uqflow"][k] for k in UQFLOW_METHODS
+                            if k in result.get("uqflow", {})}
+        for key in ("uqflow", "openturns", "warnings", "stopped", "errors"):
+            result.setdefault(key, {})
+    return results
+
+
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--problems", nargs="*", default=list(PROBLEMS))
@@ -497,18 +559,23 @@ def main(argv=None) -> dict:
     with_openturns = not (args.quick or args.no_openturns)
     if args.report_from:
         saved = [json.loads(path.read_text()) for path in args.report_from]
-        results = {name: r for part in saved for name, r in part["results"].items()}
+        results = merged(part["results"] for part in saved)
         first = saved[0]
         sys.argv = first["argv"]            # the section names the command that measured it
         if len(saved) > 1:                  # one command for all: drop the split's --problems
-            sys.argv = [a for a in first["argv"] if a not in PROBLEMS and a != "--problems"]
+            sys.argv = [a for a in first["argv"] if a not in PROBLEMS and a not in (
+                "--problems", "--methods", "--no-openturns") and a not in UQFLOW_METHODS]
             sys.argv = [a for i, a in enumerate(sys.argv) if not (
                 a.endswith(".json") or (i and sys.argv[i - 1] == "--save") or a == "--save")]
         body = report(results, first["repetitions"], first["case_seconds"], first["checkout"])
         if len(saved) > 1:
-            body += (f"\nRun as {len(saved)} processes at once, the problems split among them "
-                     "by `--problems` (each with `--save`), merged by `--report-from`: every "
-                     "problem's figures are its own, the same as from the one command.\n")
+            body += (f"\nRun as {len(saved)} processes, the problems split among them by "
+                     "`--problems` and the methods by `--methods` (each with `--save`), merged "
+                     "by `--report-from`: every row's figures are its own, the same as from "
+                     "the one command. The commands and the commit each ran at: "
+                     + "; ".join(f"`{' '.join(['python', *part['argv']])}` at "
+                                 f"{part['checkout'].removeprefix('uqflow at ')}"
+                                 for part in saved) + ".\n")
         write_section("reliability", TITLE, body)
         return results
     results = {}

@@ -50,7 +50,8 @@ from uqflow.store import open_result
 from uqflow.study import load_study
 
 __all__ = ["ConformanceError", "ConformanceWarning", "NotApplicable", "TinyModel",
-           "check_method", "check_solver", "checks", "method_checks", "solver_checks"]
+           "check_method", "check_solver", "checks", "method_checks", "run_in_memory",
+           "solver_checks"]
 
 
 class ConformanceError(AssertionError):
@@ -876,3 +877,132 @@ def checks(subject, *args, **kwargs) -> Iterator[tuple[str, Callable[[], None]]]
     if isinstance(subject, type) and issubclass(subject, PropagationMethod):
         return method_checks(subject, *args, **kwargs)
     return solver_checks(subject, *args, **kwargs)
+
+
+# ====================================================================== a method in memory
+
+def run_in_memory(method: PropagationMethod, space, limit_states, function: Callable,
+                  seed: int, *, outputs: xr.Dataset | Mapping[str, str] | None = None
+                  ) -> tuple[xr.Dataset, xr.Dataset]:
+    """Run ``method`` on ``space`` as ``uqflow.run_study`` runs it, with a vectorized
+    function in place of the solver and no result file: ``(runs, statistics)``.
+
+    For repeating a method hundreds of times (its coverage, its spread over seeds) where a
+    study through the executor would spend most of its time on checkpoints and
+    per-realization bookkeeping. The method is driven through its own contract exactly as
+    the executor drives it: ``check(space, None)``, ``check_limit_states``,
+    ``plan(space, None, SeedSequence(seed))``, ``enough`` at its ``stop_points`` once a
+    prefix has run, ``extend(design, runs)`` on everything so far until it answers None,
+    then ``analyze(design, runs)`` (on the prefix it stopped at, if ``enough`` said so).
+    The runs have the executor's layout: the design's variables, the outputs,
+    ``realization_seed`` spawned from ``seed`` by row (or ``seed_key``), status "ok", an
+    empty message, ``wall_time`` and ``compile_time`` 0; an added design joins the runs as
+    the executor joins it. A row with a non-finite output is "failed" with the executor's
+    message and NaN outputs. So a study with ``[execution] seed = seed`` and a solver giving
+    the same numbers row by row has the same design, outputs and statistics bit for bit
+    (tests/test_reliability_benchmark_smoke.py checks it).
+
+    ``function(x)`` takes the design's inputs (rows, parameters; physical values, in the
+    order of ``space``) and returns the outputs of every row: an array (one output) or a
+    dict of arrays. ``limit_states``: the study's ``[[limit_states]]`` tables (a list of
+    dicts), a ``uqflow.limit_states.LimitStates``, or None. ``outputs``: the solver's
+    outputs template (``solver.outputs()``), or output name -> units; by default the
+    outputs the limit-state tables name, each with units "1". No random fields, fidelity
+    levels or solver sensitivities (a design that asks for them is refused).
+    """
+    from uqflow.layout import (COMPILE_TIME, REALIZATION_SEED, SEED_KEY, STATUS_OK,
+                               WALL_TIME, WITH_SENSITIVITIES, is_sensitivity_variable)
+    from uqflow.limit_states import LimitStates
+    from uqflow.realization import empty_runs, realization_prefix
+
+    template = _outputs_template(outputs, limit_states)
+    names = list(template.data_vars)
+    if limit_states is not None and not isinstance(limit_states, LimitStates):
+        limit_states = LimitStates.from_tables(list(limit_states), template)
+    if getattr(method, "uses_levels", False):
+        raise ValueError(f"run_in_memory runs no fidelity levels (method '{method.name}')")
+    method.check(space, None)
+    method.check_limit_states(limit_states)
+
+    def evaluated(design: xr.Dataset) -> xr.Dataset:
+        if WITH_SENSITIVITIES in design.variables and np.any(design[WITH_SENSITIVITIES]):
+            raise ValueError("run_in_memory evaluates no solver sensitivities: the design "
+                             f"of '{method.name}' asks for them (gradient = \"solver\"?)")
+        runs = empty_runs(design, template)
+        keys = runs[SEED_KEY].values if SEED_KEY in runs else runs[REALIZATION].values
+        runs[REALIZATION_SEED] = (REALIZATION, np.array(
+            [np.random.SeedSequence(seed, spawn_key=(int(i),)).generate_state(1)[0]
+             for i in keys], dtype=np.uint32))
+        got = function(np.asarray(runs[INPUTS].values, dtype=float))
+        if not isinstance(got, Mapping):
+            if len(names) != 1:
+                raise ValueError(f"function returned one array for {len(names)} outputs "
+                                 f"{names}: return a dict of arrays")
+            got = {names[0]: got}
+        n = runs.sizes[REALIZATION]
+        values = {}
+        for name in names:
+            value = np.asarray(got[name], dtype=float)
+            values[name] = value.reshape((n, *template[name].shape))
+        finite = np.ones(n, dtype=bool)
+        message = np.full(n, "", dtype=object)
+        for name in reversed(names):            # the first non-finite output is named
+            bad = ~np.all(np.isfinite(values[name].reshape(n, -1)), axis=1)
+            message[bad] = f"non-finite output '{name}'"
+            finite &= ~bad
+        for name in names:
+            runs[name].values[finite] = values[name][finite]
+        runs[STATUS].values[:] = np.where(finite, STATUS_OK, STATUS_FAILED)
+        runs[MESSAGE].values[:] = message
+        runs[WALL_TIME].values[:] = 0.0
+        runs[COMPILE_TIME].values[:] = 0.0
+        return runs
+
+    def design_of(runs: xr.Dataset) -> xr.Dataset:
+        written = [*names, *RUN_COLUMNS,
+                   *(v for v in runs.data_vars if is_sensitivity_variable(v))]
+        return runs.drop_vars(written, errors="ignore")
+
+    def stopped_at(design: xr.Dataset, runs: xr.Dataset, n_planned: int) -> int | None:
+        # every row has run: enough at each stop point in turn, as the executor asks once
+        # a prefix has finished
+        n = runs.sizes[REALIZATION]
+        for point in np.asarray(method.stop_points(int(n_planned)), dtype=np.int64):
+            if 0 < point <= n and method.enough(realization_prefix(design, int(point)),
+                                                realization_prefix(runs, int(point))):
+                return int(point)
+        return None
+
+    runs = evaluated(method.plan(space, None, np.random.SeedSequence(seed)))
+    design, n_planned = design_of(runs), runs.sizes[REALIZATION]
+    while (keep := stopped_at(design, runs, n_planned)) is None:
+        more = method.extend(design, runs)
+        if more is None or more.sizes.get(REALIZATION, 0) == 0:
+            break
+        n = runs.sizes[REALIZATION]
+        new = evaluated(more).assign_coords(
+            {REALIZATION: np.arange(n, n + more.sizes[REALIZATION])})
+        runs = xr.concat([runs, new], dim=REALIZATION, data_vars="minimal",
+                         coords="minimal", compat="override", join="override",
+                         combine_attrs="override")
+        design, n_planned = design_of(runs), runs.sizes[REALIZATION]
+    if keep is not None:
+        runs, design = realization_prefix(runs, keep), realization_prefix(design, keep)
+    return runs, method.analyze(design, runs)
+
+
+def _outputs_template(outputs, limit_states) -> xr.Dataset:
+    """The solver's outputs template for ``run_in_memory``."""
+    if isinstance(outputs, xr.Dataset):
+        return outputs
+    if outputs is None:
+        tables = limit_states if isinstance(limit_states, (list, tuple)) else []
+        outputs = {}
+        for table in tables:
+            if isinstance(table, Mapping) and isinstance(table.get("output"), str):
+                outputs.setdefault(table["output"], "1")
+        if not outputs:
+            raise ValueError("run_in_memory needs outputs (a template or name -> units) "
+                             "when no limit-state table names one")
+    return xr.Dataset({name: xr.Variable((), np.nan, {UNITS: units})
+                       for name, units in outputs.items()})
