@@ -23,12 +23,13 @@ from scipy import stats as sps
 from uqflow.errors import AccuracyWarning, StudyError
 from uqflow.execute import run_study
 from uqflow.function_solver import solver_from_function
-from uqflow.layout import (CE_THRESHOLD, EFFECTIVE_SAMPLE_SIZE, FAILURE_COV, FAILURE_INTERVAL,
+from uqflow.layout import (BIASING_MEAN, BIASING_WEIGHT, CE_THRESHOLD, EFFECTIVE_SAMPLE_SIZE, FAILURE_COV, FAILURE_INTERVAL,
                            FAILURE_LEFT_OUT, FAILURE_PROBABILITY, FAILURE_RUNS, FAILURE_STDERR,
                            FAILURES, INPUTS, LOG_LIKELIHOOD_RATIO, RELIABILITY_INDEX, ROUND,
                            STATUS, STATUS_FAILED)
 from uqflow.methods import get_method
-from uqflow.methods.form import DESIGN_POINT, FORM_INDEX, IMPORTANCE, STAGE, STAGE_SEARCH
+from uqflow.methods.form import (DESIGN_POINT, FORM_INDEX, IMPORTANCE, STAGE, STAGE_CHECK,
+                                 STAGE_SEARCH)
 from uqflow.methods.importance_sampling import (COVARIANCE_FLOOR, DEGENERATE_SHARE,
                                                 STAGE_SAMPLING, CrossEntropy,
                                                 GaussianMixture, ImportanceEstimate,
@@ -378,6 +379,7 @@ def test_cross_entropy_fit_diagonal_and_identity():
     assert np.allclose(identity.means[0], mean, rtol=0, atol=1e-12)
     assert np.array_equal(identity.covariances[0], np.eye(3))
     spread = np.maximum(w @ (u - mean) ** 2, COVARIANCE_FLOOR)
+    # weighted sums of 40 squares of order 4: rounding of order 40 x 4 eps
     assert np.allclose(diagonal.covariances[0], np.diag(spread), rtol=0, atol=1e-12)
     assert diagonal.covariances[0][2, 2] == COVARIANCE_FLOOR  # 0.01 floored
     with pytest.raises(ValueError, match="covariance must be one of"):
@@ -501,6 +503,61 @@ def test_importance_sampling_of_a_linear_limit_state_at_beta_4_75_in_ten_dimensi
     assert "importance factor alpha²" in summary_table(open_result(outcome.path))
 
 
+def two_points(x1=0.0, x2=0.0):
+    w = (x1 + x2) / math.sqrt(2)
+    return {"g": min(3 - w, 3.2 + w)}
+
+
+TwoPoints = register_solver("two-design-points-test")(solver_from_function(
+    two_points, outputs=["g"], units={"g": "1"}, name="two-design-points-test"))
+#: g = min(3 - w, 3.2 + w), w = (u1 + u2)/sqrt 2: two half-planes, p = Phi(-3) + Phi(-3.2)
+TWO_POINTS_EXACT = float(sps.norm.sf(3.0) + sps.norm.sf(3.2))
+
+
+def test_importance_sampling_puts_a_gaussian_on_each_design_point_the_check_finds(tmp_path):
+    outcome, raised = run(tmp_path, {}, [("x1", 0.0, 1.0), ("x2", 0.0, 1.0)],
+                          [{"name": "g", "output": "g", "below": 0.0}],
+                          {"kind": "importance-sampling", "samples": 2000},
+                          solver="two-design-points-test")
+    stats = outcome.statistics
+    assert TWO_POINTS_EXACT == pytest.approx(2.037e-3, abs=0.0005e-3)  # the docs' value
+    p, stderr = first(stats, FAILURE_PROBABILITY), first(stats, FAILURE_STDERR)
+    assert abs(p - TWO_POINTS_EXACT) <= SE4 * stderr and raised == []
+    # FORM's point (beta 3, exact for a half-plane: finite differences round only, 1e-9), the
+    # check's estimate of the other (beta 3.2; g linear between the medians and the probe
+    # -u*: 3 x 3/(3 - 0.2) = 3.21), the defensive standard normal
+    weights, means = stats[BIASING_WEIGHT].values, stats[BIASING_MEAN].values
+    assert np.allclose(means[0], 3 / math.sqrt(2), rtol=1e-9)
+    assert np.allclose(means[1], -(9 / 2.8) / math.sqrt(2), rtol=1e-9)
+    assert np.array_equal(means[2], [0.0, 0.0]) and weights[2] == pytest.approx(0.1)
+    share = sps.norm.sf(9 / 2.8) / (sps.norm.sf(9 / 2.8) + sps.norm.sf(3.0))
+    assert weights[1] == pytest.approx(0.9 * share, rel=1e-9)  # one division and product
+    assert "1 other(s) its design-point check found" in stats.attrs["biasing_density"]
+    # that density (as the method built it) over 100 repetitions of 2,000 draws: every
+    # estimate within 4 of its reported standard errors, and the mean reported c.o.v.
+    # within a factor 1.3 of the estimates' spread (the spread's relative sampling error
+    # over 100 repetitions is 1/sqrt(198) = 7 %: 1.3 is 4 of them). Centred on FORM's point
+    # alone (the defensive share finds the other region) the reported c.o.v. is a fraction
+    # of the spread, and this fails.
+    def repetitions(mixture):
+        rng = np.random.default_rng(40)
+        found = []
+        for _ in range(100):
+            u = mixture.sample(rng, 2000)
+            w = u.sum(axis=1) / math.sqrt(2)
+            found.append(importance_estimate(np.minimum(3 - w, 3.2 + w) <= 0,
+                                             standard_normal_log_pdf(u) - mixture.log_pdf(u)))
+        values = np.array([e.probability for e in found])
+        return found, values.std(ddof=1) / values.mean(), np.mean([e.cov for e in found])
+
+    found, spread, reported = repetitions(GaussianMixture(weights, means, np.array(
+        [np.eye(2)] * 3)))
+    assert all(abs(e.probability - TWO_POINTS_EXACT) <= SE4 * e.stderr for e in found)
+    assert spread / 1.3 < reported < 1.3 * spread
+    _, spread, reported = repetitions(defensive_mixture(means[0], 0.1))
+    assert reported < 0.5 * spread
+
+
 def test_cross_entropy_finds_the_four_branch_system_where_form_is_wrong(tmp_path):
     outcome, raised = run(tmp_path, {}, [("x1", 0.0, 1.0), ("x2", 0.0, 1.0)],
                           FOUR_BRANCH_STATES, {"kind": "cross-entropy", "samples": 500,
@@ -580,7 +637,7 @@ def test_every_round_replays_from_the_runs_before_it(tmp_path, kind):
     assert method.extend(runs, runs) is None
     # another seed: the same prefix gives other draws in the first round that draws
     method.plan(fresh.space, None, np.random.SeedSequence(4))
-    drawn = int(rounds[runs[STAGE].values != STAGE_SEARCH].min())
+    drawn = int(rounds[~np.isin(runs[STAGE].values, [STAGE_SEARCH, STAGE_CHECK])].min())
     prefix = runs.isel(realization=np.flatnonzero(rounds < drawn))
     other = method.extend(prefix, prefix) if drawn else \
         method.plan(fresh.space, None, np.random.SeedSequence(4))

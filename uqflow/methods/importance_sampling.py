@@ -32,7 +32,8 @@ from pydantic import Field, model_validator
 from scipy import special
 
 from uqflow.errors import AccuracyWarning, StudyError
-from uqflow.layout import (BIASING_DENSITY, BOUND, BOUND_HIGH, BOUND_LOW, CE_ELITES, CE_ROUND,
+from uqflow.layout import (BIASING_COMPONENT, BIASING_DENSITY, BIASING_MEAN, BIASING_WEIGHT,
+                           BOUND, BOUND_HIGH, BOUND_LOW, CE_ELITES, CE_ROUND,
                            CE_THRESHOLD, CONFIDENCE, DENSITY_RUNS, EFFECTIVE_SAMPLE_SIZE,
                            FAILURE_COV, FAILURE_INTERVAL, FAILURE_LEFT_OUT, FAILURE_NOTE,
                            FAILURE_PROBABILITY, FAILURE_RUNS, FAILURE_STDERR, FAILURES,
@@ -43,10 +44,11 @@ from uqflow.layout import (BIASING_DENSITY, BOUND, BOUND_HIGH, BOUND_LOW, CE_ELI
                            ok_mask, output_names)
 from uqflow.methods.base import (MAX_REALIZATIONS, MethodOptions, PropagationMethod,
                                  finish_statistics, make_design, register_method)
-from uqflow.methods.form import (DESIGN_POINT, DESIGN_POINT_U, FORM_INDEX, FORM_PROBABILITY,
-                                 IMPORTANCE, STAGE, STAGE_SEARCH, STANDARD_NORMAL, Form,
-                                 cholesky_of, importance_factors, moving_axes, system_kind,
-                                 to_inputs)
+from uqflow.methods.form import (CHECK_DISTANCE, CHECK_POINT, DESIGN_POINT, DESIGN_POINT_U,
+                                 FORM_INDEX, FORM_PROBABILITY, IMPORTANCE, OTHER_REGION_SHARE,
+                                 OUTSIDE_HALF_SPACE, PROBE_CONE, STAGE, STAGE_CHECK,
+                                 STAGE_SEARCH, STANDARD_NORMAL, Form, cholesky_of,
+                                 importance_factors, moving_axes, system_kind, to_inputs)
 from uqflow.probability import reliability_index
 from uqflow.report import MethodReport, Sensitivity, number
 
@@ -166,19 +168,64 @@ def defensive_mixture(centre, defensive_weight: float = 0.1,
     design point) that keeps a share w of the standard normal, so phi/q <= 1/w everywhere
     (Hesterberg 1995); w = 0 is the plain shifted density, w = 1 plain Monte Carlo."""
     centre = np.asarray(centre, dtype=float).ravel()
+    return design_point_mixture(centre[None], [1.0], defensive_weight, scale)
+
+
+def design_point_mixture(centres, shares, defensive_weight: float = 0.1,
+                         scale: float = 1.0) -> GaussianMixture:
+    """(1 - w) sum_k s_k N(c_k, scale^2 I) + w N(0, I): the defensive mixture with a
+    Gaussian at each design point c_k (rows of ``centres``), the k-th taking the share s_k
+    (normalized) of the non-defensive draws; still phi/q <= 1/w everywhere."""
+    centres = np.atleast_2d(np.asarray(centres, dtype=float))
+    shares = np.asarray(shares, dtype=float).ravel()
     w = float(defensive_weight)
     if not 0.0 <= w <= 1.0:
         raise ValueError(f"defensive_weight must lie in [0, 1], got {defensive_weight!r}")
     if not (math.isfinite(scale) and scale > 0):
         raise ValueError(f"scale must be a positive number, got {scale!r}")
-    if not np.all(np.isfinite(centre)):
+    if not np.all(np.isfinite(centres)):
         raise ValueError("the centre of a defensive mixture must be finite")
-    d = centre.size
+    if shares.size != centres.shape[0] or np.any(shares < 0) or not shares.sum() > 0:
+        raise ValueError(f"need one non-negative share per centre with a positive sum, got "
+                         f"{shares.tolist()} for {centres.shape[0]} centre(s)")
+    d = centres.shape[1]
     eye = np.eye(d)
-    parts = [(1.0 - w, centre, scale**2 * eye), (w, np.zeros(d), eye)]
+    parts = [((1.0 - w) * share / shares.sum(), c, scale**2 * eye)
+             for c, share in zip(centres, shares)] + [(w, np.zeros(d), eye)]
     parts = [p for p in parts if p[0] > 0]
     return GaussianMixture(np.array([p[0] for p in parts]), np.array([p[1] for p in parts]),
                            np.array([p[2] for p in parts]))
+
+
+def region_shares(betas) -> np.ndarray:
+    """Each design point's share of the draws: its first-order probability Phi(-beta_k) over
+    their sum (the optimal density's mass near each, for linear limit states)."""
+    log_p = special.log_ndtr(-np.asarray(betas, dtype=float))
+    shares = np.exp(log_p - np.max(log_p))
+    return shares / shares.sum()
+
+
+def other_design_points(probes, distance, alpha, beta) -> list[tuple[np.ndarray, float]]:
+    """FORM's design-point check read as design points: along each probe's ray, the failure
+    point t p/|p| (t from ``distance``) that lies outside FORM's half-space alpha . u >= beta
+    by more than OUTSIDE_HALF_SPACE of beta and whose Phi(-t) is OTHER_REGION_SHARE of
+    Phi(-beta) or more (form.Form.add_check's rule), nearest first; one per region (a point
+    within PROBE_CONE of one already taken is the same region). [(u, t)]."""
+    found: list[tuple[np.ndarray, float]] = []
+    probes = np.atleast_2d(np.asarray(probes, dtype=float))
+    distance = np.asarray(distance, dtype=float)
+    for k in np.argsort(distance):
+        t = float(distance[k])
+        if not np.isfinite(t):
+            continue
+        point = t * probes[k] / np.linalg.norm(probes[k])
+        outside = float(alpha @ point) < (1 - OUTSIDE_HALF_SPACE) * beta
+        if not (outside and special.ndtr(-t) >= OTHER_REGION_SHARE * special.ndtr(-beta)):
+            continue
+        if any(point @ u / (np.linalg.norm(u) * t) >= PROBE_CONE for u, _ in found):
+            continue
+        found.append((point, t))
+    return found
 
 
 #: the covariance a cross-entropy fit may take: all of it, its diagonal, or the identity (the
@@ -409,6 +456,10 @@ class ImportanceSamplingOptions(MethodOptions):
     design_point: dict[str, float] | None = Field(
         None, description="the centre in the inputs' units, {name = value} for every input "
                           "with a spread (skips the FORM search)")
+    design_point_check: bool = Field(True, description="after FORM converges, one round of "
+                                     "g at -u* and at |u*| along the other axes (FORM's "
+                                     "check); each other design point it finds gets a "
+                                     "Gaussian of the mixture too")
 
     @model_validator(mode="after")
     def _batches_fit(self):
@@ -420,7 +471,8 @@ class ImportanceSamplingOptions(MethodOptions):
 
     @model_validator(mode="after")
     def _search_options_need_a_search(self):
-        for key in ("step", "gradient", "u_tolerance", "g_tolerance", "max_iterations"):
+        for key in ("step", "gradient", "u_tolerance", "g_tolerance", "max_iterations",
+                    "design_point_check"):
             self.only_where(key, self.design_point is None,
                             "the FORM search, which a given design_point skips")
         return self
@@ -575,20 +627,49 @@ class ImportanceSampling(Form):
             return None
         if runs is None:
             return self.search_rows(np.zeros(len(self._space)), round_)
-        following = self.replay(runs).next_point()
-        return None if following is None else self.search_rows(following, round_)
+        search = self.replay(runs)
+        following = search.next_point()
+        if following is not None:
+            return self.search_rows(following, round_)
+        if self.options.design_point_check and search.converged and \
+                not np.any(runs[STAGE].values == STAGE_CHECK):
+            probes = self.probe_points(search)
+            if probes.size:
+                return self.rows(probes, np.zeros_like(probes), round_, STAGE_CHECK)
+        return None
 
     def biasing_density(self, runs, axes: np.ndarray, n: int) -> GaussianMixture:
-        """The defensive mixture at the design point (given, or FORM's last accepted point;
-        the origin if the search found none), on the moving axes."""
-        return defensive_mixture(self.centre(runs, n)[axes], self.options.defensive_weight,
-                                 self.options.scale)
+        """The defensive mixture at the design point(s) (given, or FORM's last accepted point
+        and every other design point its check found, each with its share Phi(-beta_k); the
+        origin if the search found none), on the moving axes."""
+        points = self.design_points(runs, n)
+        centres = np.array([u[axes] for u, _ in points])
+        return design_point_mixture(centres, region_shares([b for _, b in points]),
+                                    self.options.defensive_weight, self.options.scale)
 
-    def centre(self, runs, n: int) -> np.ndarray:
+    def design_points(self, runs, n: int) -> list[tuple[np.ndarray, float]]:
+        """[(u, beta)] the draws are centred at: the given design point, or FORM's and the
+        others its check found (nearest first), or the origin."""
         if self.options.design_point is not None:
-            return to_standard_normal(self._space, self.options.design_point)
-        point = self.replay(runs).point if runs is not None else None
-        return point.u if point is not None else np.zeros(n)
+            u = to_standard_normal(self._space, self.options.design_point)
+            return [(u, float(np.linalg.norm(u)))]
+        search = self.replay(runs) if runs is not None else None
+        if search is None or search.point is None:
+            return [(np.zeros(n), 0.0)]
+        alpha = -search.point.gradient / np.linalg.norm(search.point.gradient)
+        beta = float(alpha @ search.point.u)
+        return [(search.point.u, beta)] + self.checked_points(runs, search, alpha, beta)
+
+    def checked_points(self, runs, search, alpha, beta) -> list[tuple[np.ndarray, float]]:
+        """The other design points of FORM's check round (none without one)."""
+        if not np.any(runs[STAGE].values == STAGE_CHECK):
+            return []
+        scratch = xr.Dataset(coords={PARAMETER: runs[PARAMETER].values})
+        self.add_check(scratch, runs, search, beta, alpha)
+        if CHECK_DISTANCE not in scratch:
+            return []
+        return other_design_points(scratch[CHECK_POINT].values, scratch[CHECK_DISTANCE].values,
+                                   alpha, beta)
 
     def extend(self, design, runs):
         round_ = int(runs[ROUND].values.max()) + 1
@@ -649,6 +730,7 @@ class ImportanceSampling(Form):
         stats = xr.Dataset(data, coords={LIMIT_STATE: [self.limit_state],
                                          BOUND: [BOUND_LOW, BOUND_HIGH], PARAMETER: names})
         warnings += self.density_statistics(stats, runs)
+        self.add_biasing_components(stats, runs)
         self.add_output_means(stats, runs, sampling)
         for message in warnings:
             pywarnings.warn(message, AccuracyWarning, stacklevel=2)
@@ -748,6 +830,9 @@ class ImportanceSampling(Form):
                     warnings.append(f"FORM did not converge ({search.stopped or 'stopped'}): "
                                     f"the sampling is centred at its last accepted point; the "
                                     f"estimate stays unbiased")
+                # FORM's check statistics (check_point, check_margin, ...); its words are
+                # FORM's advice, and here the other design points have their own Gaussians
+                self.add_check(stats, runs, search, beta, alpha)
             else:
                 warnings.append(f"FORM found no design point ({search.stopped}): the draws "
                                 f"are centred at the inputs' medians (plain Monte Carlo)")
@@ -771,10 +856,36 @@ class ImportanceSampling(Form):
         return warnings
 
     def density_words(self, runs) -> str:
-        where = "the given design point" if self.options.design_point is not None else \
-            "FORM's design point"
-        return (f"(1 - w) N(u*, s^2 I) + w N(0, I) at {where}, w = "
-                f"{self.options.defensive_weight:g}, s = {self.options.scale:g}")
+        tail = f", w = {self.options.defensive_weight:g}, s = {self.options.scale:g}"
+        if self.options.design_point is not None:
+            return "(1 - w) N(u*, s^2 I) + w N(0, I) at the given design point" + tail
+        points = self.design_points(runs, runs.sizes[PARAMETER])
+        if len(points) == 1:
+            return "(1 - w) N(u*, s^2 I) + w N(0, I) at FORM's design point" + tail
+        shares = region_shares([b for _, b in points])
+        others = "; ".join(f"u = ({', '.join(f'{v + 0.0:.3g}' for v in u)}), beta about "
+                           f"{b:.3g}, share {s:.2g}" for (u, b), s in zip(points[1:],
+                                                                         shares[1:]))
+        return (f"(1 - w) sum_k s_k N(u_k, s^2 I) + w N(0, I) at FORM's design point (share "
+                f"{shares[0]:.2g}) and {len(points) - 1} other(s) its design-point check "
+                f"found ({others}); s_k proportional to Phi(-beta_k)" + tail)
+
+    def add_biasing_components(self, stats, runs) -> None:
+        """The biasing density's weights and means (standard normal space, the defensive
+        standard normal last) the sampling draws came from."""
+        if isinstance(self.options, ImportanceSamplingOptions) and \
+                self.options.design_point is not None and getattr(self, "_space", None) is None:
+            return  # a given point maps to u through the study's space (plan's)
+        axes = moving_axes_of(runs)
+        n = runs.sizes[PARAMETER]
+        density = self.biasing_density(runs, axes, n)
+        means = np.zeros((density.components, n))
+        means[:, axes] = density.means
+        stats[BIASING_WEIGHT] = ((BIASING_COMPONENT,), density.weights, {
+            "long_name": "weight of each Gaussian of the biasing density", UNITS: "1"})
+        stats[BIASING_MEAN] = ((BIASING_COMPONENT, PARAMETER), means, {
+            "long_name": "mean of each Gaussian of the biasing density in standard normal "
+                         "space", UNITS: "1"})
 
     # ------------------------------------------------------------------ report
     @classmethod
