@@ -2,8 +2,11 @@
 
 Each problem of ``reliability_problems.py`` becomes a uqflow study (its margin as a solver by
 ``uqflow.solver_from_function``, its inputs and copula as ``[[inputs]]`` and
-``[correlation]``, one ``[[limit_states]]`` "g below 0") run in this process through the
-executor, and the same event in OpenTURNS (``ThresholdEvent`` of a ``PythonFunction``). Both
+``[correlation]``, one ``[[limit_states]]`` "g below 0"), and the same event in OpenTURNS (``ThresholdEvent`` of a ``PythonFunction``). uqflow's repetitions run in memory
+(``uqflow.testing.run_in_memory``: the study's method driven through its contract as the
+executor drives it, the problem's vectorized margin in place of the solver, no result file),
+and seed 0 of each method and problem also as a study through the executor, whose figures
+the in-memory run must equal bit for bit (asserted: the run stops otherwise). Both
 sides run the same budgets in the same run: the samples of Monte Carlo and importance
 sampling, the samples per level and level probability of subset simulation. A sampling
 method is repeated with seeds 0, 1, 2, ...: the mean p_f, its bias against the reference
@@ -20,6 +23,12 @@ measured, never time: other processes on the machine change no figure here.
     python benchmarks/reliability.py --quick           # smoke test: R - S at a toy size,
                                                        # MC and FORM, no OpenTURNS, writes
                                                        # nothing
+    python benchmarks/reliability.py --problems linear_100 --methods form --save a.json
+    python benchmarks/reliability.py --report-from a.json b.json   # merge, write again
+
+A run writes BENCHMARKS.md's section "reliability" and the summary table of
+docs/reliability.md's benchmark section (between ``<!-- begin reliability-summary -->`` and
+``<!-- end reliability-summary -->``), each with the command, commit and machine.
 """
 
 from __future__ import annotations
@@ -38,7 +47,7 @@ import numpy as np
 from scipy import stats as sps
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _record import write_section  # noqa: E402
+from _record import ROOT, command, machine, write_section  # noqa: E402
 from reliability_problems import PROBLEMS  # noqa: E402
 
 import uqflow  # noqa: E402
@@ -436,12 +445,17 @@ TITLE = "Reliability: uqflow against OpenTURNS on exact problems"
 def report(results: dict, repetitions: int, case_seconds: float, checkout: str = "") -> str:
     low, high, mass = binomial_band(repetitions)
     body = (
-        "Each problem runs as a uqflow study (a `solver_from_function` margin, `[[inputs]]`, "
-        "`[correlation]`, one `[[limit_states]]` g below 0; workers = 0) and as the same "
-        "event in OpenTURNS "
+        "Each problem is a uqflow study (a `solver_from_function` margin, `[[inputs]]`, "
+        "`[correlation]`, one `[[limit_states]]` g below 0) and the same event in "
+        "OpenTURNS "
         f"{_openturns_version()}, at the same budgets in the same run (samples of MC and "
         "IS; samples per level and p0 = 0.1 of subset simulation). Sampling methods run "
-        f"with seeds 0 … R − 1 (R = {repetitions}, or the fewer its column R says); 'calls' is "
+        f"with seeds 0 … R − 1 (R = {repetitions}, or the fewer its column R says). uqflow's "
+        "repetitions run in memory (`uqflow.testing.run_in_memory`: the study's method "
+        "driven through plan, extend, stop points and analyze as the executor drives it, the "
+        "vectorized margin in place of the solver, no result file); seed 0 of every uqflow "
+        "row also ran as a study through the executor (workers = 0) and gave the same p_f, "
+        "interval, c.o.v. and calls bit for bit (asserted by the run). 'calls' is "
         "the mean number of margin evaluations (OpenTURNS' IS includes its FORM search), "
         "'p_f' the mean estimate, 'bias' mean / reference − 1 ± its standard error, "
         "'c.o.v. rep.' the mean reported c.o.v., 'c.o.v. emp.' the spread of p_f over the "
@@ -459,11 +473,10 @@ def report(results: dict, repetitions: int, case_seconds: float, checkout: str =
         full = sum(s["seconds"] / s["repetitions"] * repetitions
                    for r in results.values() for kind, s in r["uqflow"].items()
                    if kind in r["stopped"])
-        body += (f"\nA uqflow method's repetitions stop after {case_seconds:.0f} s of runs "
-                 "(`--case-seconds`: every repetition is a whole study through the executor, "
-                 "about 0.5 to 1 ms per solver call on this shared machine); those rows say "
-                 f"how many ran. All {repetitions} of the stopped rows would take about "
-                 f"{full / 3600:.1f} h here: `python benchmarks/reliability.py`.\n")
+        body += (f"\nA uqflow method's repetitions stop after {case_seconds:.0f} s "
+                 "(`--case-seconds`); those rows say how many ran. All "
+                 f"{repetitions} of the stopped rows would take about {full / 60:.0f} min "
+                 "here: `python benchmarks/reliability.py`.\n")
     for name, res in results.items():
         budget = BUDGETS[name]
         body += (f"\n### {PROBLEMS[name].title}\n\nReference p_f = {res['reference']:.6g} "
@@ -490,6 +503,81 @@ def report(results: dict, repetitions: int, case_seconds: float, checkout: str =
         if notes:
             body += "\nuqflow warnings (first repetition): " + " / ".join(notes) + "\n"
     return body
+
+
+#: OpenTURNS' counterpart of each uqflow method in the summary
+COUNTERPART = {"monte-carlo": "MC", "form": "FORM", "sorm": "SORM",
+               "importance-sampling": "IS at FORM point", "subset-simulation": "SubsetSampling"}
+DOCS = ROOT / "docs" / "reliability.md"
+SUMMARY = "reliability-summary"
+
+
+def _headline(s: dict | None, error: str | None = None) -> str:
+    """calls | p_f / exact | c.o.v. reported / measured | coverage (against its band)."""
+    if s is None:
+        return f"{error or '—'} | | | " if error else "— | | | "
+    ratio = s["p_mean"] / s["reference"]
+    cov = ""
+    if "cov_empirical" in s:
+        cov = (f"{s['cov_reported']:.3f} / " if "cov_reported" in s else "— / ") + \
+            f"{s['cov_empirical']:.3f}"
+    covered = ""
+    if "covered" in s:
+        low, high, _ = binomial_band(s["repetitions"])
+        fraction = s["covered"] / s["repetitions"]
+        covered = f"{s['covered']}/{s['repetitions']}" + (
+            "" if low <= fraction <= high else " **out**")
+    return f"{s['calls']:.0f} | {ratio:.3g} | {cov} | {covered}"
+
+
+def summary(results: dict, checkout: str) -> str:
+    """docs/reliability.md's table: per problem and uqflow method, its headline and
+    OpenTURNS' counterpart's, with the command, commit and machine."""
+    repetitions = max((s["repetitions"] for r in results.values()
+                       for s in r["uqflow"].values()), default=0)
+    low, high, _ = binomial_band(max(repetitions, 2))
+    lines = [
+        f"<!-- begin {SUMMARY} -->",
+        f"Benchmark figures of `{command()}` ({checkout or _checkout()}; OpenTURNS "
+        f"{_openturns_version()}; {machine()}), written by it; the whole table, with the bias "
+        "and its standard error, is BENCHMARKS.md's section \"Reliability\". Per cell: solver "
+        "calls (mean), mean p_f / exact, reported c.o.v. (mean) / measured c.o.v. (spread of "
+        f"p_f over the repetitions / exact), and how many of the R = {repetitions} reported "
+        f"95 % intervals hold the exact p_f (**out**: outside the binomial band "
+        f"[{low:.3f}, {high:.3f}] of a true 95 %, judged at the row's own R).",
+        "",
+        "| problem | uqflow method | calls | p_f / exact | c.o.v. rep. / meas. | coverage | "
+        "OpenTURNS | calls | p_f / exact | c.o.v. rep. / meas. | coverage |",
+        "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for name, res in results.items():
+        for kind in UQFLOW_METHODS:
+            mine = res["uqflow"].get(kind)
+            if mine is None and kind not in res.get("errors", {}):
+                continue
+            mine = dict(mine, reference=res["reference"]) if mine else None
+            label = COUNTERPART.get(kind)
+            theirs = res["openturns"].get(label) if label else None
+            theirs = dict(theirs, reference=res["reference"]) if theirs else None
+            error = res.get("openturns_errors", {}).get(label, "") if label else ""
+            lines.append(
+                f"| `{name}` | {kind} | "
+                f"{_headline(mine, 'not run' if kind in res.get('errors', {}) else None)} | "
+                f"{label or '—'} | "
+                f"{_headline(theirs, 'not run' if error.startswith('not run') else None)} |")
+    lines.append(f"<!-- end {SUMMARY} -->")
+    return "\n".join(lines)
+
+
+def write_summary(text: str) -> None:
+    """Replace the summary between its markers in docs/reliability.md (they must be there:
+    the page's prose around it is written by hand)."""
+    import re
+
+    page = DOCS.read_text()
+    pattern = re.compile(rf"<!-- begin {SUMMARY} -->.*?<!-- end {SUMMARY} -->", re.S)
+    if not pattern.search(page):
+        raise SystemExit(f"{DOCS} has no <!-- begin {SUMMARY} --> ... <!-- end {SUMMARY} -->")
+    DOCS.write_text(pattern.sub(lambda _: text, page))
 
 
 def _checkout() -> str:
@@ -577,6 +665,7 @@ def main(argv=None) -> dict:
                                  f"{part['checkout'].removeprefix('uqflow at ')}"
                                  for part in saved) + ".\n")
         write_section("reliability", TITLE, body)
+        write_summary(summary(results, first["checkout"]))
         return results
     results = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -592,6 +681,7 @@ def main(argv=None) -> dict:
                  "case_seconds": args.case_seconds, "checkout": checkout}, indent=1))
         write_section("reliability", TITLE, report(results, repetitions, args.case_seconds,
                                                    checkout))
+        write_summary(summary(results, checkout))
     return results
 
 

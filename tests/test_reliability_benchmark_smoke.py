@@ -43,6 +43,11 @@ def test_reliability_benchmark_runs_in_quick_mode(monkeypatch):
     assert 0 <= mc["covered"] <= 2 and mc["cov_reported"] > 0
     text = bench.report({"r_minus_s": results}, 2, math.inf)
     assert "| uqflow | form | 1 |" in text and "| uqflow | monte-carlo | 2 | 100 |" in text
+    # the docs' summary: FORM exact (p_f / exact rounds to 1), Monte Carlo's 100 calls
+    table = bench.summary({"r_minus_s": results}, "uqflow at commit x")
+    assert f"| `r_minus_s` | form | {form['calls']:.0f} | 1 |" in table
+    assert f"| `r_minus_s` | monte-carlo | 100 | {mc['p_mean'] / reference:.3g} |" in table
+    assert table.startswith("<!-- begin reliability-summary -->")
 
 
 def test_the_coverage_band_is_the_binomial_one():
