@@ -737,6 +737,27 @@ def test_importance_sampling_of_a_system_needs_a_design_point(tmp_path):
     assert "series system" in str(error.value) and "cross-entropy" in str(error.value)
 
 
+def test_cross_entropy_warns_of_a_fit_on_fewer_elites_than_dimensions(tmp_path):
+    # 20 draws a round in 10 dimensions, rho = 0.1: each fit rests on 2 elites (the mean
+    # only, "auto" takes the identity), whose mean is off by about sqrt(10 / 2) per the
+    # warning; and the advice on degenerate weights is cross-entropy's own, not "use
+    # cross-entropy"
+    scene, inputs = linear_in(10)
+    outcome, raised = run(tmp_path, scene, inputs,
+                          [{"name": "high", "output": "y", "exceeds": 2.0}],
+                          {"kind": "cross-entropy", "samples": 20, "max_rounds": 1})
+    assert any("effective elite draws for 10 dimensions" in w for w in raised)
+    assert "identity covariance (mean shift)" in outcome.statistics.attrs["biasing_density"]
+    for kind, advice in (("cross-entropy", "use more samples a round"),
+                         ("importance-sampling", "use cross-entropy or more samples")):
+        method = study(tmp_path, scene, inputs, [{"name": "high", "output": "y",
+                                                  "exceeds": 2.0}],
+                       {"kind": kind, "samples": 20}, name=kind).method
+        words = method.estimate_warnings(ImportanceEstimate(1e-3, 1e-4, 0.0, 2e-3, 0.1, 1.0,
+                                                            20), 20, 0, 20)
+        assert len(words) == 1 and advice in words[0]
+
+
 def test_report_lines(tmp_path):
     outcome, _ = run(tmp_path, R_MINUS_S, RS_INPUTS, BELOW_ZERO,
                      {"kind": "cross-entropy", "samples": 100})
