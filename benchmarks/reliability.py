@@ -668,17 +668,17 @@ def main(argv=None) -> dict:
         write_summary(summary(results, first["checkout"]))
         return results
     results = {}
+    checkout = "" if args.quick else _checkout()    # the code that runs: as it starts
     with tempfile.TemporaryDirectory() as tmp:
         for name in problems:
             results[name] = run_problem(name, methods, repetitions, args.case_seconds,
                                         Path(tmp), with_openturns,
                                         QUICK_BUDGET if args.quick else BUDGETS[name])
+            if args.save:       # after each problem: a run stopped early keeps what it did
+                args.save.write_text(json.dumps(
+                    {"argv": sys.argv, "results": results, "repetitions": repetitions,
+                     "case_seconds": args.case_seconds, "checkout": checkout}, indent=1))
     if not args.quick:
-        checkout = _checkout()
-        if args.save:
-            args.save.write_text(json.dumps(
-                {"argv": sys.argv, "results": results, "repetitions": repetitions,
-                 "case_seconds": args.case_seconds, "checkout": checkout}, indent=1))
         write_section("reliability", TITLE, report(results, repetitions, args.case_seconds,
                                                    checkout))
         write_summary(summary(results, checkout))
