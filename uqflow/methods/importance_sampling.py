@@ -111,6 +111,13 @@ class GaussianMixture:
         # the inverse factors once (a product per call is cheaper than a solve; scipy's
         # triangular solve costs milliseconds even for 3 x 3)
         object.__setattr__(self, "_inverse_lower", np.linalg.inv(lower))
+        # components with a diagonal factor (the identity of mean-shift fits and of the
+        # defensive share) scale elementwise: the same numbers as the product with the factor
+        # (its zeros add exact zeros), without a BLAS call that threads badly on a busy machine
+        diagonal = np.diagonal(lower, axis1=1, axis2=2)
+        object.__setattr__(self, "_diagonal", [
+            np.diagonal(lower[j]).copy() if np.array_equal(lower[j], np.diag(diagonal[j]))
+            else None for j in range(weights.size)])
         object.__setattr__(self, "_log_norm", -np.log(np.diagonal(lower, axis1=1, axis2=2))
                            .sum(axis=1) - 0.5 * d * LOG_2PI)
 
@@ -135,7 +142,9 @@ class GaussianMixture:
         out = np.empty_like(z)
         for j in range(self.components):  # per component: no (n, d, d) stack of factors
             rows = which == j
-            out[rows] = self.means[j] + z[rows] @ self._lower[j].T
+            scale = self._diagonal[j]
+            out[rows] = self.means[j] + (z[rows] * scale if scale is not None
+                                         else z[rows] @ self._lower[j].T)
         return out
 
     def log_pdf(self, u: np.ndarray) -> np.ndarray:
@@ -146,7 +155,9 @@ class GaussianMixture:
                              f"{self.dimension}")
         terms = np.empty((self.components, u.shape[0]))
         for j in range(self.components):
-            y = (u - self.means[j]) @ self._inverse_lower[j].T
+            y = (u - self.means[j]) * np.diagonal(self._inverse_lower[j]) \
+                if self._diagonal[j] is not None else \
+                (u - self.means[j]) @ self._inverse_lower[j].T
             terms[j] = -0.5 * np.einsum("ij,ij->i", y, y) + self._log_norm[j]
         with np.errstate(divide="ignore"):
             terms += np.log(self.weights)[:, None]
