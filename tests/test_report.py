@@ -495,3 +495,20 @@ def test_a_report_hook_that_raises_costs_only_the_methods_part(studies, monkeypa
     with pytest.warns(report.ReportHookWarning):
         written = report.write_figures(tree, tmp_path)   # without the hook: no draws claimed,
     assert all(p.exists() for p in written)              # so no histogram, but no error
+
+
+def test_a_field_without_a_std_gets_one_number_a_cell_at_its_point_of_largest_difference():
+    # FORM's statistics of an output are its values at the medians and at the design point,
+    # importance sampling's a weighted mean alone: a cell must still be one number, and the
+    # row where they tell most (the largest difference, or the largest magnitude).
+    t = np.linspace(0.0, 2.0, 5)
+    two = xr.Dataset({"y": (("statistic", "t"), [[1.0, 2.0, 3.0, 4.0, 5.0],
+                                                 [1.0, 2.5, 3.0, 4.0, 5.1]])},
+                     coords={"statistic": ["at_medians", "at_design_point"], "t": t})
+    assert report.focus_point(two, "y") == {"t": 1}
+    one = xr.Dataset({"y": (("statistic", "t"), [[1.0, -7.0, 3.0, 4.0, 5.0]])},
+                     coords={"statistic": ["mean"], "t": t})
+    assert report.focus_point(one, "y") == {"t": 1}
+    scalar = xr.Dataset({"y": (("statistic",), [1.0, 2.0])},
+                        coords={"statistic": ["at_medians", "at_design_point"]})
+    assert report.focus_point(scalar, "y") == {}

@@ -72,9 +72,8 @@ from uqflow.layout import (BOUND, BOUND_HIGH, BOUND_LOW, CONFIDENCE, EXCEEDANCE_
 from uqflow.methods.base import (MethodOptions, PropagationMethod, failure_warning,
                                  finish_statistics, make_design, ok_mask, output_names,
                                  register_method)
-from uqflow.report import (Column, FigureSpec, MethodReport, axis_label, new_figure, number,
-                           scientific_ticks)
-from uqflow.report.framework_figures import exceedance_log_figure
+from uqflow.report import (Column, FigureSpec, MethodReport, axis_label, exceedance_log_figure,
+                           new_figure, number, scientific_ticks)
 from uqflow.sampling import QUASI_RANDOM_RULES, replicated_unit_hypercube, unit_hypercube
 
 #: ``stderr_kind`` of the statistics, per rule: which formula the standard error uses.

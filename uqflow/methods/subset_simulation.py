@@ -57,8 +57,8 @@ from uqflow.limit_states import EXCEEDS, LimitStateSystem
 from uqflow.methods.base import (MAX_REALIZATIONS, MethodOptions, PropagationMethod,
                                  finish_statistics, make_design, register_method)
 from uqflow.methods.form import STANDARD_NORMAL, to_inputs
-from uqflow.report import FigureSpec, MethodReport, display_units, number
-from uqflow.report.framework_figures import exceedance_log_figure
+from uqflow.report import (FigureSpec, MethodReport, display_units, exceedance_log_figure,
+                           number)
 
 #: the acceptance rate aCS steers lambda to (Papaioannou et al. 2015, after Roberts &
 #: Rosenthal's optimal 0.44 for one-dimensional random-walk proposals)
@@ -260,7 +260,7 @@ class SubsetSimulation(PropagationMethod):
         step_of = np.asarray(runs[CHAIN_STEP].values)
         chain_of = np.asarray(runs[CHAIN].values)
         u_all = np.asarray(runs[STANDARD_NORMAL].values, dtype=float)
-        seeds, length = self.seeds, self.length
+        seeds = self.seeds
         progress = Progress()
         rows = np.flatnonzero(level_of == 0)[None, :]
         current = SubsetLevel(0, rows, g_all[rows], failed=int(np.isnan(g_all[rows]).sum()))

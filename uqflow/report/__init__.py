@@ -22,8 +22,8 @@ from uqflow.report.contributions import Column, FigureSpec, MethodReport, Sensit
 from uqflow.report.figures import (FigureWarning, axis_label, colors, coordinate,
                                    figure_folder, figure_path, input_label, new_figure,
                                    safe_file_name, save_figure, scientific_ticks)
-from uqflow.report.framework_figures import (exceedance_curve, scatter_band,
-                                             write_figures)
+from uqflow.report.framework_figures import (exceedance_curve, exceedance_log_figure,
+                                             scatter_band, write_figures)
 from uqflow.report.html import write_html
 from uqflow.report.solver_hook import solver_report
 from uqflow.report.scene import scene_ran
@@ -40,4 +40,4 @@ __all__ = ["Column", "FigureSpec", "MethodReport", "Sensitivity", "FigureWarning
            "solver_report", "summary_table", "write_figures", "focus_point", "grid", "number",
            "seconds", "statistic", "units_of", "where", "ResultView", "ReportHookWarning", "Table",
            "display_units",
-           "exceedance_curve", "scatter_band", "write_html", "scene_ran"]
+           "exceedance_curve", "exceedance_log_figure", "scatter_band", "write_html", "scene_ran"]

@@ -3,7 +3,8 @@ print: one row per output, the columns and notes the result's method adds (its
 ``MethodReport``), the sensitivity indices it computed, the cost of the study and the inputs.
 
 A field output (one with dimensions besides ``realization``, e.g. ``y(t)``) gets one table row,
-taken at its point of largest std; the row says where, and a note gives the range of the mean
+taken at its point of largest std (``uqflow.report.focus_point``: without a std, where its
+statistics differ most); the row says where, and a note gives the range of the mean
 over the field.
 """
 
@@ -88,9 +89,11 @@ def summary_blocks(tree: xr.DataTree) -> list:
             mean = np.asarray(_stat(stats, out, STATISTIC_MEAN).values, dtype=float)
             finite = mean[np.isfinite(mean)]
             span = f"{_num(finite.min())} .. {_num(finite.max())}" if finite.size else "nan"
+            chosen = "largest std" if _stat(stats, out, STATISTIC_STD) is not None else \
+                "largest magnitude of the mean"
             notes.append(f"{out} is a field of {mean.size} points "
                          f"({', '.join(stats[out].dims[1:])}): its row is at the point of "
-                         f"largest std; the mean ranges over {span}{_unit_suffix(unit)}")
+                         f"{chosen}; the mean ranges over {span}{_unit_suffix(unit)}")
     # Rows differ in units: the column 'unit u' gives each row's, the headers say in what
     # power of it a column is.
     header = ["output", "unit u", "at", "mean [u]", "std [u]"] + \

@@ -81,14 +81,20 @@ def units_of(output: str, *datasets: xr.Dataset | None) -> str:
 
 def focus_point(stats: xr.Dataset, output: str) -> dict[str, int]:
     """Index of a field output's point of largest std ({} for a scalar output): where a table
-    row of a field is taken."""
-    std = statistic(stats, output, STATISTIC_STD)
-    if std is None or std.ndim == 0:
+    row of a field is taken. Statistics without a std (an output's values at two points of
+    the inputs, a weighted mean alone) give the point where they differ most, or with one
+    statistic the point of largest magnitude: a table cell must be one number."""
+    spread = statistic(stats, output, STATISTIC_STD)
+    if spread is None and output in stats and STATISTIC in stats[output].dims:
+        values = stats[output]
+        spread = abs(values).isel({STATISTIC: 0}) if values.sizes[STATISTIC] == 1 else \
+            values.max(STATISTIC) - values.min(STATISTIC)
+    if spread is None or spread.ndim == 0:
         return {}
-    values = np.asarray(std.values, dtype=float)
+    values = np.asarray(spread.values, dtype=float)
     flat = np.where(np.isfinite(values), values, -np.inf).ravel()
     at = np.unravel_index(int(np.argmax(flat)), values.shape)
-    return {d: int(i) for d, i in zip(std.dims, at)}
+    return {d: int(i) for d, i in zip(spread.dims, at)}
 
 
 def where(ds: xr.Dataset, focus: dict[str, int]) -> str:
