@@ -530,11 +530,20 @@ def _without(header: list[str], rows: list[list[str]], drop) -> tuple[list, list
     return [header[i] for i in keep], [[row[i] for i in keep] for row in rows]
 
 
+def _with_path(res: GamutResult | None) -> GamutResult | None:
+    """``res`` if its runs hold the stress-strain paths, else None."""
+    return res if res is not None and {"strain", "stress"} <= set(res.runs) else None
+
+
 def _curve_table(idx: _Index, strains) -> Table | None:
     rows = []
     for case, grid in idx.groups("monotonic"):
-        sto = idx.get(case, "monotonic", grid, True)
+        # a study may store scalars alone (failure_strain for a limit state): no path, no curve
+        sto = _with_path(idx.get(case, "monotonic", grid, True))
         det, det_grid = idx.deterministic_for(case, "monotonic", grid)
+        det = _with_path(det)
+        if sto is None and det is None:
+            continue
         any_r = sto or det
         props = material_properties(any_r.material, any_r.overrides)
         ro = ro_stress_at(props, strains)
@@ -561,8 +570,8 @@ def _curve_table(idx: _Index, strains) -> Table | None:
              "failed before a strain does not count there); paths interpolated linearly; '–' "
              "where none (or the deterministic bar) reaches it, or no deterministic result of "
              "the case is given"]
-    with_deterministic = any(idx.deterministic_for(case, "monotonic", grid)[0] is not None
-                             for case, grid in idx.groups("monotonic"))
+    with_deterministic = any(_with_path(idx.deterministic_for(case, "monotonic", grid)[0])
+                             is not None for case, grid in idx.groups("monotonic"))
     title = ("Monotonic curves (seed 002, Figs. 21-24): mean stress of the realizations against "
              + ("the deterministic bar and " if with_deterministic else "") + "Ramberg-Osgood")
     if not with_deterministic:

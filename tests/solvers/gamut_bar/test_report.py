@@ -386,3 +386,16 @@ def test_the_report_uses_public_report_names_only():
                 assert node.module == "uqflow.report", f"{path.name}: {node.module}"
                 for alias in node.names:
                     assert alias.name in uqflow.report.__all__, f"{path.name}: {alias.name}"
+
+
+def test_a_study_storing_scalars_alone_reports_without_the_curve(trees, tmp_path):
+    """A reliability study stores what its limit state needs (failure_strain) and no
+    stress-strain path: the report leaves the mean curve out instead of failing on it."""
+    full = _by_name(trees, "m1-monotonic-stochastic-uniform")
+    runs = full["runs"].to_dataset().drop_vars(["strain", "stress"])
+    scalars = xr.DataTree.from_dict({"/": xr.Dataset(attrs=dict(full.attrs)), "runs": runs,
+                                     "statistics": full["statistics"].to_dataset()})
+    text, _ = GamutBarSolver.report([scalars], tmp_path, figures=True)
+    assert "Monotonic curves" not in text and "failure" in text.lower()
+    text, _ = GamutBarSolver.report([full], tmp_path, figures=False)
+    assert "Monotonic curves" in text
