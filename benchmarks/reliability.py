@@ -427,7 +427,7 @@ def _row(side: str, method: str, s: dict, band) -> str:
     if "covered" in s:
         fraction = s["covered"] / s["repetitions"]
         low, high, _ = band(s["repetitions"])
-        mark = "" if low <= fraction <= high else " **(outside)**"
+        mark = _band_mark(fraction, low, high)
         covered = f"{s['covered']}/{s['repetitions']} = {fraction:.3f}{mark}"
     if "bias_stderr" in s:
         bias = _cell(s, "bias", "+.3f") + f" ± {s['bias_stderr']:.3f}"
@@ -525,9 +525,16 @@ def _headline(s: dict | None, error: str | None = None) -> str:
     if "covered" in s:
         low, high, _ = binomial_band(s["repetitions"])
         fraction = s["covered"] / s["repetitions"]
-        covered = f"{s['covered']}/{s['repetitions']}" + (
-            "" if low <= fraction <= high else " **out**")
-    return f"{s['calls']:.0f} | {ratio:.3g} | {cov} | {covered}"
+        covered = f"{s['covered']}/{s['repetitions']}" + _band_mark(fraction, low, high)
+    shown = "no p_f" if not np.isfinite(ratio) else f"{ratio:.3g}"
+    return f"{s['calls']:.0f} | {shown} | {cov} | {covered}"
+
+
+def _band_mark(fraction: float, low: float, high: float) -> str:
+    """Below the band: intervals too narrow; above it: conservative ones (Clopper-Pearson)."""
+    if fraction < low:
+        return " **(below the band)**"
+    return " (above the band)" if fraction > high else ""
 
 
 def summary(results: dict, checkout: str) -> str:
@@ -543,8 +550,10 @@ def summary(results: dict, checkout: str) -> str:
         "and its standard error, is BENCHMARKS.md's section \"Reliability\". Per cell: solver "
         "calls (mean), mean p_f / exact, reported c.o.v. (mean) / measured c.o.v. (spread of "
         f"p_f over the repetitions / exact), and how many of the R = {repetitions} reported "
-        f"95 % intervals hold the exact p_f (**out**: outside the binomial band "
-        f"[{low:.3f}, {high:.3f}] of a true 95 %, judged at the row's own R).",
+        f"95 % intervals hold the exact p_f, against the binomial band "
+        f"[{low:.3f}, {high:.3f}] of a true 95 % (judged at the row's own R): below it the "
+        "intervals are too narrow, above it conservative. 'no p_f': the method gave none "
+        "(FORM's search stopped at a zero gradient).",
         "",
         "| problem | uqflow method | calls | p_f / exact | c.o.v. rep. / meas. | coverage | "
         "OpenTURNS | calls | p_f / exact | c.o.v. rep. / meas. | coverage |",
@@ -617,6 +626,7 @@ def merged(parts) -> dict:
                     into.setdefault(key, {}).update(value)
                 else:
                     into[key] = value
+    results = {name: results[name] for name in PROBLEMS if name in results}
     for result in results.values():
         result["uqflow"] = {k: result["uqflow"][k] for k in UQFLOW_METHODS
                             if k in result.get("uqflow", {})}
