@@ -177,6 +177,7 @@ def openturns_runs(method, seed):
         experiment = ot.ImportanceSamplingExperiment(ot.Normal(star, ot.CovarianceMatrix(2)))
         algo = ot.ProbabilitySimulationAlgorithm(std_event, experiment)
         algo.setMaximumOuterSampling(OT_BUDGET["is_samples"])
+        algo.setMaximumCoefficientOfVariation(0.0)   # all the samples (default: stop at 0.1)
     elif method == "ot-subset-sampling":
         algo = ot.SubsetSampling(event)
         algo.setMaximumOuterSampling(OT_BUDGET["subset_per_level"])
@@ -184,6 +185,7 @@ def openturns_runs(method, seed):
         algo = ot.ProbabilitySimulationAlgorithm(event, ot.MonteCarloExperiment())
         algo.setBlockSize(1000)
         algo.setMaximumOuterSampling(OT_BUDGET["mc_samples"] // 1000)
+        algo.setMaximumCoefficientOfVariation(0.0)
     algo.run()
     result = algo.getResult()
     p = result.getProbabilityEstimate()
