@@ -614,6 +614,20 @@ def _openturns_version() -> str:
     return ot.__version__
 
 
+def _checkouts(saved: list[dict]) -> str:
+    """The checkout each saved file's uqflow rows ran at (methods measured at different
+    commits say which)."""
+    order = list(UQFLOW_METHODS)
+    kinds: dict[str, set] = {}
+    for part in saved:
+        kinds.setdefault(part["checkout"], set()).update(
+            k for r in part["results"].values() for k in r["uqflow"])
+    if len(kinds) == 1:
+        return next(iter(kinds))
+    return "; ".join(f"{', '.join(sorted(k, key=order.index))} with {c}"
+                     for c, k in kinds.items())
+
+
 def merged(parts) -> dict:
     """The results of several ``--save`` files as one: a problem's rows from every file
     that ran it (methods split among processes), uqflow's in the table's order."""
@@ -665,7 +679,8 @@ def main(argv=None) -> dict:
                 "--problems", "--methods", "--no-openturns") and a not in UQFLOW_METHODS]
             sys.argv = [a for i, a in enumerate(sys.argv) if not (
                 a.endswith(".json") or (i and sys.argv[i - 1] == "--save") or a == "--save")]
-        body = report(results, first["repetitions"], first["case_seconds"], first["checkout"])
+        checkout = _checkouts(saved)
+        body = report(results, first["repetitions"], first["case_seconds"], checkout)
         if len(saved) > 1:
             body += (f"\nRun as {len(saved)} processes, the problems split among them by "
                      "`--problems` and the methods by `--methods` (each with `--save`), merged "
@@ -675,7 +690,7 @@ def main(argv=None) -> dict:
                                  f"{part['checkout'].removeprefix('uqflow at ')}"
                                  for part in saved) + ".\n")
         write_section("reliability", TITLE, body)
-        write_summary(summary(results, first["checkout"]))
+        write_summary(summary(results, checkout))
         return results
     results = {}
     checkout = "" if args.quick else _checkout()    # the code that runs: as it starts
