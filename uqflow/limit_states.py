@@ -199,6 +199,23 @@ class LimitStates:
             return any(self.is_discrete(m) for m in item.members)
         return item.discrete
 
+    def choose(self, chosen: str | None, method: str, systems: bool) -> str:
+        """The one limit state (or, with ``systems``, system) a method analyses: ``chosen``
+        (its ``limit_state`` option) or the study's only one; one line naming
+        ``method.limit_state`` otherwise."""
+        names = list(self.names)
+        if chosen is None:
+            if len(names) != 1:
+                raise StudyError(f"the study has {len(names)} limit states "
+                                 f"({', '.join(names)}) and {method} analyses one"
+                                 f"{' (a system too)' if systems else ''}: name it with "
+                                 f"limit_state = \"...\"", key="method.limit_state")
+            return names[0]
+        if chosen not in names:
+            raise StudyError(f"'{chosen}' is not among the study's limit states "
+                             f"({', '.join(names)})", key="method.limit_state")
+        return chosen
+
     def require_continuous(self, name: str, method: str) -> None:
         """Refuse, in one line naming ``method.limit_state``, a discrete limit state for a
         method that follows the margin's gradient (FORM, SORM) or its level sets (subset

@@ -191,18 +191,7 @@ class SubsetSimulation(PropagationMethod):
         if limit_states is None or not list(limit_states.names):
             raise StudyError(f"method '{self.name}' needs a limit state: add a "
                              f"[[limit_states]] table", key="limit_states")
-        names = list(limit_states.names)
-        chosen = self.options.limit_state
-        if chosen is None:
-            if len(names) != 1:
-                raise StudyError(f"the study has {len(names)} limit states "
-                                 f"({', '.join(names)}) and {self.name} analyses one (a "
-                                 f"system too): name it with limit_state = \"...\"",
-                                 key="method.limit_state")
-            chosen = names[0]
-        elif chosen not in names:
-            raise StudyError(f"'{chosen}' is not among the study's limit states "
-                             f"({', '.join(names)})", key="method.limit_state")
+        chosen = limit_states.choose(self.options.limit_state, self.name, True)
         self.limit_states = limit_states
         self.limit_state = chosen
 
