@@ -27,6 +27,13 @@ import reliability as bench  # noqa: E402
 
 def test_reliability_benchmark_runs_in_quick_mode(monkeypatch):
     monkeypatch.setattr(bench, "write_section", lambda *a: pytest.fail("quick mode wrote"))
+    repetitions = []                    # each in-memory repetition's figures, as it ran
+    in_memory = bench.run_in_memory
+
+    def recorded(study, problem, seed):
+        repetitions.append((study.method.name, seed, in_memory(study, problem, seed)))
+        return repetitions[-1][2]
+    monkeypatch.setattr(bench, "run_in_memory", recorded)
     results = bench.main(["--quick"])["r_minus_s"]
     reference = sps.norm.cdf(-math.sqrt(2))
     # the stored formula's value against scipy's: a few ulp of the normal tail
@@ -36,11 +43,26 @@ def test_reliability_benchmark_runs_in_quick_mode(monkeypatch):
     # R - S is linear in normals: FORM is exact up to the differences' rounding (1e-13)
     assert form["p_mean"] == pytest.approx(reference, rel=1e-9)
     assert form["repetitions"] == 1 and form["calls"] > 0
+    assert [(kind, seed) for kind, seed, _ in repetitions] == [
+        ("monte-carlo", 0), ("monte-carlo", 1), ("form", 0)]
     mc = results["uqflow"]["monte-carlo"]
     assert mc["repetitions"] == 2 and mc["calls"] == 100
     # two means of 100 draws at p = 0.079: stderr sqrt(p (1 - p) / 200) = 0.019; 4 of them
     assert abs(mc["p_mean"] - reference) < 4 * math.sqrt(reference * (1 - reference) / 200)
-    assert 0 <= mc["covered"] <= 2 and mc["cov_reported"] > 0
+    # each repetition's failure count k of 100, recomputed: its Clopper-Pearson interval
+    # holds the exact p_f when neither tail of binomial(100, p_f) beyond k is below 2.5 %
+    # (3 <= k <= 13), so the coverage is a count known without the intervals
+    counts = [round(figures["p"] * 100) for kind, _, figures in repetitions
+              if kind == "monte-carlo"]
+    assert [f["p"] for kind, _, f in repetitions if kind == "monte-carlo"] == [
+        k / 100 for k in counts]
+    assert mc["covered"] == sum(sps.binom.sf(k - 1, 100, reference) > 0.025 and
+                                sps.binom.cdf(k, 100, reference) > 0.025 for k in counts)
+    # the reported c.o.v.: the binomial sqrt((1 - p) / (n p)), averaged over the two; each
+    # side a few correctly rounded operations (no libm): 1e-14 is 45 eps (abs=0: approx's
+    # default 1e-12 would hide a relative error of 3e-12 here)
+    assert mc["cov_reported"] == pytest.approx(
+        np.mean([math.sqrt((1 - k / 100) / k) for k in counts]), rel=1e-14, abs=0)
     text = bench.report({"r_minus_s": results}, 2, math.inf)
     assert "| uqflow | form | 1 |" in text and "| uqflow | monte-carlo | 2 | 100 |" in text
     # the docs' summary: FORM exact (p_f / exact rounds to 1), Monte Carlo's 100 calls
