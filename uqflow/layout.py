@@ -188,6 +188,16 @@ CE_ROUND, CE_THRESHOLD, CE_ELITES = ("cross_entropy_round", "cross_entropy_thres
 #: words, and whether the cross-entropy threshold reached 0
 DENSITY_RUNS, SAMPLING_RUNS = "density_runs", "sampling_runs"
 BIASING_DENSITY, THRESHOLD_REACHED = "biasing_density", "threshold_reached"
+# cross-entropy's improved rule and families (uqflow.methods.importance_sampling)
+#: (cross_entropy_round): the smoothing parameter s_j fitted after each round (NaN for the
+#: round that met the stop) and the round's stopping c.o.v. of 1[g <= 0] / Phi(-g/s)
+CE_SMOOTHING, CE_STOP_COV = "cross_entropy_smoothing", "cross_entropy_stop_cov"
+#: attributes: the update rule ("improved", "quantile") and the family fitted ("gaussian",
+#: "vmfn"); for vmfn the final density's concentration, Nakagami shape m and spread Omega
+CE_RULE, CE_FAMILY = "cross_entropy_rule", "cross_entropy_family"
+VMF_KAPPA, NAKAGAMI_M, NAKAGAMI_OMEGA = "vmf_kappa", "nakagami_m", "nakagami_omega"
+#: (parameter): the final vMFN density's mean direction in standard normal space
+VMF_DIRECTION = "vmf_mean_direction"
 
 # ----------------------------------------------------------------------------- root attributes
 STUDY_NAME, SOLVER = "study_name", "solver"

@@ -561,7 +561,7 @@ def test_importance_sampling_puts_a_gaussian_on_each_design_point_the_check_find
 def test_cross_entropy_finds_the_four_branch_system_where_form_is_wrong(tmp_path):
     outcome, raised = run(tmp_path, {}, [("x1", 0.0, 1.0), ("x2", 0.0, 1.0)],
                           FOUR_BRANCH_STATES, {"kind": "cross-entropy", "samples": 500,
-                                               "limit_state": "system"},
+                                               "limit_state": "system", "rule": "quantile"},
                           solver="four-branch-test")
     stats = outcome.statistics
     exact = four_branch_exact(6.0)
@@ -745,7 +745,8 @@ def test_cross_entropy_warns_of_a_fit_on_fewer_elites_than_dimensions(tmp_path):
     scene, inputs = linear_in(10)
     outcome, raised = run(tmp_path, scene, inputs,
                           [{"name": "high", "output": "y", "exceeds": 2.0}],
-                          {"kind": "cross-entropy", "samples": 20, "max_rounds": 1})
+                          {"kind": "cross-entropy", "samples": 20, "max_rounds": 1,
+                           "rule": "quantile"})
     assert any("effective elite draws for 10 dimensions" in w for w in raised)
     assert "identity covariance (mean shift)" in outcome.statistics.attrs["biasing_density"]
     for kind, advice in (("cross-entropy", "use more samples a round"),
@@ -760,7 +761,7 @@ def test_cross_entropy_warns_of_a_fit_on_fewer_elites_than_dimensions(tmp_path):
 
 def test_report_lines(tmp_path):
     outcome, _ = run(tmp_path, R_MINUS_S, RS_INPUTS, BELOW_ZERO,
-                     {"kind": "cross-entropy", "samples": 100})
+                     {"kind": "cross-entropy", "samples": 100, "rule": "quantile"})
     text = summary_table(open_result(outcome.path))
     stats = outcome.statistics
     assert (f"cross-entropy, limit state 'negative' (y < 0): p_f = "

@@ -29,7 +29,7 @@ from typing import ClassVar, Literal
 import numpy as np
 import xarray as xr
 from pydantic import Field, model_validator
-from scipy import special
+from scipy import optimize, special
 
 from uqflow.errors import AccuracyWarning, StudyError
 from uqflow.layout import (BIASING_COMPONENT, BIASING_DENSITY, BIASING_MEAN, BIASING_WEIGHT,
@@ -42,6 +42,8 @@ from uqflow.layout import (BIASING_COMPONENT, BIASING_DENSITY, BIASING_MEAN, BIA
                            RELIABILITY_INDEX, ROUND, SAMPLING_RUNS, SOLVER_RUNS, STATISTIC,
                            STATISTIC_MEAN, STATUS, STATUS_PENDING, THRESHOLD_REACHED, UNITS,
                            ok_mask, output_names)
+from uqflow.layout import (CE_FAMILY, CE_RULE, CE_SMOOTHING, CE_STOP_COV, NAKAGAMI_M,
+                           NAKAGAMI_OMEGA, VMF_DIRECTION, VMF_KAPPA)
 from uqflow.methods.base import (MAX_REALIZATIONS, MethodOptions, PropagationMethod,
                                  finish_statistics, make_design, register_method)
 from uqflow.methods.form import (CHECK_DISTANCE, CHECK_POINT, DESIGN_POINT, DESIGN_POINT_U,
@@ -49,6 +51,9 @@ from uqflow.methods.form import (CHECK_DISTANCE, CHECK_POINT, DESIGN_POINT, DESI
                                  OUTSIDE_HALF_SPACE, PROBE_CONE, STAGE, STAGE_CHECK,
                                  STAGE_SEARCH, STANDARD_NORMAL, Form, cholesky_of,
                                  importance_factors, moving_axes, system_kind, to_inputs)
+from uqflow.methods.von_mises_fisher_nakagami import (VonMisesFisherNakagami,
+                                                      fit_von_mises_fisher_nakagami,
+                                                      normalized_weights)
 from uqflow.probability import reliability_index
 from uqflow.report import MethodReport, Sensitivity, number
 
@@ -325,6 +330,95 @@ def cross_entropy_step(u, g, log_ratio, rho: float, floor: float = COVARIANCE_FL
     return threshold, int(elite.size), fitted
 
 
+#: EM of a Gaussian mixture stops when the weighted log-likelihood gains less than this
+#: (relative) in an iteration, or after EM_ITERATIONS
+EM_TOLERANCE, EM_ITERATIONS = 1e-8, 200
+#: a component whose weight falls below this share of the whole is dropped (it holds no point)
+EM_SMALLEST_SHARE = 1e-6
+
+
+def fit_gaussian_mixture(u, log_weights, components: int, floor: float = COVARIANCE_FLOOR,
+                         covariance: str = "auto") -> GaussianMixture:
+    """A mixture of ``components`` Gaussians fitted to the points ``u`` (n, d) with weights
+    exp(log_weights) by weighted EM: each point's responsibilities as in plain EM, each
+    component's weight, mean and covariance from the responsibilities times the points'
+    weights. Starting point, deterministic: the heaviest point, then each next centre the
+    point of largest weight x squared distance to the centres so far; each point to its
+    nearest centre. Covariances per ``covariance`` ("auto": a component's full covariance
+    when its effective count of points (Kish) pays for it, ``full_covariance_pays``, else
+    the identity), eigenvalues floored at ``floor``. One component is
+    ``cross_entropy_fit``'s Gaussian."""
+    u = np.atleast_2d(np.asarray(u, dtype=float))
+    w = normalized_weights(log_weights)
+    if u.shape[0] != w.size or not np.all(np.isfinite(u)):
+        raise ValueError(f"need {u.shape[0]} finite points with a weight each, got "
+                         f"{w.size} weights")
+    if int(components) < 1:
+        raise ValueError(f"components must be >= 1, got {components!r}")
+    responsibility = initial_responsibilities(u, w, int(components))
+    previous = -math.inf
+    for _ in range(EM_ITERATIONS):
+        mixture = weighted_m_step(u, w, responsibility, floor, covariance)
+        log_joint = component_log_densities(mixture, u) + np.log(mixture.weights)[None]
+        top = np.max(log_joint, axis=1, keepdims=True)
+        log_mix = top[:, 0] + np.log(np.sum(np.exp(log_joint - top), axis=1))
+        responsibility = np.exp(log_joint - log_mix[:, None])
+        likelihood = float(w @ log_mix)
+        if likelihood - previous <= EM_TOLERANCE * abs(likelihood):
+            break
+        previous = likelihood
+    return mixture
+
+
+def initial_responsibilities(u, w, components: int) -> np.ndarray:
+    centres = [int(np.argmax(w))]
+    distance = np.sum((u - u[centres[0]]) ** 2, axis=1)
+    for _ in range(1, components):
+        score = w * distance
+        best = int(np.argmax(score))
+        if score[best] <= 0:  # fewer distinct weighted points than components
+            break
+        centres.append(best)
+        distance = np.minimum(distance, np.sum((u - u[best]) ** 2, axis=1))
+    nearest = np.argmin(np.stack([np.sum((u - u[c]) ** 2, axis=1) for c in centres]), axis=0)
+    return np.eye(len(centres))[nearest]
+
+
+def weighted_m_step(u, w, responsibility, floor, covariance) -> GaussianMixture:
+    mass = responsibility * w[:, None]
+    shares = mass.sum(axis=0)
+    keep = shares > EM_SMALLEST_SHARE * shares.sum()
+    mass, shares = mass[:, keep], shares[keep]
+    d = u.shape[1]
+    means = (mass.T @ u) / shares[:, None]
+    covariances = np.empty((shares.size, d, d))
+    for k in range(shares.size):
+        kind = covariance
+        if kind == "auto":
+            effective = shares[k] ** 2 / np.sum(mass[:, k] ** 2)
+            kind = "full" if full_covariance_pays(effective, d) else "identity"
+        centred = u - means[k]
+        if kind == "identity":
+            covariances[k] = np.eye(d)
+        elif kind == "diagonal":
+            covariances[k] = np.diag(np.maximum(mass[:, k] @ centred**2 / shares[k], floor))
+        else:
+            fitted = (centred * mass[:, k:k + 1]).T @ centred / shares[k]
+            values, vectors = np.linalg.eigh(0.5 * (fitted + fitted.T))
+            fitted = (vectors * np.maximum(values, floor)) @ vectors.T
+            covariances[k] = 0.5 * (fitted + fitted.T)
+    return GaussianMixture(shares, means, covariances)
+
+
+def component_log_densities(mixture: GaussianMixture, u) -> np.ndarray:
+    """log N(u_i; m_k, C_k), (n, k)."""
+    out = np.empty((u.shape[0], mixture.components))
+    for k in range(mixture.components):
+        out[:, k] = GaussianMixture(np.ones(1), mixture.means[k:k + 1],
+                                    mixture.covariances[k:k + 1]).log_pdf(u)
+    return out
+
+
 @dataclass(frozen=True)
 class ImportanceEstimate:
     """An importance-sampling estimate of a probability from ``n`` weighted draws: the
@@ -376,6 +470,14 @@ def importance_estimate(failed, log_ratio, confidence: float = 0.95) -> Importan
     return ImportanceEstimate(probability, stderr, max(probability - z * stderr, 0.0),
                               min(probability + z * stderr, 1.0), stderr / probability,
                               ess, n, reason)
+
+
+def log_likelihood_ratio(density, u) -> np.ndarray:
+    """log phi(u) - log q(u) of the points ``u`` (n, d) under a Gaussian mixture or a
+    von Mises-Fisher-Nakagami density (its own ratio, whose r^(d-1) cancel)."""
+    if isinstance(density, VonMisesFisherNakagami):
+        return density.log_likelihood_ratio(u)
+    return standard_normal_log_pdf(u) - density.log_pdf(u)
 
 
 # ============================================================================= the methods
@@ -489,20 +591,56 @@ class ImportanceSamplingOptions(MethodOptions):
         return self
 
 
+#: the improved cross-entropy method's default target c.o.v. of the weights between
+#: successive smoothed targets, and of 1[g <= 0] / Phi(-g/s) at its stop (Papaioannou, Geyer
+#: & Straub 2019 recommend 1.5: about N / (1 + 1.5^2), a third of a round's draws, carry
+#: each fit)
+SMOOTHING_COV = 1.5
+#: family = "auto" fits the von Mises-Fisher-Nakagami density from this many moving axes of
+#: u on, a mixture of Gaussians below. A mixture's means are d numbers per component, each off
+#: by about 1/sqrt(n_e) (n_e the component's effective draws), which inflates the weights'
+#: second moment by about e^(d / n_e): with a round's ~N/3 effective draws shared by 4
+#: components (N = 1,000) that is e^0.24 at d = 20 and grows past e^1 by d = 100, where
+#: the vMFN's shell and cap need no per-axis mean. Below 20 axes the mixture keeps what the
+#: vMFN cannot: failure regions in several directions (the four-branch system, two design
+#: points).
+VMFN_DIMENSION = 20
+#: components of the Gaussian family: the improved rule fits this many (four regions of the
+#: four-branch system each get one); the quantile rule one (its rho N elites are too few to
+#: share)
+IMPROVED_COMPONENTS, QUANTILE_COMPONENTS = 4, 1
+RULES = ("improved", "quantile")
+FAMILIES = ("auto", "gaussian", "vmfn")
+
+
 class CrossEntropyOptions(MethodOptions):
     limit_state: str | None = Field(None, description="the study's limit state or system to "
                                     "analyse (default: its only one)")
     samples: int = Field(1000, ge=10, le=MAX_REALIZATIONS, description="draws of each "
                          "cross-entropy round, and of the final estimate")
-    rho: float = Field(0.1, gt=0, le=0.5, description="quantile of g that sets each round's "
-                       "intermediate threshold")
+    rule: Literal["improved", "quantile"] = Field(
+        "improved", description="improved: smoothed intermediate targets Phi(-g/s_j) phi "
+                                "(Papaioannou et al. 2019); quantile: the classic "
+                                "rho-quantile thresholds and elites (Rubinstein 1999)")
+    smoothing_cov: float = Field(SMOOTHING_COV, gt=0, le=10, description="improved rule: "
+                                 "target c.o.v. of the weights between successive smoothed "
+                                 "targets, and the stop's c.o.v. of 1[g <= 0] / Phi(-g/s)")
+    rho: float = Field(0.1, gt=0, le=0.5, description="quantile rule: quantile of g that "
+                       "sets each round's intermediate threshold")
+    family: Literal["auto", "gaussian", "vmfn"] = Field(
+        "auto", description="density fitted: gaussian (a mixture of `components` "
+                            "Gaussians), vmfn (von Mises-Fisher direction, Nakagami radius), "
+                            "auto: vmfn from 20 moving axes of u on, else gaussian")
+    components: int | None = Field(None, ge=1, le=20, description="Gaussians of the "
+                                   "gaussian family (default 4 for the improved rule, 1 for "
+                                   "the quantile rule)")
     max_rounds: int = Field(10, ge=1, le=100, description="most cross-entropy rounds before "
                             "the final estimate")
     covariance: Literal["auto", "full", "diagonal", "identity"] = Field(
-        "auto", description="covariance of the fitted Gaussian: full, its diagonal, or the "
-                            "identity (the mean only); auto: full when a round's elites "
-                            "number at least 10 times its d(d + 1)/2 parameters, else the "
-                            "identity")
+        "auto", description="covariance of each fitted Gaussian: full, its diagonal, or the "
+                            "identity (the mean only); auto: full when its (effective) "
+                            "points number at least 10 times its d(d + 1)/2 parameters, else "
+                            "the identity")
     batches: int = Field(1, ge=1, le=10_000, description="rounds the final draws run in "
                          "(target_cov is checked after each)")
     confidence: float = Field(0.95, gt=0, lt=1, description="level of the normal interval "
@@ -518,20 +656,91 @@ class CrossEntropyOptions(MethodOptions):
         return self.only_where("target_cov", self.batches > 1,
                                "batches > 1 (the c.o.v. is checked after each batch)")
 
+    @model_validator(mode="after")
+    def _options_of_the_rule_and_family(self):
+        self.only_where("rho", self.rule == "quantile", 'rule = "quantile" (the improved '
+                        'rule sets its targets by smoothing_cov)')
+        self.only_where("smoothing_cov", self.rule == "improved", 'rule = "improved"')
+        for key in ("components", "covariance"):
+            self.only_where(key, self.family != "vmfn", "the gaussian family (family = "
+                            '"vmfn" fits a direction and a radius)')
+        return self
+
+    @property
+    def mixture_components(self) -> int:
+        if self.components is not None:
+            return self.components
+        return IMPROVED_COMPONENTS if self.rule == "improved" else QUANTILE_COMPONENTS
+
+    def family_for(self, dimension: int) -> str:
+        """The family fitted in ``dimension`` moving axes of u."""
+        if self.family != "auto":
+            return self.family
+        return "vmfn" if dimension >= VMFN_DIMENSION else "gaussian"
+
 
 @dataclass
 class CrossEntropyState:
-    """The cross-entropy rounds replayed from their runs: the density of the next round,
-    each round's threshold and elite count, and how the adaptation ended."""
+    """The cross-entropy rounds replayed from their runs: the density of the next round (or
+    of the final draws), each round's threshold and elite count (quantile rule) or smoothing
+    parameter and stopping c.o.v. (improved rule), and how the adaptation ended."""
 
-    density: GaussianMixture
+    density: object
     thresholds: list = field(default_factory=list)
     elites: list = field(default_factory=list)
-    #: the elites' effective count (Kish, of their weights phi/q) and the covariance fitted
+    #: improved rule: s_j fitted after each round (NaN for the round that met the stop) and
+    #: each round's c.o.v. of 1[g <= 0] / Phi(-g/s_(j-1))
+    smoothing: list = field(default_factory=list)
+    stop_covs: list = field(default_factory=list)
+    #: the fit's effective count (Kish, of its weights) and the covariance fitted
     effective: list = field(default_factory=list)
     fitted: list = field(default_factory=list)
     reached: bool = False
     stopped: str = ""
+
+    @property
+    def rounds(self) -> int:
+        return max(len(self.thresholds), len(self.stop_covs))
+
+
+def weights_cov(log_weights) -> float:
+    """The c.o.v. (standard deviation over the mean, of the draws themselves: ddof 0) of the
+    weights exp(log_weights); infinite when none is positive."""
+    log_weights = np.asarray(log_weights, dtype=float)
+    top = np.max(log_weights) if log_weights.size else -math.inf
+    if not np.isfinite(top):
+        return math.inf
+    w = np.exp(log_weights - top)
+    return float(w.std() / w.mean())
+
+
+def stopping_cov(g, sharpness: float) -> float:
+    """The improved rule's stop: the c.o.v. of 1[g <= 0] / Phi(-g t) (t = 1/s) over the
+    round's draws ``g`` (finite): how far the smoothed target is from the optimal density
+    phi 1[g <= 0] / p_f where the round's draws lie."""
+    g = np.asarray(g, dtype=float)
+    return weights_cov(np.where(g <= 0, -special.log_ndtr(-g * sharpness), -np.inf))
+
+
+def smoothing_sharpness(g, previous: float, target: float = SMOOTHING_COV) -> float:
+    """t_j = 1/s_j >= ``previous`` (t_(j-1); 0 for s_0 = infinity, where Phi(-g t) = 1/2):
+    the root of c.o.v.[Phi(-g t) / Phi(-g t_(j-1))] = ``target`` over the round's draws
+    ``g`` (finite), by Brent's method. The c.o.v. is 0 at t = t_(j-1) and tends, as t grows,
+    to that of 1[g < 0] / Phi(-g t_(j-1)) (the stop's statistic, above the target unless the
+    stop was met); infinity when no finite t reaches the target (the indicator itself)."""
+    g = np.asarray(g, dtype=float)
+    base = special.log_ndtr(-g * previous)
+
+    def excess(t):
+        return weights_cov(special.log_ndtr(-g * t) - base) - target
+
+    spread = float(np.median(np.abs(g)))
+    high = max(2.0 * previous, 1.0 / spread if spread > 0 else 1.0)
+    while excess(high) < 0:
+        high *= 2.0
+        if high > 1e300:
+            return math.inf
+    return float(optimize.brentq(excess, previous, high, xtol=1e-14 * high, rtol=1e-12))
 
 
 @register_method("importance-sampling")
@@ -951,9 +1160,9 @@ class ImportanceSampling(Form):
 
 @register_method("cross-entropy")
 class CrossEntropy(ImportanceSampling):
-    """Adaptive importance sampling by the cross-entropy method: a single Gaussian (full,
-    diagonal or identity covariance) in standard normal space, refitted round by round on the
-    elite draws."""
+    """Adaptive importance sampling by the cross-entropy method in standard normal space: the
+    improved rule's smoothed targets (default) or the classic quantile thresholds, fitting a
+    mixture of Gaussians or a von Mises-Fisher-Nakagami density round by round."""
 
     Options: ClassVar = CrossEntropyOptions
     label: ClassVar[str] = "cross-entropy importance sampling"
@@ -963,6 +1172,11 @@ class CrossEntropy(ImportanceSampling):
 
     def check(self, space, fields):
         PropagationMethod.check(self, space, fields)
+        axes = moving_axes(space.stds, cholesky_of(space.correlation)).size
+        if self.options.family == "vmfn" and axes < 2:
+            raise StudyError(f'family = "vmfn" needs at least 2 inputs with a spread (a '
+                             f"direction on a sphere), the study has {axes}",
+                             key="method.family")
 
     def check_solver(self, solver, outputs, parameter_names) -> None:
         """Any solver: the draws need no derivatives."""
@@ -971,17 +1185,35 @@ class CrossEntropy(ImportanceSampling):
         m = self._axes.size
         state = self.adapt(runs, self._axes) if runs is not None else \
             CrossEntropyState(standard_normal(m))
-        if state.reached or state.stopped or len(state.thresholds) >= self.options.max_rounds:
+        if state.reached or state.stopped or state.rounds >= self.options.max_rounds:
             return None
         return self.draws(state.density, self.options.samples, round_, STAGE_CROSS_ENTROPY)
 
-    def biasing_density(self, runs, axes, n) -> GaussianMixture:
+    def draws(self, density, size: int, round_: int, stage: str):
+        """``size`` draws of ``density`` (either family, on the moving axes) as rows."""
+        v = density.sample(round_generator(self._seed, round_), size)
+        u = np.zeros((size, len(self._space)))
+        u[:, self._axes] = v
+        return self.rows(u, np.zeros_like(u), round_, stage, log_likelihood_ratio(density, v))
+
+    def biasing_density(self, runs, axes, n):
         return self.adapt(runs, axes).density
 
+    def fit(self, u, log_weights, family: str):
+        """The rule's weighted maximum-likelihood fit in the family."""
+        if family == "vmfn":
+            return fit_von_mises_fisher_nakagami(u, log_weights)
+        return fit_gaussian_mixture(u, log_weights, self.options.mixture_components,
+                                    covariance=self.options.covariance)
+
     def adapt(self, runs, axes) -> CrossEntropyState:
-        """The rounds replayed in order: round k's threshold is the rho-quantile of its g
-        (clipped at 0), its elites the draws at or below it, and round k + 1's density the
-        Gaussian fitted to them with their likelihood ratios phi/q_k as weights."""
+        """The rounds replayed in order (the next round's density a pure function of the
+        rounds before it). Quantile rule: round k's threshold is the rho-quantile of its g
+        (clipped at 0), its elites the draws at or below it, the fit weighted by their phi/q_k.
+        Improved rule: round k stops the adaptation if the c.o.v. of 1[g <= 0] / Phi(-g/s_k)
+        is at most smoothing_cov (the final draws come from q_k); else s_(k+1) < s_k makes the
+        c.o.v. of Phi(-g/s_(k+1)) / Phi(-g/s_k) smoothing_cov and every draw of the round
+        enters the fit with the weight Phi(-g/s_(k+1)) phi/q_k."""
         state = CrossEntropyState(standard_normal(axes.size))
         if runs is None:
             return state
@@ -990,70 +1222,159 @@ class CrossEntropy(ImportanceSampling):
         stage = runs[STAGE].values
         log_ratio = np.asarray(runs[LOG_LIKELIHOOD_RATIO].values, dtype=float)
         u = np.asarray(runs[STANDARD_NORMAL].values, dtype=float)
+        family = self.options.family_for(axes.size)
+        sharpness = 0.0
         for r in np.unique(rounds[stage == STAGE_CROSS_ENTROPY]):
             rows = np.flatnonzero((rounds == r) & (stage == STAGE_CROSS_ENTROPY))
             if not np.isfinite(g[rows]).any():
-                state.stopped = f"no run of cross-entropy round {len(state.thresholds)} ran ok"
+                state.stopped = f"no run of cross-entropy round {state.rounds} ran ok"
                 break
-            threshold, elites, state.density = cross_entropy_step(
-                u[np.ix_(rows, axes)], g[rows], log_ratio[rows], self.options.rho,
-                covariance=self.options.covariance)
-            state.thresholds.append(threshold)
-            state.elites.append(elites)
-            elite = rows[np.isfinite(g[rows]) & (g[rows] <= threshold)]
-            state.effective.append(effective_count(log_ratio[elite]))
-            state.fitted.append(self.options.covariance if self.options.covariance != "auto"
-                                else "full" if full_covariance_pays(elites, axes.size)
-                                else "identity")
-            if threshold == 0.0:
-                state.reached = True
+            if self.options.rule == "quantile":
+                self.quantile_round(state, u[np.ix_(rows, axes)], g[rows], log_ratio[rows],
+                                    family)
+            else:
+                usable = rows[np.isfinite(g[rows])]
+                stop = stopping_cov(g[usable], sharpness)
+                state.stop_covs.append(stop)
+                if stop <= self.options.smoothing_cov:
+                    state.smoothing.append(math.nan)
+                    state.reached = True
+                    break
+                sharpness = smoothing_sharpness(g[usable], sharpness,
+                                                self.options.smoothing_cov)
+                state.smoothing.append(1.0 / sharpness)
+                log_weights = special.log_ndtr(-g[usable] * sharpness) + log_ratio[usable]
+                state.effective.append(effective_count(log_weights))
+                state.density = self.fit(u[np.ix_(usable, axes)], log_weights, family)
+                state.fitted.append(family)
+            if state.reached:
                 break
         return state
 
+    def quantile_round(self, state, u, g, log_ratio, family) -> None:
+        """One round of the classic rule: its threshold, elites and fit."""
+        if family == "gaussian" and self.options.mixture_components == 1:
+            threshold, elites, state.density = cross_entropy_step(
+                u, g, log_ratio, self.options.rho, covariance=self.options.covariance)
+            kind = self.options.covariance if self.options.covariance != "auto" else \
+                "full" if full_covariance_pays(elites, u.shape[1]) else "identity"
+        else:
+            usable = np.isfinite(g)
+            threshold = max(float(np.quantile(g[usable], self.options.rho)), 0.0)
+            elite = usable & (g <= threshold)
+            elites = int(elite.sum())
+            state.density = self.fit(u[elite], log_ratio[elite], family)
+            kind = family
+        elite = np.isfinite(g) & (g <= threshold)
+        state.thresholds.append(threshold)
+        state.elites.append(elites)
+        state.effective.append(effective_count(log_ratio[elite]))
+        state.fitted.append(kind)
+        state.reached = threshold == 0.0
+
     def density_statistics(self, stats, runs) -> list[str]:
-        state = self.adapt(runs, moving_axes_of(runs))
+        axes = moving_axes_of(runs)
+        state = self.adapt(runs, axes)
+        improved = self.options.rule == "improved"
         warnings = []
         if state.stopped:
             warnings.append(f"cross-entropy stopped: {state.stopped}")
         if not state.reached:
+            last = (f", last stopping c.o.v. {state.stop_covs[-1]:.4g} against "
+                    f"{self.options.smoothing_cov:g}" if improved and state.stop_covs else
+                    f", last threshold {state.thresholds[-1]:.4g}" if state.thresholds
+                    else "")
+            goal = "its stopping c.o.v. did not fall to smoothing_cov" if improved else \
+                "the cross-entropy threshold did not reach 0"
             warnings.append(
-                f"the cross-entropy threshold did not reach 0 in {len(state.thresholds)} "
-                f"round(s) (max_rounds = {self.options.max_rounds}"
-                + (f", last threshold {state.thresholds[-1]:.4g}" if state.thresholds else "")
-                + "): the final draws come from the last density; the estimate stays "
-                  "unbiased, but its variance may be large and underestimated")
-        d = moving_axes_of(runs).size
-        if state.effective and state.effective[-1] < d:
+                f"{goal} in {state.rounds} round(s) (max_rounds = {self.options.max_rounds}"
+                + last + "): the final draws come from the last density; the estimate stays "
+                         "unbiased, but its variance may be large and underestimated")
+        d = axes.size
+        family = self.options.family_for(d)
+        if state.effective and state.effective[-1] < d and family == "gaussian":
             warnings.append(
                 f"the last cross-entropy fit rests on {state.effective[-1]:.3g} effective "
-                f"elite draws for {d} dimensions: its mean is off by about "
-                f"sqrt(d / elites) = {math.sqrt(d / state.effective[-1]):.2g} in standard "
-                f"normal units, which can inflate the weights' second moment by "
-                f"e^(d / elites); the estimate stays unbiased but is likely below p_f and "
-                f"its c.o.v. underestimated; use more samples a round (elites several times "
-                f"the dimension) or importance-sampling at FORM's design point")
-        rounds = len(state.thresholds)
-        stats[CE_THRESHOLD] = ((CE_ROUND,), np.asarray(state.thresholds, dtype=float), {
-            "long_name": "intermediate threshold of g of each cross-entropy round"})
-        stats[CE_ELITES] = ((CE_ROUND,), np.asarray(state.elites, dtype=np.int64), {
-            "long_name": "elite draws (g at or below the threshold) of each round"})
-        stats.coords[CE_ROUND] = np.arange(rounds)
+                f"{'draws' if improved else 'elite draws'} for {d} dimensions: its mean is "
+                f"off by about sqrt(d / n) = {math.sqrt(d / state.effective[-1]):.2g} in "
+                f"standard normal units, which can inflate the weights' second moment by "
+                f"e^(d / n); the estimate stays unbiased but is likely below p_f and its "
+                f"c.o.v. underestimated; use more samples a round, family = \"vmfn\", or "
+                f"importance-sampling at FORM's design point")
+        stats.coords[CE_ROUND] = np.arange(state.rounds)
+        if improved:
+            stats[CE_SMOOTHING] = ((CE_ROUND,), np.asarray(state.smoothing, dtype=float), {
+                "long_name": "smoothing parameter s of the target Phi(-g/s) phi fitted after "
+                             "each round (NaN: the round met the stop)", UNITS: "1"})
+            stats[CE_STOP_COV] = ((CE_ROUND,), np.asarray(state.stop_covs, dtype=float), {
+                "long_name": "c.o.v. of 1[g <= 0] / Phi(-g/s) over each round's draws",
+                UNITS: "1"})
+        else:
+            stats[CE_THRESHOLD] = ((CE_ROUND,), np.asarray(state.thresholds, dtype=float), {
+                "long_name": "intermediate threshold of g of each cross-entropy round"})
+            stats[CE_ELITES] = ((CE_ROUND,), np.asarray(state.elites, dtype=np.int64), {
+                "long_name": "elite draws (g at or below the threshold) of each round"})
         stats.attrs[THRESHOLD_REACHED] = int(state.reached)
+        stats.attrs[CE_RULE] = self.options.rule
+        stats.attrs[CE_FAMILY] = family
         failed = int((~ok_mask(runs) & (runs[STAGE].values == STAGE_CROSS_ENTROPY)).sum())
         if failed:
             warnings.append(f"{failed} run(s) of the cross-entropy rounds did not finish ok: "
-                            f"left out of their quantile and fit")
+                            f"left out of their fit")
         return warnings
 
+    def add_biasing_components(self, stats, runs) -> None:
+        """A Gaussian mixture's weights and means (as importance-sampling's), or the vMFN's
+        mean direction, concentration and Nakagami parameters."""
+        axes = moving_axes_of(runs)
+        density = self.biasing_density(runs, axes, runs.sizes[PARAMETER])
+        if isinstance(density, GaussianMixture):
+            return super().add_biasing_components(stats, runs)
+        direction = np.zeros(runs.sizes[PARAMETER])
+        direction[axes] = density.mean_direction
+        stats[VMF_DIRECTION] = ((PARAMETER,), direction, {
+            "long_name": "mean direction of the von Mises-Fisher part of the biasing density "
+                         "in standard normal space", UNITS: "1"})
+        stats.attrs.update({VMF_KAPPA: float(density.kappa), NAKAGAMI_M: float(density.m),
+                            NAKAGAMI_OMEGA: float(density.omega)})
+
     def density_words(self, runs) -> str:
-        fitted = self.adapt(runs, moving_axes_of(runs)).fitted
-        kind = fitted[-1] if fitted else "identity"
-        words = {"full": "a full covariance", "diagonal": "a diagonal covariance",
-                 "identity": "the identity covariance (mean shift)"}[kind]
-        return (f"one Gaussian with {words} in standard normal space, fitted by "
-                f"cross-entropy (rho = {self.options.rho:g}, {self.options.samples} draws a "
-                f"round, covariance = {self.options.covariance})")
+        axes = moving_axes_of(runs)
+        state = self.adapt(runs, axes)
+        if self.options.rule == "improved":
+            how = (f"improved cross-entropy (smoothed targets Phi(-g/s) phi, smoothing_cov = "
+                   f"{self.options.smoothing_cov:g})")
+        else:
+            how = f"cross-entropy (rho = {self.options.rho:g})"
+        how += f", {self.options.samples} draws a round"
+        density = state.density
+        if isinstance(density, VonMisesFisherNakagami):
+            return (f"von Mises-Fisher direction (kappa = {density.kappa:.4g}) times a "
+                    f"Nakagami radius (m = {density.m:.4g}, Omega = {density.omega:.4g}) in "
+                    f"standard normal space, fitted by {how}")
+        kinds = [k for k in state.fitted if k in ("full", "diagonal", "identity")]
+        if density.components == 1 and kinds:
+            words = {"full": "a full covariance", "diagonal": "a diagonal covariance",
+                     "identity": "the identity covariance (mean shift)"}[kinds[-1]]
+            return (f"one Gaussian with {words} in standard normal space, fitted by {how}, "
+                    f"covariance = {self.options.covariance}")
+        return (f"a mixture of {density.components} Gaussian(s) in standard normal space "
+                f"(covariance = {self.options.covariance}), fitted by {how}")
 
     def weights_advice(self) -> str:
         return ("use more samples a round, or importance-sampling at FORM's design point if "
                 "there is one")
+
+    @classmethod
+    def report(cls, view):
+        """importance-sampling's lines, and the improved rule's smoothing parameters."""
+        out = super().report(view)
+        stats = view.stats
+        if CE_SMOOTHING in stats:
+            reached = bool(int(stats.attrs.get(THRESHOLD_REACHED, 0)))
+            out.notes.append(
+                "cross-entropy smoothing s per round: " + ", ".join(
+                    number(s) if np.isfinite(s) else "stop" for s in stats[CE_SMOOTHING].values)
+                + "; stopping c.o.v.: " + ", ".join(number(c) for c in stats[CE_STOP_COV].values)
+                + ("" if reached else " (did NOT meet the stop)"))
+        return out
