@@ -321,13 +321,17 @@ def test_the_equivalent_finest_level_cost_is_plain_monte_carlo_at_the_same_cov()
     stats, runs = drive(configured(search="form", costs=[1.0, 10.0]), biased, seed=3)
     p, cov = float(stats[FAILURE_PROBABILITY].values[0]), float(stats[FAILURE_COV].values[0])
     runs_needed = (1 - p) / (cov**2 * p)
-    # the same three operations in another order: a few ulp
+    # the same three roundings (eps/2 = 1.1e-16 each) in perhaps another order, condition
+    # number 1 in p and 2 in the c.o.v.: <= 1e-15, and a few-ulp change of p or the c.o.v.
+    # moves it by a few ulp more (checked with np.nextafter); 1e-12 leaves 1000 times that
     assert float(stats[EQUIVALENT_FINEST_RUNS].values[0]) == pytest.approx(runs_needed,
                                                                             rel=1e-12)
     per_level = stats[FIDELITY_RUNS].values
     spent = per_level[0] * 1.0 + per_level[1] * 10.0
+    # integers times integral costs, far below 2**53: exact in float64, in any order
     assert stats.attrs[GUIDE_TOTAL_COST] == spent
-    # one or two more roundings of a product and a quotient on top of the above: a few ulp
+    # one or two more roundings (a product, a quotient, condition number 1) on top of the
+    # above's 1e-15
     assert float(stats[EQUIVALENT_FINEST_COST].values[0]) == pytest.approx(
         10.0 * runs_needed, rel=1e-12)
     # the same, one quotient more
@@ -449,7 +453,8 @@ def test_measured_costs_are_each_levels_median_run_time_less_compile_time(tmp_pa
         assert float(stats[FIDELITY_COST].values[lv]) == float(np.median(seconds[level == lv]))
     assert stats[FIDELITY_COST].attrs["units"] == "s"
     spent = float(np.dot(stats[FIDELITY_RUNS].values, stats[FIDELITY_COST].values))
-    # two products and a sum, perhaps fused in the dot: an ulp or two
+    # two products and a sum of positive terms (condition number 1), perhaps fused in the
+    # dot: at most 3 roundings of eps/2, 3.3e-16; 1e-14 allows 30 times that
     assert stats.attrs[GUIDE_TOTAL_COST] == pytest.approx(spent, rel=1e-14)
 
 

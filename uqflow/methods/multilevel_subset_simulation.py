@@ -22,7 +22,9 @@ D_k-1 and D_k; these are distributed as phi given both events, not as phi given 
 level change every chain first runs ``burn_in`` steps that are thrown away (Ullmann &
 Papaioannou's burn-in): a chain that has not forgotten its start overestimates
 P(D_k-1 | D_k) and the estimate falls low (docs/rare_events_across_levels.md gives the
-numbers). Within a level the seeds are distributed as the next subset's target by
+numbers). There the chains are fewer and longer, N // burn_in of them keeping about
+burn_in states each, so the burn-in costs about N runs at the new level rather than
+burn_in p0 N. Within a level the seeds are distributed as the next subset's target by
 construction and no burn-in is needed.
 
 Chains move by subset simulation's adaptive conditional sampling
@@ -253,7 +255,7 @@ class MultilevelSubsetSimulation(SubsetSimulation):
         chain_of = np.asarray(runs[CHAIN].values)
         keys = np.asarray(runs[SEED_KEY].values)
         u_all = np.asarray(runs[STANDARD_NORMAL].values, dtype=float)
-        seeds, length, burn_in = self.seeds, self.length, self.options.burn_in
+        seeds, burn_in = self.seeds, self.options.burn_in
         replay = Replay()
         rows = np.flatnonzero(stage == STAGE_DRAW)[None, :]
         current = Subset(0, 0, rows, g_all[rows])
@@ -296,21 +298,23 @@ class MultilevelSubsetSimulation(SubsetSimulation):
                 replay.converged = True
                 return replay
             # the samples of D_k: chains from its seeds, with a burn-in after a level change
-            chosen = order[:seeds]
-            if reached:
-                # every sample in the failure domain is distributed as phi given it; the
-                # seeds nearest the limit are not (they lie deepest): draw them at random
-                inside = np.flatnonzero(ok & (g <= 0))
-                chosen = self.draws(current.level, current.index + 1, 0).choice(
-                    inside, seeds, replace=False)
-            seed_rows = np.sort(current.points.ravel()[chosen])
             burn = burn_in if current.changed else 0
+            n_chains, kept = self.chains_after(burn)
+            chosen = order[:seeds]
+            if reached or n_chains < seeds:
+                # every sample in the event is distributed as phi given it (and D_k-1 after a
+                # level change); the seeds nearest the limit are not (they lie deepest):
+                # draw them at random
+                inside = np.flatnonzero(ok & (g <= current.threshold))
+                chosen = self.draws(current.level, current.index + 1, 0).choice(
+                    inside, n_chains, replace=False)
+            seed_rows = np.sort(current.points.ravel()[chosen])
             at_level = g_all.copy()
             at_level[current.points.ravel()] = g   # the seeds' margins at this level
             chain_rows = (subset_of == current.index + 1) & (stage == STAGE_CHAIN)
             chains = self.next_level(
                 replay, self.as_subset_level(current), seed_rows, at_level, u_all,
-                np.where(chain_rows, subset_of, -1), step_of, chain_of, length=burn + length)
+                np.where(chain_rows, subset_of, -1), step_of, chain_of, length=burn + kept)
             current.acceptance, current.scale = chains.acceptance, chains.scale
             if not chains.complete:
                 replay.pending = (STAGE_CHAIN, current.level, current.index + 1,
@@ -346,6 +350,19 @@ class MultilevelSubsetSimulation(SubsetSimulation):
             g_next = found[STAGE_UPDATE] if move_up else kept_g
             current = Subset(current.index + 1, nxt_level, points, g_next, changed=move_up,
                              on_level=1 if move_up else current.on_level + 1)
+
+    def chains_after(self, burn: int) -> tuple[int, int]:
+        """(chains, samples each keeps) for a subset whose chains first throw ``burn`` steps
+        away. Without burn-in, subset simulation's p0 N chains of 1 / p0 states. With it,
+        N // burn chains (at most p0 N) that each keep about as many states as they threw
+        away (the first half of every chain discarded): the burn-in costs about N runs at
+        the new level, not p0 N burn (4 N at the defaults); the longer chains' stronger
+        correlation is in their gamma."""
+        seeds, n = self.seeds, self.options.samples_per_level
+        if burn == 0:
+            return seeds, self.length
+        chains = max(1, min(seeds, n // burn))
+        return chains, -(-n // chains)
 
     @staticmethod
     def as_subset_level(subset: Subset):
