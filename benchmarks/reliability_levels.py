@@ -3,22 +3,28 @@ the finest level alone, at exact finest-level answers (issue 18).
 
 Three level families in two standard normals u1, u2, those of
 tests/methods/test_multifidelity_reliability.py ("biased") and
-tests/methods/test_multilevel_subset_simulation.py ("nested", "narrow"). The scene key
-``level`` (0 coarse, 1 finest) sets the model; the finest level of all three is exactly
-g = 3.5 - u1, P[g <= 0] = Phi(-3.5) = 2.326e-4:
+tests/methods/test_multilevel_subset_simulation.py ("nested", "narrow"), and one in 100
+("linear-100d"). The scene key ``level`` (0 coarse, 1 finest) sets the model; the finest
+level of every problem has P[g <= 0] = Phi(-3.5) = 2.326e-4 exactly:
 
-- biased: coarse g = 3.5 - u1 + 0.5 (u2^2 - 1) (fails earlier, on a parabola);
-- nested: coarse g = 3 - u1 (a half-plane holding the finest's failure domain);
-- narrow: coarse g = 3 - u1 + 3 u2^2 (a thin parabola, most of the finest domain outside).
+- biased: finest 3.5 - u1, coarse g = 3.5 - u1 + 0.5 (u2^2 - 1) (fails earlier, on a parabola);
+- nested: finest 3.5 - u1, coarse g = 3 - u1 (a half-plane holding the finest's failure domain);
+- narrow: finest 3.5 - u1, coarse g = 3 - u1 + 3 u2^2 (a thin parabola, most of the finest
+  domain outside);
+- linear-100d: finest 3.5 - sum(u) / 10, coarse linear with its design point at 3.25 along
+  the finest's direction turned 15 degrees: where FORM at the finest level costs hundreds of
+  runs (finite differences), the search multifidelity importance sampling moves to the
+  coarse level.
 
-uqflow's ``multifidelity-importance-sampling`` (cross-entropy search on the coarse level) and
-``multilevel-subset-simulation`` run both levels, with stated costs: coarse = 1/64 of the
-finest (``costs = [1, 64]``, reported in finest-run units). They are driven through their
-contract exactly as the executor drives them (plan, extend until None, analyze; the runs in
-the executor's layout, evaluated in one vectorized call); ``uqflow.testing.run_in_memory``
-does the same but refuses fidelity levels, so this file has its own 20-line driver, the one
-of the tests above. OpenTURNS can only run the finest model: importance sampling centred at
-its FORM point (Cobyla FORM, its calls counted), ``SubsetSampling`` and plain Monte Carlo.
+uqflow's ``multifidelity-importance-sampling`` and ``multilevel-subset-simulation`` run both
+levels, with stated costs: coarse = 1/64 of the finest (``costs = [1, 64]``, reported in
+finest-run units). They are driven through their contract exactly as the executor drives
+them (plan, extend until None, analyze; the runs in the executor's layout, evaluated in one
+vectorized call); ``uqflow.testing.run_in_memory`` does the same but refuses fidelity levels,
+so this file has its own 20-line driver, the one of the tests above. OpenTURNS can only run
+the finest model: importance sampling centred at its FORM point (its calls counted; in 100
+inputs with the finest calls uqflow's rows spent, FORM's included), ``SubsetSampling`` and
+plain Monte Carlo.
 
 Each method is repeated with seeds 0, 1, 2, ...; the table gives per method and problem the
 mean p_f and its bias, the reported c.o.v. (mean), the measured c.o.v. (spread of p_f over
@@ -26,11 +32,13 @@ the repetitions, over the exact p), the finest-level calls and the total cost (f
 units), and the figures of merit calls x c.o.v.^2 (measured c.o.v.; lower is better: the
 calls a method needs for a c.o.v. of 1, so at equal target accuracy the cost ratio is the
 ratio of these), and the equivalent finest-level Monte Carlo cost (1 - p) / (p cov^2) over the
-finest calls (the speed-up over plain MC at the same accuracy). Only calls and p_f are
-measured, never time; one process.
+total cost (the speed-up over plain MC at the same accuracy). Only calls and p_f are
+measured, never time; one process per part.
 
     python benchmarks/reliability_levels.py                  # 100 repetitions, BENCHMARKS.md
-    python benchmarks/reliability_levels.py --repetitions 200
+    python benchmarks/reliability_levels.py --repetitions 50 --part two --save two.json
+    python benchmarks/reliability_levels.py --repetitions 50 --part wide --save wide.json
+    python benchmarks/reliability_levels.py --report-from two.json wide.json  # BENCHMARKS.md
     python benchmarks/reliability_levels.py --quick          # smoke test: "nested" at toy
                                                              # sizes (20 samples; subset
                                                              # simulation p0 = 0.2, no burn-in),
@@ -41,6 +49,8 @@ measured, never time; one process.
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import subprocess
 import sys
 import warnings
@@ -70,21 +80,41 @@ BETA = 3.5
 EXACT = float(sps.norm.sf(BETA))
 COSTS = [1.0, 64.0]             # coarse = 1/64 of the finest
 LIMIT_STATE = [{"name": "fails", "output": "g", "below": 0.0}]
+#: dimension of the many-input problem, its coarse level's offset and rotation
+WIDE_DIM, WIDE_COARSE_BETA, WIDE_ROTATION_DEG = 100, 3.25, 15.0
 
 
 def finest(u):
-    return BETA - u[:, 0]
+    """g = 3.5 - a.u, a = (1, ..., 1) / sqrt(d): 3.5 - u1 in two dimensions' problems and
+    the equal-weights direction in the wide one (the same P[g <= 0] = Phi(-3.5))."""
+    if u.shape[1] == 2:
+        return BETA - u[:, 0]
+    return BETA - u.sum(axis=1) / math.sqrt(u.shape[1])
 
 
+def wide_coarse(u):
+    """The wide problem's coarse level: linear, its design point 3.25 along the finest's
+    direction turned 15 degrees towards (e1 - e2) / sqrt 2 (orthogonal to it): 0.9 away
+    from the finest's design point, pessimistic (fails at 3.25, not 3.5)."""
+    d = u.shape[1]
+    turn = math.radians(WIDE_ROTATION_DEG)
+    a = np.full(d, 1.0 / math.sqrt(d))
+    b = np.zeros(d)
+    b[:2] = [1.0 / math.sqrt(2.0), -1.0 / math.sqrt(2.0)]
+    return WIDE_COARSE_BETA - u @ (math.cos(turn) * a + math.sin(turn) * b)
+
+
+#: name: (dimension, coarse level)
 PROBLEMS = {
-    "biased": lambda u: BETA - u[:, 0] + 0.5 * (u[:, 1] ** 2 - 1.0),
-    "nested": lambda u: 3.0 - u[:, 0],
-    "narrow": lambda u: 3.0 - u[:, 0] + 3.0 * u[:, 1] ** 2,
+    "biased": (2, lambda u: BETA - u[:, 0] + 0.5 * (u[:, 1] ** 2 - 1.0)),
+    "nested": (2, lambda u: 3.0 - u[:, 0]),
+    "narrow": (2, lambda u: 3.0 - u[:, 0] + 3.0 * u[:, 1] ** 2),
+    f"linear-{WIDE_DIM}d": (WIDE_DIM, wide_coarse),
 }
 
 
 def margin(problem, u, level):
-    return np.where(np.asarray(level) == 0, PROBLEMS[problem](u), finest(u))
+    return np.where(np.asarray(level) == 0, PROBLEMS[problem][1](u), finest(u))
 
 
 def _solver(u1=0.0, u2=0.0, level=1.0):
@@ -94,30 +124,53 @@ def _solver(u1=0.0, u2=0.0, level=1.0):
 LevelsSolver = uqflow.solver_from_function(_solver, outputs="g", units="1",
                                            name="reliability-levels-benchmark")
 
-#: uqflow's methods: class, options (full size, quick size)
-UQFLOW = {
-    "multifidelity-importance-sampling": (
+MFIS = "multifidelity-importance-sampling"
+MLSUS = "multilevel-subset-simulation"
+MFIS_CROSS_ENTROPY = dict(search="cross-entropy", coarse_samples=500, samples=1000,
+                          costs=COSTS)
+MLSUS_FULL = dict(samples_per_level=500, costs=COSTS)
+#: uqflow's rows of the two-input problems: label: (class, options)
+UQFLOW = {MFIS: (MultifidelityImportanceSampling, MFIS_CROSS_ENTROPY),
+          MLSUS: (MultilevelSubsetSimulation, MLSUS_FULL)}
+#: and of the wide one: the coarse search by FORM (2 d + 1 coarse runs an iteration) with
+#: three defensive weights and with fewer finest draws than OpenTURNS' FORM alone costs
+#: there, by cross-entropy, and multilevel subset simulation
+UQFLOW_WIDE = {
+    f"{MFIS}, search = form": (MultifidelityImportanceSampling,
+                               dict(search="form", samples=1000, costs=COSTS)),
+    f"{MFIS}, search = form, w = 0.3": (
         MultifidelityImportanceSampling,
-        dict(search="cross-entropy", coarse_samples=500, samples=1000, costs=COSTS),
-        dict(search="cross-entropy", coarse_samples=20, samples=20, costs=COSTS)),
-    "multilevel-subset-simulation": (
-        MultilevelSubsetSimulation,
-        dict(samples_per_level=500, costs=COSTS),
-        dict(samples_per_level=20, level_probability=0.2, burn_in=0, costs=COSTS)),
+        dict(search="form", samples=1000, costs=COSTS, defensive_weight=0.3)),
+    f"{MFIS}, search = form, w = 0.02": (
+        MultifidelityImportanceSampling,
+        dict(search="form", samples=1000, costs=COSTS, defensive_weight=0.02)),
+    f"{MFIS}, search = form, 300 finest draws": (
+        MultifidelityImportanceSampling, dict(search="form", samples=300, costs=COSTS)),
+    f"{MFIS}, search = cross-entropy": (MultifidelityImportanceSampling, MFIS_CROSS_ENTROPY),
+    MLSUS: (MultilevelSubsetSimulation, MLSUS_FULL),
 }
-#: OpenTURNS' budgets on the finest level
+#: --quick: toy sizes
+UQFLOW_QUICK = {
+    MFIS: (MultifidelityImportanceSampling,
+           dict(search="cross-entropy", coarse_samples=20, samples=20, costs=COSTS)),
+    MLSUS: (MultilevelSubsetSimulation,
+            dict(samples_per_level=20, level_probability=0.2, burn_in=0, costs=COSTS)),
+}
+#: OpenTURNS' budgets on the finest level; in the wide problem its importance sampling gets
+#: what FORM left of uqflow's finest calls (equal finest calls)
 OT_BUDGET = dict(is_samples=1000, subset_per_level=500, mc_samples=100_000)
 
 
-def space():
-    return InputSpace([RandomInput.from_spec({"name": n, "distribution": "normal",
-                                              "mean": 0.0, "std": 1.0}) for n in ("u1", "u2")])
+def space(dim=2):
+    return InputSpace([RandomInput.from_spec({"name": f"u{i + 1}", "distribution": "normal",
+                                              "mean": 0.0, "std": 1.0})
+                       for i in range(dim)])
 
 
-def configured(cls, options):
+def configured(cls, options, dim=2):
     method = cls(**options)
     template = LevelsSolver.from_scene({}).outputs()
-    method.check(space(), None)
+    method.check(space(dim), None)
     method.check_limit_states(LimitStates.from_tables(LIMIT_STATE, template))
     method.check_levels(resolve_levels(LevelsSpec(key="level", values=[0.0, 1.0]), {},
                                        LevelsSolver, ["g"], "scene"))
@@ -136,7 +189,7 @@ def evaluate(design, problem):
 def drive(method, problem, seed):
     """plan, extend until None, analyze, as the executor does: (p, reported cov, finest
     calls, total cost in finest-run units)."""
-    design = method.plan(space(), None, np.random.SeedSequence(seed))
+    design = method.plan(space(PROBLEMS[problem][0]), None, np.random.SeedSequence(seed))
     runs = evaluate(design, problem)
     glue = dict(dim="realization", data_vars="minimal", coords="minimal", compat="override",
                 join="override")
@@ -157,26 +210,33 @@ def drive(method, problem, seed):
 
 # --------------------------------------------------------------- OpenTURNS, finest only
 
-def openturns_runs(method, seed):
+def openturns_runs(method, seed, dim=2, finest_calls=None):
+    """One OpenTURNS run on the finest model in ``dim`` inputs. Importance sampling at the
+    FORM point: Cobyla in two dimensions, 1000 samples besides FORM's calls; in more
+    (Cobyla does not converge in 100 within its call limit), Abdo-Rackwitz with OpenTURNS'
+    finite-difference gradient, and what is left of ``finest_calls`` after FORM as samples."""
     import openturns as ot
     ot.RandomGenerator.SetSeed(seed)
-    model = ot.PythonFunction(2, 1, func_sample=lambda x: np.asarray(
+    model = ot.PythonFunction(dim, 1, func_sample=lambda x: np.asarray(
         finest(np.asarray(x))).reshape(-1, 1))
     model = ot.MemoizeFunction(model)
     model.disableCache()
-    dist = ot.Normal(2)
+    dist = ot.Normal(dim)
     vect = ot.RandomVector(dist)
     event = ot.ThresholdEvent(ot.CompositeRandomVector(model, vect), ot.LessOrEqual(), 0.0)
     if method == "ot-importance-at-form":
-        solver = ot.Cobyla()
+        solver = ot.Cobyla() if dim == 2 else ot.AbdoRackwitz()
         solver.setStartingPoint(dist.getMean())
         form = ot.FORM(solver, event)
         form.run()
         star = form.getResult().getStandardSpaceDesignPoint()
         std_event = ot.StandardEvent(event)
-        experiment = ot.ImportanceSamplingExperiment(ot.Normal(star, ot.CovarianceMatrix(2)))
+        experiment = ot.ImportanceSamplingExperiment(ot.Normal(star,
+                                                               ot.CovarianceMatrix(dim)))
         algo = ot.ProbabilitySimulationAlgorithm(std_event, experiment)
-        algo.setMaximumOuterSampling(OT_BUDGET["is_samples"])
+        samples = OT_BUDGET["is_samples"] if finest_calls is None else \
+            max(2, finest_calls - model.getEvaluationCallsNumber())
+        algo.setMaximumOuterSampling(samples)
         algo.setMaximumCoefficientOfVariation(0.0)   # all the samples (default: stop at 0.1)
     elif method == "ot-subset-sampling":
         algo = ot.SubsetSampling(event)
@@ -194,6 +254,9 @@ def openturns_runs(method, seed):
 
 
 OT_METHODS = ["ot-importance-at-form", "ot-subset-sampling", "ot-monte-carlo"]
+#: in the wide problem: importance sampling at equal finest calls with uqflow's, subset
+#: sampling (plain Monte Carlo's figures do not depend on the dimension)
+OT_WIDE = ["ot-importance-at-form", "ot-subset-sampling"]
 
 
 # --------------------------------------------------------------- the table
@@ -210,19 +273,33 @@ def summarize(rows):
                 reps=len(p))
 
 
-def benchmark(repetitions, quick=False):
+def benchmark(repetitions, quick=False, part="all"):
+    """The rows: ``part`` "two" (the two-input problems and OpenTURNS on them), "wide" (the
+    many-input problem and OpenTURNS on it) or "all"."""
     results = {}
-    for problem in (["nested"] if quick else PROBLEMS):
-        for name, (cls, full, small) in UQFLOW.items():
-            options = small if quick else full
-            rows = [drive(configured(cls, options), problem, seed) for seed in range(repetitions)]
+    wide = f"linear-{WIDE_DIM}d"
+    for problem, (dim, _) in PROBLEMS.items():
+        if (quick and problem != "nested") or part == ("wide" if dim == 2 else "two"):
+            continue
+        rows_of = UQFLOW_QUICK if quick else UQFLOW if dim == 2 else UQFLOW_WIDE
+        for name, (cls, options) in rows_of.items():
+            rows = [drive(configured(cls, options, dim), problem, seed)
+                    for seed in range(repetitions)]
             results[(problem, name)] = summarize(rows)
             print(problem, name, results[(problem, name)], flush=True)
-    if not quick:
+    if quick:
+        return results
+    if part != "wide":
         for name in OT_METHODS:
             rows = [openturns_runs(name, seed) for seed in range(repetitions)]
             results[("finest only", name)] = summarize(rows)
             print(name, results[("finest only", name)], flush=True)
+    if part != "two":
+        equal = round(results[(wide, f"{MFIS}, search = form")]["calls"])
+        for name in OT_WIDE:
+            rows = [openturns_runs(name, seed, WIDE_DIM, equal) for seed in range(repetitions)]
+            results[(f"{wide}, finest only", name)] = summarize(rows)
+            print(name, results[(f"{wide}, finest only", name)], flush=True)
     return results
 
 
@@ -243,24 +320,52 @@ def _ot_version():
     return ot.__version__
 
 
-def section(results, repetitions):
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
-                            capture_output=True, text=True).stdout.strip()
-    return f"""Commit: {commit}. Issue 18's check "side by side with OpenTURNS at equal calls".
-The finest level of every problem is g = 3.5 - u1 in two standard normals, exact p_f =
-Phi(-3.5) = {EXACT:.4e}; the coarse level is biased ("biased": 3.5 - u1 + 0.5 (u2² - 1);
-"nested": 3 - u1; "narrow": 3 - u1 + 3 u2²). uqflow's multifidelity methods run both levels
-with stated costs coarse = 1/64 of the finest; OpenTURNS {_ot_version()} runs the
-finest model only (importance sampling at its Cobyla FORM point, {OT_BUDGET['is_samples']}
-samples, FORM's calls included; SubsetSampling, {OT_BUDGET['subset_per_level']} per level;
-Monte Carlo, {OT_BUDGET['mc_samples']} samples), so its rows are one per method. uqflow:
-multifidelity importance sampling with 500 coarse cross-entropy draws per round and 1000
-finest draws; multilevel subset simulation with 500 samples per level. Seeds 0 to
-{repetitions - 1}. Measured c.o.v. = standard deviation of p_f over the repetitions / exact.
-"finest calls × c.o.v.²" (measured) is the finest calls needed for a c.o.v. of 1: at equal
-target accuracy, finest-level cost goes as this figure (lower is better). The last column is
-finest-level Monte Carlo's cost for the same measured c.o.v., (1 - p) / (p c.o.v.²), over the
-method's total cost.
+def _commit():
+    return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
+                          capture_output=True, text=True).stdout.strip()
+
+
+def section(results, repetitions, commits):
+    wide = f"linear-{WIDE_DIM}d"
+    return f"""Commit: {", ".join(commits)}. Issue 18's check "side by side with OpenTURNS at equal
+calls: the multifidelity variants clearly better in finest-level cost". Made by
+`python benchmarks/reliability_levels.py --repetitions {repetitions} --part two --save two.json`,
+the same with `--part wide --save wide.json`, then `--report-from two.json wide.json`.
+Every problem's finest level has the exact p_f = Phi(-3.5) = {EXACT:.4e}; its coarse level
+costs 1/64 of a finest run (stated costs; total cost in finest-run units). Why each problem
+is here:
+
+- "biased", "nested", "narrow" (two standard normals, finest g = 3.5 - u1): coarse levels
+  that are wrong in three ways, the families of the methods' tests. "biased": 3.5 - u1 +
+  0.5 (u2² - 1), a parabola failing about three times as often; "nested": 3 - u1, a
+  half-plane holding the finest failure domain (multilevel subset simulation's best case:
+  its correction is exactly 1); "narrow": 3 - u1 + 3 u2², a thin parabola with most of the
+  finest failure domain outside it (its worst case: the correction 0.38 must be sampled on
+  the finest level). In two inputs FORM costs OpenTURNS a few dozen finest runs, so
+  importance sampling at its FORM point is the finest-only method to beat.
+- "{wide}" ({WIDE_DIM} standard normals, finest g = 3.5 - sum(u)/{WIDE_DIM ** 0.5:g}): where the
+  search for the biasing density is expensive at the finest level: FORM with
+  finite-difference gradients costs about {2 * WIDE_DIM} finest runs an iteration. Its coarse level
+  is linear with its design point {WIDE_COARSE_BETA} along the finest's direction turned
+  {WIDE_ROTATION_DEG:g} degrees ({WIDE_COARSE_BETA * math.sin(math.radians(WIDE_ROTATION_DEG)):.2f}
+  away from the finest design point across it): biased in offset and direction, chosen before
+  any run as a moderate error, not fitted to a result. OpenTURNS runs FORM (Abdo-Rackwitz,
+  its finite-difference gradient; Cobyla does not converge in {WIDE_DIM} inputs) and importance
+  sampling at its design point with the rest of the finest calls uqflow's FORM-guided rows
+  spent (equal finest calls); uqflow's FORM search runs on the coarse level only. The
+  defensive weight w (default 0.1) and the coarse search (FORM or cross-entropy, 500 draws a
+  round) are varied there.
+
+OpenTURNS {_ot_version()} runs the finest model only: importance sampling at its FORM point
+({OT_BUDGET['is_samples']} samples besides FORM's calls in two inputs), SubsetSampling
+({OT_BUDGET['subset_per_level']} per level), Monte Carlo ({OT_BUDGET['mc_samples']} samples).
+uqflow: multifidelity importance sampling with 1000 finest draws (cross-entropy search with
+500 coarse draws a round unless the row says otherwise); multilevel subset simulation with
+500 samples per level, p0 = 0.1, burn-in 40. Seeds 0 to {repetitions - 1}. Measured c.o.v. =
+standard deviation of p_f over the repetitions / exact. "finest calls × c.o.v.²" (measured)
+is the finest calls needed for a c.o.v. of 1: at equal target accuracy finest-level cost goes
+as this figure (lower is better). The last column is finest-level Monte Carlo's cost for the
+same measured c.o.v., (1 - p) / (p c.o.v.²), over the method's total cost.
 
 {table(results)}
 """
@@ -270,13 +375,33 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repetitions", type=int, default=100)
     parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--part", choices=["all", "two", "wide"], default="all",
+                        help="run only the two-input problems or only the wide one")
+    parser.add_argument("--save", type=Path, help="write the rows as JSON (no BENCHMARKS.md)")
+    parser.add_argument("--report-from", type=Path, nargs="+",
+                        help="write BENCHMARKS.md's section from saved parts")
     args = parser.parse_args(argv)
     if args.quick:
         results = benchmark(2, quick=True)
         print(table(results))
         return results
-    results = benchmark(args.repetitions)
-    text = section(results, args.repetitions)
+    if args.report_from:
+        saved = [json.loads(path.read_text()) for path in args.report_from]
+        order = list(PROBLEMS) + ["finest only", f"linear-{WIDE_DIM}d, finest only"]
+        rows = {tuple(key.split(" | ")): value for part in saved
+                for key, value in part["rows"].items()}
+        results = dict(sorted(rows.items(), key=lambda kv: order.index(kv[0][0])))
+        repetitions = saved[0]["repetitions"]
+        commits = sorted({part["commit"] for part in saved})
+    else:
+        results = benchmark(args.repetitions, part=args.part)
+        repetitions, commits = args.repetitions, [_commit()]
+    if args.save:
+        args.save.write_text(json.dumps({
+            "repetitions": repetitions, "commit": commits[0], "part": args.part,
+            "rows": {" | ".join(key): value for key, value in results.items()}}, indent=1))
+        return results
+    text = section(results, repetitions, commits)
     print(text)
     write_section("reliability-levels", "Reliability across levels", text)
     return results
