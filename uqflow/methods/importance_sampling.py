@@ -21,6 +21,7 @@ cross-entropy method, Rubinstein 1999) and ``importance_estimate``. docs/importa
 
 from __future__ import annotations
 
+import functools
 import math
 import warnings as pywarnings
 from dataclasses import dataclass, field
@@ -703,6 +704,13 @@ class CrossEntropyState:
         return max(len(self.thresholds), len(self.stop_covs))
 
 
+@functools.lru_cache(maxsize=8)
+def standard_normal_start(dimension: int) -> GaussianMixture:
+    """phi, the density of every cross-entropy method's first round (built once per
+    dimension: its factorization costs a BLAS call per replay otherwise)."""
+    return standard_normal(dimension)
+
+
 def weights_cov(log_weights) -> float:
     """The c.o.v. (standard deviation over the mean, of the draws themselves: ddof 0) of the
     weights exp(log_weights); infinite when none is positive."""
@@ -1184,7 +1192,7 @@ class CrossEntropy(ImportanceSampling):
     def density_rows(self, runs, round_: int) -> xr.Dataset | None:
         m = self._axes.size
         state = self.adapt(runs, self._axes) if runs is not None else \
-            CrossEntropyState(standard_normal(m))
+            CrossEntropyState(standard_normal_start(m))
         if state.reached or state.stopped or state.rounds >= self.options.max_rounds:
             return None
         return self.draws(state.density, self.options.samples, round_, STAGE_CROSS_ENTROPY)
@@ -1214,7 +1222,7 @@ class CrossEntropy(ImportanceSampling):
         is at most smoothing_cov (the final draws come from q_k); else s_(k+1) < s_k makes the
         c.o.v. of Phi(-g/s_(k+1)) / Phi(-g/s_k) smoothing_cov and every draw of the round
         enters the fit with the weight Phi(-g/s_(k+1)) phi/q_k."""
-        state = CrossEntropyState(standard_normal(axes.size))
+        state = CrossEntropyState(standard_normal_start(axes.size))
         if runs is None:
             return state
         g = self.margins(runs)
@@ -1292,15 +1300,16 @@ class CrossEntropy(ImportanceSampling):
                          "unbiased, but its variance may be large and underestimated")
         d = axes.size
         family = self.options.family_for(d)
-        if state.effective and state.effective[-1] < d and family == "gaussian":
+        if state.effective and state.effective[-1] < d:
+            centre = "mean" if family == "gaussian" else "mean direction"
             warnings.append(
                 f"the last cross-entropy fit rests on {state.effective[-1]:.3g} effective "
-                f"{'draws' if improved else 'elite draws'} for {d} dimensions: its mean is "
-                f"off by about sqrt(d / n) = {math.sqrt(d / state.effective[-1]):.2g} in "
-                f"standard normal units, which can inflate the weights' second moment by "
-                f"e^(d / n); the estimate stays unbiased but is likely below p_f and its "
-                f"c.o.v. underestimated; use more samples a round, family = \"vmfn\", or "
-                f"importance-sampling at FORM's design point")
+                f"{'draws' if improved else 'elite draws'} for {d} dimensions: its {centre} "
+                f"is off by about sqrt(d / n) = {math.sqrt(d / state.effective[-1]):.2g} "
+                f"(standard normal units, or radians), which can inflate the weights' "
+                f"second moment by about e^(d / n); the estimate stays unbiased but is "
+                f"likely below p_f and its c.o.v. underestimated; use more samples a round "
+                f"or importance-sampling at FORM's design point")
         stats.coords[CE_ROUND] = np.arange(state.rounds)
         if improved:
             stats[CE_SMOOTHING] = ((CE_ROUND,), np.asarray(state.smoothing, dtype=float), {

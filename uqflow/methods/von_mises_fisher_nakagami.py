@@ -24,9 +24,11 @@ from scipy import stats as sps
 #: the fitted concentration's cap: the direction's spread 1/sqrt(kappa) stays above 1e-4
 #: radians (a fit to one point would give kappa = infinity and a density of one direction)
 MAX_KAPPA = 1e8
-#: Nakagami's shape m of a fit lies in [1/2, MAX_SHAPE]: 1/2 is the half-normal (the least
-#: shape of the family), and a fit to one radius (a variance of r^2 of 0) would be infinite
-MAX_SHAPE = 1e6
+#: the least fitted concentration (scipy's vMF refuses 0, the uniform direction itself)
+MIN_KAPPA = 1e-8
+#: the radius' spread a fit keeps, relative to half the standard normal's (``radius_shape_cap``;
+#: importance_sampling.COVARIANCE_FLOOR is the Gaussians' same margin)
+RADIUS_FLOOR = 0.6
 
 
 def log_sphere_area(d: int) -> float:
@@ -101,11 +103,14 @@ class VonMisesFisherNakagami:
 
 
 def fit_von_mises_fisher_nakagami(u, log_weights) -> VonMisesFisherNakagami:
-    """The weighted fit of a vMFN density to the points ``u`` (n, d) with weights
-    exp(log_weights): mu = sum w x / |sum w x| (x = u/|u|), kappa from the mean resultant
-    length R = |sum w x| / sum w by Banerjee et al.'s (2005) approximation
-    R (d - R^2) / (1 - R^2), and Nakagami's moments Omega = E_w r^2,
-    m = Omega^2 / Var_w(r^2) (clipped to [1/2, MAX_SHAPE])."""
+    """The weighted fit of a vMFN density to the points ``u`` (n, d) with weights w_i =
+    exp(log_weights) (normalized; n_e = 1 / sum w_i^2 their effective count, Kish's):
+    mu = sum w x / |sum w x| (x = u/|u|); kappa by Banerjee et al.'s (2005) approximation
+    R (d - R^2) / (1 - R^2) of the mean resultant length R, taken free of the noise of n_e
+    points (E|sum w x|^2 = R^2 + (1 - R^2) / n_e, solved for R^2); Nakagami's moments
+    Omega = E_w r^2 and m = Omega^2 / Var_w(r^2), the variance with the reliability-weights
+    factor 1 / (1 - 1/n_e) (unbiased), m clipped to [1/2, Omega / (2 floor)]:
+    ``radius_shape_cap``."""
     u = np.atleast_2d(np.asarray(u, dtype=float))
     w = normalized_weights(log_weights)
     if u.shape[0] != w.size or not np.all(np.isfinite(u)):
@@ -120,9 +125,23 @@ def fit_von_mises_fisher_nakagami(u, log_weights) -> VonMisesFisherNakagami:
     length = float(np.linalg.norm(resultant))
     if length == 0:
         raise ValueError("the weighted directions cancel: no mean direction")
-    length = min(length, 1.0 - 1e-15)
-    kappa = min(length * (d - length**2) / (1.0 - length**2), MAX_KAPPA)
+    squares = float(np.sum(w**2))  # 1 / n_e
+    signal = (length**2 - squares) / (1.0 - squares) if squares < 1.0 else length**2
+    concentration = math.sqrt(min(max(signal, 0.0), 1.0 - 1e-15))
+    kappa = min(max(concentration * (d - concentration**2) / (1.0 - concentration**2),
+                    MIN_KAPPA), MAX_KAPPA)
     omega = float(w @ r**2)
-    spread = float(w @ (r**2 - omega) ** 2)
-    m = MAX_SHAPE if spread <= omega**2 / MAX_SHAPE else max(omega**2 / spread, 0.5)
+    spread = float(w @ (r**2 - omega) ** 2) / (1.0 - squares) if squares < 1.0 else 0.0
+    cap = radius_shape_cap(omega)
+    m = cap if spread <= omega**2 / cap else min(max(omega**2 / spread, 0.5), cap)
     return VonMisesFisherNakagami(resultant / length, kappa, m, omega)
+
+
+def radius_shape_cap(omega: float, floor: float = RADIUS_FLOOR) -> float:
+    """The largest Nakagami shape m a fit keeps: Omega / (2 floor), at least 1/2. The
+    weights chi_d(r) / f_R(r) have a finite second moment under f_R only if m < Omega
+    (chi_d^2 / f_R grows like exp(-(1 - m/Omega) r^2)); in r, Nakagami's variance is about
+    Omega / (4 m) and the standard normal's 1/2, so m < Omega is the radius' spread above
+    half the standard normal's, the same bound as a Gaussian's variance above 1/2, and the
+    floor keeps the same margin as COVARIANCE_FLOOR (0.6 of it)."""
+    return max(omega / (2.0 * floor), 0.5)
