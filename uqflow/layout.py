@@ -141,8 +141,13 @@ SUBSET_GAMMA, SUBSET_ACCEPTANCE = "subset_gamma", "subset_acceptance_rate"
 SUBSET_SCALE, SUBSET_COV = "subset_scale", "subset_cov"
 SUBSET_SAMPLES, SUBSET_FAILED_RUNS = "subset_samples", "subset_failed_runs"
 #: (limit_state): the c.o.v. of P[failure] were the levels' estimates fully correlated
-#: (sum of delta_j; FAILURE_COV takes them uncorrelated, sqrt of the sum of delta_j^2)
+#: (sum of delta_j)
 FAILURE_COV_CORRELATED = "failure_probability_cov_correlated"
+#: (limit_state): subset simulation's c.o.v. with the levels taken as uncorrelated (Au &
+#: Beck's, sqrt of the sum of delta_j^2; FAILURE_COV is then the genealogical one), and the
+#: effective number of level-0 families the last level's failures descend from (Kish)
+FAILURE_COV_UNCORRELATED = "failure_probability_cov_uncorrelated"
+FAILURE_FAMILIES = "failure_effective_families"
 
 # multifidelity-importance-sampling (uqflow.methods.multifidelity_reliability)
 #: (limit_state): the standard error of P[failure], and the importance weights' effective

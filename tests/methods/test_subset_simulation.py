@@ -27,7 +27,7 @@ from uqflow.inputs import InputSpace, RandomInput
 from uqflow.layout import (BOUND, BOUND_HIGH, BOUND_LOW, CHAIN, CHAIN_STEP,
                            EXCEEDANCE_INTERVAL, EXCEEDANCE_LEVEL, EXCEEDANCE_PROBABILITY,
                            FAILED_RUNS, FAILURE_COV, FAILURE_COV_CORRELATED,
-                           FAILURE_INTERVAL, FAILURE_PROBABILITY, INPUT_SUMMARY, INPUTS,
+                           FAILURE_COV_UNCORRELATED, FAILURE_FAMILIES, FAILURE_INTERVAL, FAILURE_PROBABILITY, INPUT_SUMMARY, INPUTS,
                            MESSAGE, PARAMETER, PARAMETER_J, REALIZATION, RELIABILITY_INDEX,
                            SOLVER_RUNS, STATUS, STATUS_FAILED, STATUS_OK, SUBSET_ACCEPTANCE,
                            SUBSET_FAILED_RUNS, SUBSET_GAMMA, SUBSET_LEVEL, SUBSET_PROBABILITY,
@@ -435,19 +435,20 @@ def test_the_report_gives_p_f_the_levels_and_their_figure(tmp_path):
     stats = outcome.statistics
     p = number_text(value(stats, FAILURE_PROBABILITY))
     assert f"subset simulation, limit state 'high' (y > 1.645): p_f = {p}" in text
-    assert "lognormal), c.o.v. " in text and "fully correlated), beta = " in text
+    assert "lognormal), c.o.v. " in text and "effective level-0 families" in text
+    assert "levels uncorrelated" in text and "fully correlated" in text
     assert "level  threshold b" in text
     rows = [line for line in text.splitlines() if line.strip()[:1].isdigit()
             and "  " in line and line.split()[0].isdigit()]
     assert len(rows) >= stats.sizes[SUBSET_LEVEL]
-    assert "as if they were uncorrelated" in text or "lower estimate" in text
+    assert "levels' correlation through the seeds" in text
     written = [p.name for p in write_figures(tree, tmp_path / "figures")]
     assert "subset_levels.png" in written
     # what the report shows is stored: thresholds, probabilities, both c.o.v.s
     for name in (SUBSET_THRESHOLD, SUBSET_PROBABILITY, SUBSET_GAMMA, SUBSET_ACCEPTANCE,
-                 FAILURE_COV_CORRELATED):
+                 FAILURE_COV_CORRELATED, FAILURE_COV_UNCORRELATED, FAILURE_FAMILIES):
         assert name in tree["statistics"].to_dataset()
-    assert value(stats, FAILURE_COV_CORRELATED) >= value(stats, FAILURE_COV)
+    assert value(stats, FAILURE_COV_CORRELATED) >= value(stats, FAILURE_COV_UNCORRELATED)
     low = float(stats[FAILURE_INTERVAL].sel({BOUND: BOUND_LOW}).values[0])
     high = float(stats[FAILURE_INTERVAL].sel({BOUND: BOUND_HIGH}).values[0])
     assert low < value(stats, FAILURE_PROBABILITY) < high

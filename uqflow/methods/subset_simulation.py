@@ -22,9 +22,14 @@ is one round (``extend``): the chains' proposals run in parallel, as realization
 alone, and the proposals' random numbers come from the study's seed spawned per
 (level, step): the answer is the same for any worker count and after a resume.
 
-The c.o.v. is Au & Beck's: delta_j^2 = (1 - p_j) / (N p_j) (1 + gamma_j) per level, gamma_j
-from the chains' indicator autocorrelation, summed over levels as if they were uncorrelated
-(a lower estimate; the fully correlated sum of delta_j is stored beside it).
+The c.o.v. is the genealogical one: every state descends from one level-0 sample through
+its chain's seeds, and the spread of the last level's failures over those families,
+sum_r (F_r / F)^2 - 1 / N (Chan & Lai 2013; Du & Guyader 2021), estimates the relative
+variance of p_f with the chains' and the levels' correlation included; with k effective
+families it carries the correction k / (k - 1) and the interval a Student t quantile with
+k - 1 degrees of freedom. Au & Beck's per-level delta_j^2 = (1 - p_j) / (N p_j) (1 +
+gamma_j), gamma_j from the chains' indicator autocorrelation, are stored beside, summed as if
+the levels were uncorrelated (a lower estimate) and as if fully correlated.
 docs/subset_simulation.md.
 """
 
@@ -46,7 +51,8 @@ from uqflow.layout import (BOUND, BOUND_HIGH, BOUND_LOW, CHAIN, CHAIN_STEP, CONF
                            EXCEEDANCE_COMPARISON, EXCEEDANCE_INTERVAL, EXCEEDANCE_LEVEL,
                            EXCEEDANCE_NOTE, EXCEEDANCE_POINT, EXCEEDANCE_PROBABILITY,
                            EXCEEDANCE_QUANTITY, EXCEEDANCE_THRESHOLD, EXCEEDANCE_UNITS,
-                           FAILURE_COV, FAILURE_COV_CORRELATED, FAILURE_INTERVAL,
+                           FAILURE_COV, FAILURE_COV_CORRELATED, FAILURE_COV_UNCORRELATED,
+                           FAILURE_FAMILIES, FAILURE_INTERVAL,
                            FAILURE_NOTE, FAILURE_PROBABILITY, FAILURES, INTERVAL_METHOD,
                            LIMIT_STATE, PARAMETER, REALIZATION, RELIABILITY_INDEX,
                            SOLVER_RUNS, STATISTIC, STATISTIC_MEAN, STATISTIC_STD,
@@ -157,16 +163,84 @@ def correlation_factor(indicator: np.ndarray) -> float:
     return gamma
 
 
-def lognormal_interval(p, cov, confidence: float) -> np.ndarray:
+def family_roots(levels: list[SubsetLevel], realizations: int) -> list[np.ndarray]:
+    """For every level, the level-0 sample (its position at level 0) each state descends
+    from, in the level's (chains, length) layout (-1 where a chain has not run that far).
+    A chain's proposals are its own rows, so a row has one root: its chain's seed's."""
+    root_of_row = np.full(realizations, -1, dtype=np.int64)
+    first = levels[0].rows.ravel()
+    root_of_row[first] = np.arange(first.size)
+    roots = [root_of_row[levels[0].rows]]
+    for level in levels[1:]:
+        chain_roots = root_of_row[level.rows[:, 0]]
+        level_roots = np.where(level.rows >= 0, chain_roots[:, None], -1)
+        root_of_row[level.rows[level.rows >= 0]] = level_roots[level.rows >= 0]
+        roots.append(level_roots)
+    return roots
+
+
+@dataclass(frozen=True)
+class Genealogy:
+    """The c.o.v. of p_f from the failures' level-0 families (see ``genealogical_cov``)."""
+
+    #: sqrt(sum_r (F_r / F)^2 - 1 / N), F_r the last level's failures descending from the
+    #: level-0 sample r; the levels' correlation through common ancestors included
+    cov_raw: float
+    #: Kish's effective number of families, 1 / sum_r (F_r / F)^2
+    families: float
+
+    @property
+    def cov(self) -> float:
+        """cov_raw with the few-clusters correction k / (k - 1) of the variance (inf for
+        k <= 1: one family carries every failure, its spread is unknown)."""
+        k = self.families
+        if not np.isfinite(self.cov_raw) or not k > 1:
+            return math.inf
+        return self.cov_raw * math.sqrt(k / (k - 1))
+
+    @property
+    def degrees_of_freedom(self) -> float:
+        """k - 1, of the Student t quantile of the interval (a variance estimated from k
+        families)."""
+        return max(self.families - 1.0, 0.0)
+
+
+def genealogical_cov(failure_roots: np.ndarray, roots: int) -> Genealogy:
+    """The c.o.v. of a subset simulation's p_f from the genealogy of its final failures
+    (Chan & Lai 2013's estimator for sequential Monte Carlo, which Du & Guyader 2021 show
+    consistent with adaptive levels): p_f = p0^(m-1) F / N is (1/N) sum_r of the roots'
+    shares, so its relative variance is estimated by sum_r (F_r / F)^2 - 1 / N over the
+    ``roots`` level-0 samples. It equals Au & Beck's for one level and for two (exactly:
+    the same indicators and chains), and adds what theirs leaves out with more, the levels'
+    correlation through the seeds: a family that is deep in one level seeds more chains in
+    the next. ``failure_roots``: the root of each failing state of the last level."""
+    failures = failure_roots.size
+    if failures == 0 or roots == 0:
+        return Genealogy(math.inf, 0.0)
+    shares = np.bincount(failure_roots, minlength=roots) / failures
+    concentration = float(np.sum(shares**2))
+    return Genealogy(math.sqrt(max(concentration - 1.0 / roots, 0.0)), 1.0 / concentration)
+
+
+def lognormal_interval(p, cov, confidence: float,
+                       degrees_of_freedom: float | None = None) -> np.ndarray:
     """[p exp(-z s), p exp(z s)] (last axis), s^2 = ln(1 + cov^2): the interval of a
     lognormal estimate whose median is p and whose c.o.v. is cov (element-wise; NaN where p
-    is not positive or either is not finite)."""
+    is not positive or either is not finite). z is the normal quantile, or Student t's with
+    ``degrees_of_freedom`` where the c.o.v. is estimated from few independent groups (below
+    1: the interval is [0, 1])."""
     p, cov = np.broadcast_arrays(np.asarray(p, dtype=float), np.asarray(cov, dtype=float))
-    z = float(sps.norm.ppf(0.5 + confidence / 2))
+    if degrees_of_freedom is None:
+        z = float(sps.norm.ppf(0.5 + confidence / 2))
+    elif degrees_of_freedom >= 1:
+        z = float(sps.t.ppf(0.5 + confidence / 2, degrees_of_freedom))
+    else:
+        z = math.inf
     usable = np.isfinite(p) & np.isfinite(cov) & (p > 0)
     s = np.sqrt(np.log1p(np.where(usable, cov, 0.0) ** 2))
-    low = np.where(usable, p * np.exp(-z * s), np.nan)
-    high = np.where(usable, np.minimum(p * np.exp(z * s), 1.0), np.nan)
+    with np.errstate(invalid="ignore"):     # z = inf with s = 0 where not usable
+        low = np.where(usable, p * np.exp(-z * s), np.nan)
+        high = np.where(usable, np.minimum(p * np.exp(z * s), 1.0), np.nan)
     return np.stack([low, high], axis=-1)
 
 
@@ -341,6 +415,18 @@ class SubsetSimulation(PropagationMethod):
         level.failed = failed
         return level
 
+    @staticmethod
+    def genealogy(levels: list[SubsetLevel], realizations: int) -> Genealogy:
+        """``genealogical_cov`` of the last level's failures (g <= 0) over the level-0
+        samples that ran ok."""
+        if not levels:
+            return Genealogy(math.nan, 0.0)
+        last = levels[-1]
+        with np.errstate(invalid="ignore"):
+            failing = np.isfinite(last.g) & (last.g <= 0)
+        roots = family_roots(levels, realizations)[-1]
+        return genealogical_cov(roots[failing], levels[0].samples)
+
     def gamma_of(self, level: SubsetLevel, threshold: float | None = None) -> float:
         """gamma of a level's chains for the indicator g <= its threshold (0 at level 0, whose
         samples are independent)."""
@@ -359,11 +445,14 @@ class SubsetSimulation(PropagationMethod):
         probabilities = np.array([lv.probability for lv in levels])
         covs = np.array([lv.cov for lv in levels])
         p_f = float(np.prod(probabilities)) if levels else math.nan
-        cov = float(math.sqrt(np.sum(covs**2))) if levels else math.nan
+        cov_uncorrelated = float(math.sqrt(np.sum(covs**2))) if levels else math.nan
         cov_correlated = float(np.sum(covs)) if levels else math.nan
+        genealogy = self.genealogy(levels, runs.sizes[REALIZATION])
+        cov = genealogy.cov
         if p_f == 0:
-            cov = cov_correlated = math.inf
-        low, high = map(float, lognormal_interval(p_f, cov, opts.confidence))
+            cov = cov_uncorrelated = cov_correlated = math.inf
+        low, high = map(float, lognormal_interval(p_f, cov, opts.confidence,
+                                                  genealogy.degrees_of_freedom))
         if not progress.converged:
             warnings.append(f"subset simulation did not reach the failure domain "
                             f"({progress.stopped}): p_f is the fraction of failures at the "
@@ -376,8 +465,15 @@ class SubsetSimulation(PropagationMethod):
                 "long_name": "probability of failure, p0^(m-1) N_f / N", UNITS: "1"}),
             FAILURE_INTERVAL: ((LIMIT_STATE, BOUND), [[low, high]], {
                 "long_name": f"{100 * opts.confidence:g} % interval of p_f (lognormal with "
-                             f"the c.o.v.)", UNITS: "1"}),
+                             f"the genealogical c.o.v., Student t quantile)", UNITS: "1"}),
             FAILURE_COV: ((LIMIT_STATE,), [cov], {
+                "long_name": "c.o.v. of p_f from the failures' level-0 families "
+                             "(genealogical, levels' correlation included)", UNITS: "1"}),
+            FAILURE_FAMILIES: ((LIMIT_STATE,), [genealogy.families], {
+                "long_name": "effective number of level-0 families of the last level's "
+                             "failures (Kish); the interval's t has one fewer degrees of "
+                             "freedom", UNITS: "1"}),
+            FAILURE_COV_UNCORRELATED: ((LIMIT_STATE,), [cov_uncorrelated], {
                 "long_name": "c.o.v. of p_f, levels uncorrelated (Au & Beck)", UNITS: "1"}),
             FAILURE_COV_CORRELATED: ((LIMIT_STATE,), [cov_correlated], {
                 "long_name": "c.o.v. of p_f, levels fully correlated", UNITS: "1"}),
@@ -431,7 +527,8 @@ class SubsetSimulation(PropagationMethod):
             "stop_reason": progress.stopped, CONFIDENCE: opts.confidence,
             "level_probability_p0": opts.level_probability,
             "samples_per_level": opts.samples_per_level,
-            INTERVAL_METHOD: "lognormal from the c.o.v.",
+            INTERVAL_METHOD: "lognormal from the genealogical c.o.v., Student t quantile "
+                             "with the effective families - 1 degrees of freedom",
             EXCEEDANCE_NOTE: ("Au & Beck's construction: each level's samples above its "
                               "threshold at p_0 ... p_(j-1) times their rank among the level's "
                               "samples; pointwise band lognormal with the c.o.v. of the levels "
@@ -439,12 +536,13 @@ class SubsetSimulation(PropagationMethod):
             FAILURE_NOTE: (f"subset simulation, {n_levels} levels of "
                            f"{opts.samples_per_level} samples, p0 = "
                            f"{opts.level_probability:g}; p_f = product of the levels' "
-                           f"conditional probabilities; c.o.v. by Au & Beck with the chains' "
-                           f"correlation factor gamma, the levels' estimates taken as "
-                           f"uncorrelated: they are positively correlated through the seeds, "
-                           f"so it is a lower estimate (fully correlated: "
+                           f"conditional probabilities; c.o.v. from the spread of the last "
+                           f"level's failures over the level-0 samples they descend from "
+                           f"({genealogy.families:.3g} effective families), which counts "
+                           f"the levels' correlation through the seeds (Au & Beck's, levels "
+                           f"uncorrelated: {cov_uncorrelated:.3g}; fully correlated: "
                            f"{cov_correlated:.3g}); {100 * opts.confidence:g} % interval "
-                           f"lognormal with median p_f")})
+                           f"lognormal with median p_f and a Student t quantile")})
         return stats
 
     @staticmethod
@@ -532,9 +630,12 @@ class SubsetSimulation(PropagationMethod):
                 f"subset simulation, limit state '{name}'{event}: p_f = "
                 f"{number(float(stats[FAILURE_PROBABILITY].values[0]))} ({level} interval "
                 f"{number(low)} .. {number(high)}, lognormal), c.o.v. "
-                f"{number(float(stats[FAILURE_COV].values[0]))} (levels uncorrelated; "
-                f"{number(float(stats[FAILURE_COV_CORRELATED].values[0]))} fully "
-                f"correlated), beta = {number(float(stats[RELIABILITY_INDEX].values[0]))}"
+                f"{number(float(stats[FAILURE_COV].values[0]))} (from the failures' "
+                f"{number(float(stats[FAILURE_FAMILIES].values[0]))} effective level-0 "
+                f"families; Au & Beck's, levels uncorrelated, "
+                f"{number(float(stats[FAILURE_COV_UNCORRELATED].values[0]))}; fully "
+                f"correlated {number(float(stats[FAILURE_COV_CORRELATED].values[0]))}), "
+                f"beta = {number(float(stats[RELIABILITY_INDEX].values[0]))}"
                 + ("" if int(attrs.get("converged", 0)) else
                    f" (NOT converged: {attrs.get('stop_reason', '')})"))
             notes.append("level  threshold b      P[next | level]  gamma    acceptance  "

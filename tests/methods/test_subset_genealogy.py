@@ -1,0 +1,120 @@
+"""Subset simulation's c.o.v. from the genealogy of its failures: the level-0 family of every
+state, the estimator's exact agreement with Au & Beck's where theirs is exact, and what it
+adds where the levels are correlated through the seeds."""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+
+from uqflow.errors import AccuracyWarning
+from uqflow.inputs import InputSpace, RandomInput
+from uqflow.layout import (FAILURE_COV, FAILURE_COV_UNCORRELATED, FAILURE_FAMILIES,
+                           FAILURE_INTERVAL, FAILURE_PROBABILITY, SUBSET_LEVEL)
+from uqflow.methods.subset_simulation import (Genealogy, SubsetLevel, SubsetSimulation,
+                                              family_roots, genealogical_cov,
+                                              lognormal_interval)
+from uqflow.testing import run_in_memory
+
+
+def normal_space(n: int) -> InputSpace:
+    return InputSpace([RandomInput.from_spec({"name": f"x{i}", "distribution": "normal",
+                                              "mean": 0.0, "std": 1.0}) for i in range(n)])
+
+
+def run(beta: float, n: int, samples: int, seed: int = 0):
+    """Subset simulation of y = a . x > beta, |a| = 1, in n standard normals."""
+    a = np.ones(n) / math.sqrt(n)
+    method = SubsetSimulation(samples_per_level=samples)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", AccuracyWarning)
+        runs, stats = run_in_memory(method, normal_space(n),
+                                    [{"name": "high", "output": "y", "exceeds": beta}],
+                                    lambda x: {"y": x @ a}, seed, outputs={"y": "m"})
+    return method, runs, stats
+
+
+def value(stats, name) -> float:
+    return float(np.asarray(stats[name].values).ravel()[0])
+
+
+def test_families_follow_each_chain_to_its_seed_and_the_seed_to_level_0():
+    # level 0: rows 0..5; level 1: chains seeded by rows 4 and 1, proposals 6, 7 (accepted)
+    # and a rejection (the chain stays at 1); level 2: chains seeded by rows 7 and 1
+    levels = [SubsetLevel(0, np.arange(6)[None, :], np.zeros((1, 6))),
+              SubsetLevel(1, np.array([[4, 6, 7], [1, 1, 8]]), np.zeros((2, 3))),
+              SubsetLevel(2, np.array([[7, 9, -1], [1, 10, -1]]), np.zeros((2, 3)))]
+    roots = family_roots(levels, 11)
+    np.testing.assert_array_equal(roots[0], np.arange(6)[None, :])
+    np.testing.assert_array_equal(roots[1], [[4, 4, 4], [1, 1, 1]])
+    np.testing.assert_array_equal(roots[2], [[4, 4, -1], [1, 1, -1]])
+
+
+def test_at_level_0_it_is_the_binomial_cov():
+    # F failures each its own family among N: 1/F - 1/N = (1 - p) / (N p), a few roundings
+    n, failures = 1000, 37
+    genealogy = genealogical_cov(np.arange(0, 2 * failures, 2), n)
+    p = failures / n
+    assert genealogy.cov_raw == pytest.approx(math.sqrt((1 - p) / (n * p)), rel=1e-13)
+    assert genealogy.families == pytest.approx(failures, rel=1e-13)
+
+
+def test_with_one_intermediate_level_it_is_au_and_becks_exactly():
+    # two levels: sum_c (F_c/F)^2 - 1/N expands into (1 - p0)/(N p0) + (1 - p1)/(N p1)
+    # (1 + gamma_1) term by term (docs/subset_simulation.md); 1e-12 bounds the roundings of
+    # sums of a few hundred products (N eps ~ 1e-13). A wrong family (the chain's row in
+    # place of its seed's root) or a -1/N off by one level breaks it at the 1e-3 level.
+    method, runs, stats = run(beta=1.645, n=3, samples=200, seed=4)
+    assert stats.sizes[SUBSET_LEVEL] == 2
+    genealogy = method.genealogy(method.replay(runs).levels, runs.sizes["realization"])
+    assert genealogy.cov_raw == pytest.approx(value(stats, FAILURE_COV_UNCORRELATED),
+                                              rel=1e-12)
+    k = value(stats, FAILURE_FAMILIES)
+    # the reported c.o.v. carries the few-families correction k / (k - 1) of the variance
+    assert value(stats, FAILURE_COV) == pytest.approx(genealogy.cov_raw * math.sqrt(k / (k - 1)),
+                                                      rel=1e-13)
+
+
+def test_levels_correlated_through_their_seeds_raise_the_cov_above_au_and_becks():
+    # five levels at p_f = 3e-5: the failures descend from a few level-0 samples, and the
+    # spread of their families' shares is larger than the levels' independent fractions
+    # imply (over the seeds tried, 1.05 to 1.4 times Au & Beck's)
+    method, runs, stats = run(beta=4.0, n=2, samples=200, seed=1)
+    assert stats.sizes[SUBSET_LEVEL] >= 4
+    assert value(stats, FAILURE_COV) > value(stats, FAILURE_COV_UNCORRELATED)
+    assert 1 < value(stats, FAILURE_FAMILIES) < 20
+
+
+def test_one_family_leaves_the_cov_unknown():
+    genealogy = genealogical_cov(np.array([3, 3, 3, 3]), 100)
+    assert genealogy.families == 1.0
+    assert genealogy.cov == math.inf and genealogy.degrees_of_freedom == 0.0
+    assert np.all(np.isnan(lognormal_interval(1e-3, genealogy.cov, 0.95,
+                                              genealogy.degrees_of_freedom)))
+    assert genealogical_cov(np.zeros(0, dtype=np.int64), 100).cov == math.inf
+
+
+def test_the_interval_takes_student_t_with_families_minus_one_degrees_of_freedom():
+    low, high = lognormal_interval(1e-4, 0.3, 0.95, degrees_of_freedom=4.0)
+    s = math.sqrt(math.log1p(0.09))
+    # t_{0.975, 4} = 2.7764451051977987 (scipy's t.ppf, about 1e-15 relative); the same
+    # arithmetic as the closed form up to a few roundings
+    assert math.log(high / low) == pytest.approx(2 * 2.7764451051977987 * s, rel=1e-12)
+    assert math.sqrt(low * high) == pytest.approx(1e-4, rel=1e-14)
+    normal = lognormal_interval(1e-4, 0.3, 0.95)
+    assert normal[0] > low and normal[1] < high
+    assert np.all(lognormal_interval(1e-4, 0.3, 0.95, degrees_of_freedom=0.5) ==
+                  np.array([0.0, 1.0]))
+
+
+def test_the_reported_interval_is_the_t_interval_of_the_genealogical_cov():
+    _, _, stats = run(beta=2.5, n=2, samples=200, seed=3)
+    p, cov, k = (value(stats, name) for name in (FAILURE_PROBABILITY, FAILURE_COV,
+                                                 FAILURE_FAMILIES))
+    expected = lognormal_interval(p, cov, 0.95, degrees_of_freedom=k - 1)
+    # the same function of the same stored numbers
+    np.testing.assert_array_equal(np.asarray(stats[FAILURE_INTERVAL].values)[0], expected)
+    assert isinstance(Genealogy(0.1, 5.0).cov, float)
