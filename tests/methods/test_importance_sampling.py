@@ -10,14 +10,12 @@ deterministic.
 
 from __future__ import annotations
 
-import json
 import math
 import warnings
 
 import numpy as np
 import pytest
 import xarray as xr
-from scipy import integrate
 from scipy import stats as sps
 
 from uqflow.errors import AccuracyWarning, StudyError
@@ -41,25 +39,11 @@ from uqflow.report import open_result, summary_table
 from uqflow.solver import register_solver
 from uqflow.study import load_study
 
+from reliability_helpers import (four_branch_exact, four_branch_margin, run_warned,
+                                 study_file)
+
 # 4 standard errors: a normal deviate beyond them 1 time in 16,000
 SE4 = 4.0
-
-
-def four_branch_margin(u, k=6.0):
-    """The four-branch series system (Waarts 2000; Au & Beck): the smallest of
-    3 + (u1 - u2)^2/10 -+ (u1 + u2)/sqrt 2 and +-(u1 - u2) + k/sqrt 2."""
-    u1, u2 = u[:, 0], u[:, 1]
-    s, d = (u1 + u2) / math.sqrt(2), u1 - u2
-    return np.minimum.reduce([3 + d**2 / 10 - s, 3 + d**2 / 10 + s,
-                              d + k / math.sqrt(2), -d + k / math.sqrt(2)])
-
-
-def four_branch_exact(k=6.0):
-    """In a = (u1 + u2)/sqrt 2, b = (u1 - u2)/sqrt 2 (independent standard normals) the
-    safe set is |a| < 3 + b^2/5, |b| < k/2: P[safe] is a one-dimensional integral."""
-    safe = integrate.quad(lambda b: sps.norm.pdf(b) * (1 - 2 * sps.norm.sf(3 + b * b / 5)),
-                          -k / 2, k / 2, epsabs=0, epsrel=1e-13)[0]
-    return 1.0 - safe
 
 
 def test_four_branch_reference_is_the_literature_value():
@@ -88,8 +72,9 @@ def test_log_pdf_is_the_weighted_sum_of_normal_densities():
     # both sides are sums of a few terms of order 10 rounded to eps: 1e-12 relative covers
     # them with the condition number (< 10) of the covariances
     assert np.allclose(mixture.log_pdf(u), expected, rtol=1e-12, atol=1e-12)
+    # (atol=0: allclose's default 1e-8 would be the real tolerance)
     assert np.allclose(standard_normal_log_pdf(u),
-                       sps.multivariate_normal(np.zeros(3)).logpdf(u), rtol=1e-12)
+                       sps.multivariate_normal(np.zeros(3)).logpdf(u), rtol=1e-12, atol=0)
 
 
 def test_sample_has_the_mixtures_moments_and_repeats_under_its_seed():
@@ -122,7 +107,8 @@ def test_defensive_mixture_bounds_every_weight_by_one_over_w():
     assert np.array_equal(mixture.covariances[1], np.eye(3))
     u = np.random.default_rng(5).normal(size=(1000, 3)) * 3
     log_ratio = standard_normal_log_pdf(u) - mixture.log_pdf(u)
-    # phi / q <= 1 / w, up to the rounding of two log densities (~1e-15 each)
+    # phi / q <= 1 / w, up to the rounding of two log densities (a few eps of their size,
+    # |u|^2 / 2 < 100 here: 1e-13 each)
     assert np.max(log_ratio) <= -math.log(0.1) + 1e-12
     assert defensive_mixture(centre, 0.0).components == 1
     with pytest.raises(ValueError, match="defensive_weight"):
@@ -162,13 +148,16 @@ def test_cross_entropy_fit_floors_a_singular_covariance():
     u = np.array([[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]])  # on a line: rank one
     fitted = cross_entropy_fit(u, np.zeros(3))
     values = np.linalg.eigvalsh(fitted.covariances[0])
-    # the floor is set exactly, the other eigenvalue (4/3) keeps eps-level rounding
-    assert values[0] == pytest.approx(COVARIANCE_FLOOR, rel=1e-12)
-    assert values[1] == pytest.approx(4.0 / 3.0, rel=1e-12)
+    # the floor is set exactly; V diag V^T and eigvalsh each err by about n eps |C| (LAPACK's
+    # backward error: 2 x 2.2e-16 x 4/3 = 6e-16) absolute: 1e-14 is 16 of them
+    assert values[0] == pytest.approx(COVARIANCE_FLOOR, rel=0, abs=1e-14)
+    assert values[1] == pytest.approx(4.0 / 3.0, rel=0, abs=1e-14)
     assert np.linalg.eigvalsh(cross_entropy_fit(u, np.zeros(3), floor=1e-3).covariances[0])[
-        0] == pytest.approx(1e-3, rel=1e-12)  # the floor given; rounding as above
+        0] == pytest.approx(1e-3, rel=0, abs=1e-14)  # the floor given; rounding as above
     one = cross_entropy_fit(u[:1], np.zeros(1))  # a single elite: the floor in every direction
-    assert np.allclose(one.covariances[0], COVARIANCE_FLOOR * np.eye(2), rtol=1e-12)
+    # V floor V^T of a zero fit: a few eps of the floor, off the diagonal too
+    assert np.allclose(one.covariances[0], COVARIANCE_FLOOR * np.eye(2), rtol=0,
+                       atol=8 * np.finfo(float).eps * COVARIANCE_FLOOR)
     with pytest.raises(ValueError, match="one log weight per point"):
         cross_entropy_fit(u, np.zeros(2))
 
@@ -181,17 +170,19 @@ def test_estimate_without_weights_is_the_plain_fraction():
     estimate = importance_estimate(failed, np.zeros(50), 0.95)
     assert isinstance(estimate, ImportanceEstimate)
     p = 7 / 50
-    # a mean of 50 zeros and ones: one rounding of the division
-    assert estimate.probability == pytest.approx(p, rel=1e-15)
+    # a mean of 50 zeros and ones (weights exp(0) = 1 exactly, C99 Annex F): one rounding of
+    # the division (abs=0 here and below: approx's default 1e-12 is 1e-11 of these values)
+    assert estimate.probability == pytest.approx(p, rel=1e-15, abs=0)
     # the sample standard deviation of 0/1 terms: sqrt(k (n - k) / (n (n - 1)))
     # 1e-14: a few roundings of a square root and a division
     assert estimate.stderr == pytest.approx(math.sqrt(7 * 43 / (50 * 49)) / math.sqrt(50),
-                                            rel=1e-14)
-    assert estimate.effective_sample_size == pytest.approx(7.0, rel=1e-14)
+                                            rel=1e-14, abs=0)
+    # (sum w)^2 / sum w^2 = 49 / 7 of exact sums: one rounding
+    assert estimate.effective_sample_size == pytest.approx(7.0, rel=1e-14, abs=0)
     z = sps.norm.ppf(0.975)
     # the same few roundings on both sides (p - z s.e., s.e. / p): 1e-14 relative
-    assert estimate.low == pytest.approx(p - z * estimate.stderr, rel=1e-14)
-    assert estimate.cov == pytest.approx(estimate.stderr / p, rel=1e-14)
+    assert estimate.low == pytest.approx(p - z * estimate.stderr, rel=1e-14, abs=0)
+    assert estimate.cov == pytest.approx(estimate.stderr / p, rel=1e-14, abs=0)
     none = importance_estimate(np.zeros(5, bool), np.zeros(5), 0.95)
     assert none.probability == 0 and math.isinf(none.cov) and math.isnan(none.high)
     assert "no failure" in none.reason
@@ -388,40 +379,16 @@ def test_cross_entropy_fit_diagonal_and_identity():
 
 # ============================================================================= the methods
 
-def toml(value) -> str:
-    if isinstance(value, dict):
-        return "{ " + ", ".join(f"{k} = {toml(v)}" for k, v in value.items()) + " }"
-    if isinstance(value, str):
-        return json.dumps(value)
-    if isinstance(value, (list, tuple, np.ndarray)):
-        return "[" + ", ".join(toml(v) for v in value) + "]"
-    return repr(float(value)) if isinstance(value, (float, np.floating)) else repr(value)
-
-
 def study(tmp_path, scene, inputs, limit_states, method, solver="analytic", seed=1,
           name="is", execution=None):
     """A study of ``solver`` with normal ``inputs`` [(name, mean, std)]."""
-    lines = [f'name = "{name}"', f'solver = "{solver}"', f"scene = {toml(scene)}", ""]
-    for label, mean, std in inputs:
-        lines += ["[[inputs]]", f'name = "{label}"', 'distribution = "normal"',
-                  f"mean = {mean!r}", f"std = {std!r}", 'units = "m"', ""]
-    for table in limit_states:
-        lines += ["[[limit_states]]"] + [f"{k} = {toml(v)}" for k, v in table.items()] + [""]
-    lines += ["[method]"] + [f"{k} = {toml(v)}" for k, v in method.items()]
-    execution = {"workers": 0, "seed": seed, **(execution or {})}
-    lines += ["", "[execution]"] + [f"{k} = {toml(v)}" for k, v in execution.items()]
-    lines += ["", "[output]", f'path = "{name}.nc"', "figures = false", ""]
-    path = tmp_path / f"{name}.toml"
-    path.write_text("\n".join(lines))
-    return load_study(path)
+    return load_study(study_file(tmp_path, name, inputs=inputs, limit_states=limit_states,
+                                 method=method, solver=solver, scene=scene, seed=seed,
+                                 execution=execution))
 
 
 def run(tmp_path, *args, **kwargs):
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        outcome = run_study(study(tmp_path, *args, **kwargs), show_progress=False, force=True)
-    raised = [str(w.message) for w in caught if issubclass(w.category, AccuracyWarning)]
-    return outcome, raised
+    return run_warned(study(tmp_path, *args, **kwargs))
 
 
 def first(stats, name):
@@ -474,7 +441,8 @@ def test_r_minus_s_is_exact_within_its_standard_error(tmp_path, kind, options):
     low, high = stats[FAILURE_INTERVAL].values[0]
     assert low <= RS_EXACT <= high and high - low == pytest.approx(
         2 * sps.norm.ppf(0.975) * stderr, rel=1e-9)  # p +- z s.e., a few roundings
-    assert first(stats, FAILURE_COV) == pytest.approx(stderr / p, rel=1e-12)  # one division
+    # one division (abs=0: approx's default 1e-12 is 1e-11 of this c.o.v.)
+    assert first(stats, FAILURE_COV) == pytest.approx(stderr / p, rel=1e-12, abs=0)
     assert first(stats, RELIABILITY_INDEX) == pytest.approx(-sps.norm.ppf(p), rel=1e-12)
     assert stats.attrs["interval_method"] == "normal" and raised == []
     assert stats.attrs["sampling_runs"] == options["samples"]
@@ -495,10 +463,11 @@ def test_importance_sampling_of_a_linear_limit_state_at_beta_4_75_in_ten_dimensi
     # FORM beside it is exact for a linear limit state (finite differences of a linear g:
     # rounding only, eps |g| / step ~ 1e-13)
     assert first(stats, FORM_INDEX) == pytest.approx(4.75, rel=1e-9)
-    assert np.allclose(stats[DESIGN_POINT].values[0], 4.75 / math.sqrt(10), rtol=1e-9)
+    # (atol=0 here and below: allclose's default 1e-8 would be the real tolerance)
+    assert np.allclose(stats[DESIGN_POINT].values[0], 4.75 / math.sqrt(10), rtol=1e-9, atol=0)
     assert first(stats, EFFECTIVE_SAMPLE_SIZE) > 50
     # FORM's importance factors: 1/10 each (alpha = a / |a|); rounding as for the index
-    assert np.allclose(stats[IMPORTANCE].values[0], 0.1, rtol=1e-9)
+    assert np.allclose(stats[IMPORTANCE].values[0], 0.1, rtol=1e-9, atol=0)
     # the report's table of them (the framework draws their bar chart from the same hook)
     assert "importance factor alpha²" in summary_table(open_result(outcome.path))
 
@@ -527,8 +496,9 @@ def test_importance_sampling_puts_a_gaussian_on_each_design_point_the_check_find
     # check's estimate of the other (beta 3.2; g linear between the medians and the probe
     # -u*: 3 x 3/(3 - 0.2) = 3.21), the defensive standard normal
     weights, means = stats[BIASING_WEIGHT].values, stats[BIASING_MEAN].values
-    assert np.allclose(means[0], 3 / math.sqrt(2), rtol=1e-9)
-    assert np.allclose(means[1], -(9 / 2.8) / math.sqrt(2), rtol=1e-9)
+    # (atol=0: allclose's default 1e-8 would be the real tolerance)
+    assert np.allclose(means[0], 3 / math.sqrt(2), rtol=1e-9, atol=0)
+    assert np.allclose(means[1], -(9 / 2.8) / math.sqrt(2), rtol=1e-9, atol=0)
     assert np.array_equal(means[2], [0.0, 0.0]) and weights[2] == pytest.approx(0.1)
     share = sps.norm.sf(9 / 2.8) / (sps.norm.sf(9 / 2.8) + sps.norm.sf(3.0))
     assert weights[1] == pytest.approx(0.9 * share, rel=1e-9)  # one division and product
@@ -587,7 +557,9 @@ def test_defensive_importance_sampling_at_one_branch_warns_of_its_weights(tmp_pa
     assert any("importance weights have degenerated" in w for w in raised)
     assert first(stats, EFFECTIVE_SAMPLE_SIZE) < 0.1 * first(stats, FAILURES)
     assert stats.attrs["density_runs"] == 0  # the design point given: no FORM search
-    assert np.allclose(stats[DESIGN_POINT].values[0], list(centre.values()), rtol=1e-15)
+    # the given point, stored as given: a few roundings at most (atol=0: not the default 1e-8)
+    assert np.allclose(stats[DESIGN_POINT].values[0], list(centre.values()), rtol=1e-15,
+                       atol=0)
     text = summary_table(open_result(outcome.path))
     assert "importance weights have degenerated" in text
     assert "design point: x1 = 2.12132 m, x2 = 2.12132 m" in text
