@@ -9,14 +9,12 @@ for SORM, the asymptotic formulas themselves. Studies run through ``run_study`` 
 
 from __future__ import annotations
 
-import json
 import math
 import warnings
 
 import numpy as np
 import pytest
 import xarray as xr
-from scipy import integrate
 from scipy import stats as sps
 
 from uqflow.errors import AccuracyWarning, StudyError
@@ -29,52 +27,23 @@ from uqflow.methods.form import (STAGE, STAGE_CHECK, STAGE_CURVATURE, Form, Sorm
 from uqflow.report import open_result, summary_table, write_figures
 from uqflow.study import load_study
 
+from reliability_helpers import (comparable, paraboloid_exact, run_quietly, run_warned,
+                                 study_file)
+
 EPS = np.finfo(float).eps
-
-
-def toml(value) -> str:
-    if isinstance(value, dict):
-        return "{ " + ", ".join(f"{k} = {toml(v)}" for k, v in value.items()) + " }"
-    if isinstance(value, str):
-        return json.dumps(value)
-    if isinstance(value, (list, tuple, np.ndarray)):
-        return "[" + ", ".join(toml(v) for v in value) + "]"
-    return repr(float(value)) if isinstance(value, (float, np.floating)) else repr(value)
 
 
 def study(tmp_path, scene, inputs, limit_states, method, correlation=None, seed=1,
           name="form", execution=None):
     """Load a study of the analytic model ``scene`` with normal ``inputs`` [(mean, std)] named
-    x1, x2, ... (or [(name, mean, std)])."""
-    lines = [f'name = "{name}"', 'solver = "analytic"', f"scene = {toml(scene)}", ""]
-    for k, spec in enumerate(inputs):
-        if isinstance(spec, dict):  # any distribution, as its table
-            lines += ["[[inputs]]"] + [f"{key} = {toml(v)}" for key, v in spec.items()] + [""]
-            continue
-        label, mean, std = spec if len(spec) == 3 else (f"x{k + 1}", *spec)
-        lines += ["[[inputs]]", f'name = "{label}"', 'distribution = "normal"',
-                  f"mean = {mean!r}", f"std = {std!r}", 'units = "m"', ""]
-    if correlation is not None:
-        lines += ["[correlation]", f'inputs = {toml([f"x{k + 1}" for k in range(len(inputs))])}',
-                  f"matrix = {toml(np.asarray(correlation).tolist())}", ""]
-    for table in limit_states:
-        lines += ["[[limit_states]]"] + [f"{k} = {toml(v)}" for k, v in table.items()] + [""]
-    lines += ["[method]"] + [f"{k} = {toml(v)}" for k, v in method.items()]
-    lines += ["", "[execution]", "workers = 0", f"seed = {seed}"]
-    lines += [f"{k} = {toml(v)}" for k, v in (execution or {}).items()]
-    lines += ["", "[output]",
-              f'path = "{name}.nc"', "figures = false", ""]
-    path = tmp_path / f"{name}.toml"
-    path.write_text("\n".join(lines))
-    return load_study(path)
+    x1, x2, ... (or [(name, mean, std)], or any distribution as its table)."""
+    return load_study(study_file(tmp_path, name, inputs=inputs, limit_states=limit_states,
+                                 method=method, scene=scene, correlation=correlation,
+                                 seed=seed, execution=execution))
 
 
 def run(tmp_path, *args, **kwargs):
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        outcome = run_study(study(tmp_path, *args, **kwargs), show_progress=False, force=True)
-    raised = [str(w.message) for w in caught if issubclass(w.category, AccuracyWarning)]
-    return outcome, raised
+    return run_warned(study(tmp_path, *args, **kwargs))
 
 
 BELOW_ZERO = [{"name": "negative", "output": "y", "below": 0.0}]
@@ -91,13 +60,6 @@ def paraboloid(beta, kappa, n):
     q -= kappa / 2 * np.outer(-c, -c)
     return {"model": "quadratic", "offset": beta, "coefficients": c.tolist(),
             "quadratic": q.tolist()}
-
-
-def paraboloid_exact(beta, kappa, n):
-    """P[w > beta + kappa/2 Q], Q ~ chi2(n - 1) independent of w ~ N(0, 1)."""
-    def integrand(q):
-        return sps.norm.sf(beta + kappa / 2 * q) * sps.chi2.pdf(q, n - 1)
-    return integrate.quad(integrand, 0, np.inf, epsabs=0, epsrel=1e-12)[0]
 
 
 def test_registered_under_form_and_sorm():
@@ -134,7 +96,10 @@ def test_form_is_exact_for_a_linear_limit_state_in_correlated_normals(tmp_path, 
     assert np.allclose(stats["design_point"].values[0], design, rtol=0, atol=1e-9)
     # the importance factors of correlated inputs (Der Kiureghian's gamma^2): (s_k c_k)^2 / sum
     share = (np.array(STDS) * C) ** 2
-    assert np.allclose(stats["importance_factor"].values[0], share / share.sum(), atol=1e-9)
+    # from the gradient's 1e-13 (above), squared and normalized: 1e-9 absolute (rtol=0:
+    # allclose's default rtol 1e-5 would be the real tolerance)
+    assert np.allclose(stats["importance_factor"].values[0], share / share.sum(), rtol=0,
+                       atol=1e-9)
     # the first step lands on the design point; the second round only confirms it
     assert stats.attrs["iterations"] == 2
     # the solver's derivatives (dy/dx = c) come with the one run of a round, through the
@@ -164,8 +129,9 @@ def test_sorm_within_a_few_per_cent_of_an_exact_paraboloid_where_form_is_not(tmp
     assert np.allclose(stats["design_point"].values[0], [beta / math.sqrt(2)] * 2 + [0.0],
                        rtol=0, atol=1e-9)
     breitung, hohenbichler, tvedt = stats["sorm_failure_probability"].values[0]
-    # kappa errs by 1e-13 (above), so 1 + beta kappa by 1e-13 relative
-    assert breitung == pytest.approx(sps.norm.sf(beta) / (1 + beta * kappa), rel=1e-9)
+    # kappa errs by 1e-13 (above), so 1 + beta kappa by 1e-13 relative (abs=0: p ~ 1e-3,
+    # where approx's default abs 1e-12 would loosen 1e-9 relative)
+    assert breitung == pytest.approx(sps.norm.sf(beta) / (1 + beta * kappa), rel=1e-9, abs=0)
     # the asymptotic formulas are not exact for a paraboloid; their error is second order in
     # kappa beta = 0.6 and 1/beta: within a few per cent for Tvedt and Hohenbichler-Rackwitz
     assert abs(tvedt / exact - 1) < 0.03 and abs(hohenbichler / exact - 1) < 0.03
@@ -179,20 +145,25 @@ def test_sorm_within_a_few_per_cent_of_an_exact_paraboloid_where_form_is_not(tmp
 
 
 def test_sorm_formulas_against_their_closed_forms():
-    # flat: every formula is FORM's Phi(-beta)
-    assert np.allclose(sorm_probabilities(2.0, np.zeros(3))[0], sps.norm.sf(2.0), rtol=1e-14)
+    # flat: every formula is FORM's Phi(-beta), times factors that are 1 exactly; the two
+    # calls of the normal tail a few ulp apart at most (atol=0: allclose's default 1e-8 is
+    # 4e-7 of p = 0.023)
+    assert np.allclose(sorm_probabilities(2.0, np.zeros(3))[0], sps.norm.sf(2.0), rtol=1e-14,
+                       atol=0)
     # the origin in the failure domain: 1 - P[safe] with the safe side's index and curvatures
     got, _ = sorm_probabilities(-2.0, np.array([0.1, -0.2]))
     safe, _ = sorm_probabilities(2.0, np.array([-0.1, 0.2]))
     # the same arithmetic on both sides: only the subtraction 1 - safe rounds (eps / p)
-    assert np.allclose(got, 1 - safe, rtol=1e-14)
+    assert np.allclose(got, 1 - safe, rtol=1e-14, atol=0)
     # Hohenbichler-Rackwitz: psi = phi(beta) / Phi(-beta) in place of beta
     psi = sps.norm.pdf(3.0) / sps.norm.sf(3.0)
     got, why = sorm_probabilities(3.0, np.array([0.2, -0.1]))
     # psi from exp(logpdf - logsf) and from pdf / sf differ by a few ulp of log terms ~ 5:
-    # 1e-15 relative, and the product of two square roots adds a few eps
+    # 1e-15 relative, and the product of two square roots adds a few eps (abs=0: approx's
+    # default 1e-12 is 1e-9 of this p ~ 1e-3)
     assert got[1] == pytest.approx(sps.norm.sf(3.0) / math.sqrt((1 + 0.2 * psi) *
-                                                                (1 - 0.1 * psi)), rel=1e-13)
+                                                                (1 - 0.1 * psi)), rel=1e-13,
+                                   abs=0)
     assert why == []
 
 
@@ -392,9 +363,10 @@ def test_sorm_of_one_moving_input_is_form(tmp_path):
     # two search rounds of 3 runs, and the design-point check's one probe (-u*: the only
     # axis is u*'s own)
     assert raised == [] and outcome.runs.sizes["realization"] == 2 * 3 + 1
-    # linear: rounding alone (eps |g| / step ~ 1e-13)
+    # linear: rounding alone (eps |g| / step ~ 1e-13; atol=0: allclose's default 1e-8 is
+    # 7e-6 of this p)
     assert np.allclose(stats["sorm_failure_probability"].values[0], sps.norm.sf(3.0),
-                       rtol=1e-9)
+                       rtol=1e-9, atol=0)
 
 
 @pytest.mark.parametrize("gradient", ["central", "solver"])
@@ -436,7 +408,10 @@ def test_solver_gradient_takes_the_reduced_element_max(tmp_path):
     # g linear in u with an exact gradient: the first HL-RF step lands on u* up to rounding
     # (eps |g| / |grad g| ~ 1e-16 relative), far inside 1e-12
     assert float(stats[RELIABILITY_INDEX].values[0]) == pytest.approx(2.0, rel=1e-12)
-    np.testing.assert_allclose(stats["importance_factor"].values[0], [1.0, 0.0], atol=1e-12)
+    # alpha^2 of that gradient (1, 0) exactly: its rounding, 1e-12 absolute (rtol=0: the
+    # default 1e-7 would be the real tolerance)
+    np.testing.assert_allclose(stats["importance_factor"].values[0], [1.0, 0.0], rtol=0,
+                               atol=1e-12)
     search = outcome.runs[STAGE].values == "search"
     assert np.all(outcome.runs["with_sensitivities"].values == search)
     assert search.sum() == stats.attrs["iterations"] == 2    # one run a round
@@ -513,15 +488,10 @@ def test_solver_gradient_study_resumes_to_the_uninterrupted_numbers(tmp_path):
                             resume=True, output=cut)
     assert resumed.resumed == keep - 1
 
-    def comparable(path):
-        tree = open_result(path)
-        runs = tree["runs"].to_dataset().drop_vars(["wall_time", "compile_time", MESSAGE])
-        stats = tree["statistics"].to_dataset()
-        for key in ("solver_wall_time", "solver_compile_time", "resumed"):
-            stats.attrs.pop(key, None)
-        return runs, stats
-
     (runs_w, stats_w), (runs_c, stats_c) = comparable(whole.path), comparable(cut)
+    runs_w, runs_c = runs_w.drop_vars(MESSAGE), runs_c.drop_vars(MESSAGE)
+    for stats in (stats_w, stats_c):
+        stats.attrs.pop("resumed", None)
     xr.testing.assert_identical(runs_w, runs_c)
     xr.testing.assert_identical(stats_w, stats_c)
 
@@ -544,25 +514,13 @@ def test_form_warns_of_another_design_point(tmp_path):
     solver = uqflow.solver_from_function(_two_design_points, outputs="y", units="1")
     uqflow.register_solver("form-two-design-points-test")(solver)
 
-    def form(name, scene="{}", **options):
-        lines = [f'name = "{name}"', 'solver = "form-two-design-points-test"',
-                 f"scene = {scene}"]
-        for label in ("x1", "x2"):
-            lines += ["[[inputs]]", f'name = "{label}"', 'distribution = "normal"',
-                      "mean = 0.0", "std = 1.0"]
-        lines += ["[[limit_states]]", 'name = "g"', 'output = "y"', "below = 0.0",
-                  "[method]", 'kind = "form"']
-        lines += [f"{k} = {str(v).lower() if isinstance(v, bool) else toml(v)}"
-                  for k, v in options.items()]
-        lines += ["[execution]", "workers = 0", "[output]", f'path = "{name}.nc"',
-                  "figures = false"]
-        path = tmp_path / f"{name}.toml"
-        path.write_text("\n".join(lines) + "\n")
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            outcome = run_study(load_study(path), show_progress=False, force=True)
-        return outcome, [str(w.message) for w in caught
-                         if issubclass(w.category, AccuracyWarning)]
+    def form(name, scene=None, **options):
+        return run_warned(study_file(
+            tmp_path, name, solver="form-two-design-points-test", scene=scene,
+            inputs=[{"name": label, "distribution": "normal", "mean": 0.0, "std": 1.0}
+                    for label in ("x1", "x2")],
+            limit_states=[{"name": "g", "output": "y", "below": 0.0}],
+            method={"kind": "form", **options}))
 
     outcome, raised = form("two")
     stats = outcome.statistics
@@ -574,9 +532,10 @@ def test_form_warns_of_another_design_point(tmp_path):
     assert len(warning) == 1
     assert f"near u = ({-expected:.3g}, 0) with beta about {expected:.3g}" in warning[0]
     assert "FORM's p_f counts the failure region at u* only" in warning[0]
-    # the probes: -u*, and |u*| along x2 either way (the +x1 probe is u* itself)
+    # the probes: -u*, and |u*| along x2 either way (the +x1 probe is u* itself); u* is
+    # exact to its rounding (a few eps of 2.9), 1e-12 absolute (rtol=0: not the default 1e-7)
     np.testing.assert_allclose(stats["check_point"].values,
-                               [[-2.9, 0.0], [0.0, 2.9], [0.0, -2.9]], atol=1e-12)
+                               [[-2.9, 0.0], [0.0, 2.9], [0.0, -2.9]], rtol=0, atol=1e-12)
     assert np.isinf(stats["check_failure_distance"].values[1:]).all()
     assert warning[0] in summary_table(open_result(outcome.path))
     # without the check: no probe round and no warning
@@ -586,12 +545,12 @@ def test_form_warns_of_another_design_point(tmp_path):
     # exactly symmetric, g = 3 - |x1|: central differences see no slope at the medians (g is
     # even there), forward ones do; u* = (3, 0) and g(-u*) = 0, so the other region is at
     # beta 3 exactly (g linear along the ray)
-    symmetric, raised = form("symmetric", scene="{ shift = 0.0 }", gradient="forward")
+    symmetric, raised = form("symmetric", scene={"shift": 0.0}, gradient="forward")
     assert float(symmetric.statistics[RELIABILITY_INDEX].values[0]) == pytest.approx(
         3.0, rel=1e-12)   # g linear on x1 >= 0: exact up to rounding
     assert any(w.startswith("another design point near u = (-3, 0) with beta about 3 ")
                for w in raised)
-    central, raised = form("symmetric_central", scene="{ shift = 0.0 }")
+    central, raised = form("symmetric_central", scene={"shift": 0.0})
     assert central.statistics.attrs["converged"] == 0
     assert any("g or its gradient at the inputs' medians is not available" in w
                for w in raised)
@@ -666,22 +625,12 @@ def test_solver_gradient_study_is_the_same_on_two_workers(tmp_path):
     run on two dask workers, give the runs and statistics of the in-process run bit for
     bit."""
     limit = [{"name": "high", "output": "y", "reduce": "max", "exceeds": 1.9}]
-    outcomes = []
+    results = []
     for workers in (0, 2):
-        spec = study(tmp_path, DECAY, DECAY_INPUTS, limit, {"kind": "form",
-                                                            "gradient": "solver"},
-                     name=f"w{workers}")
-        spec.path.write_text(spec.path.read_text().replace("workers = 0",
-                                                           f"workers = {workers}"))
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", AccuracyWarning)
-            outcomes.append(run_study(load_study(spec.path), show_progress=False,
-                                      force=True).path)
-    trees = [open_result(path) for path in outcomes]
-    runs = [t["runs"].to_dataset().drop_vars(["wall_time", "compile_time"]) for t in trees]
-    stats = [t["statistics"].to_dataset() for t in trees]
-    for s in stats:
-        for key in ("solver_wall_time", "solver_compile_time"):
-            s.attrs.pop(key, None)
-    xr.testing.assert_identical(runs[0], runs[1])
-    xr.testing.assert_identical(stats[0], stats[1])
+        path = study_file(tmp_path, f"w{workers}", inputs=DECAY_INPUTS, limit_states=limit,
+                          method={"kind": "form", "gradient": "solver"}, scene=DECAY,
+                          execution={"workers": workers})
+        results.append(comparable(run_quietly(path).path))
+    (runs0, stats0), (runs2, stats2) = results
+    xr.testing.assert_identical(runs0, runs2)
+    xr.testing.assert_identical(stats0, stats2)
