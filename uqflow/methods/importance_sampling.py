@@ -22,6 +22,7 @@ cross-entropy method, Rubinstein 1999) and ``importance_estimate``. docs/importa
 from __future__ import annotations
 
 import functools
+import hashlib
 import math
 import warnings as pywarnings
 from dataclasses import dataclass, field
@@ -412,11 +413,11 @@ def weighted_m_step(u, w, responsibility, floor, covariance) -> GaussianMixture:
 
 
 def component_log_densities(mixture: GaussianMixture, u) -> np.ndarray:
-    """log N(u_i; m_k, C_k), (n, k)."""
+    """log N(u_i; m_k, C_k), (n, k), from the mixture's factors."""
     out = np.empty((u.shape[0], mixture.components))
     for k in range(mixture.components):
-        out[:, k] = GaussianMixture(np.ones(1), mixture.means[k:k + 1],
-                                    mixture.covariances[k:k + 1]).log_pdf(u)
+        y = (u - mixture.means[k]) @ mixture._inverse_lower[k].T
+        out[:, k] = -0.5 * np.einsum("ij,ij->i", y, y) + mixture._log_norm[k]
     return out
 
 
@@ -722,12 +723,20 @@ def weights_cov(log_weights) -> float:
     return float(w.std() / w.mean())
 
 
+def log_smoothed_indicator(g, sharpness: float) -> np.ndarray:
+    """log Phi(-g t), t = 1/s the smoothing's sharpness: 1[g <= 0] at t = infinity."""
+    g = np.asarray(g, dtype=float)
+    if math.isinf(sharpness):
+        return np.where(g <= 0, 0.0, -np.inf)
+    return special.log_ndtr(-g * sharpness)
+
+
 def stopping_cov(g, sharpness: float) -> float:
     """The improved rule's stop: the c.o.v. of 1[g <= 0] / Phi(-g t) (t = 1/s) over the
     round's draws ``g`` (finite): how far the smoothed target is from the optimal density
     phi 1[g <= 0] / p_f where the round's draws lie."""
     g = np.asarray(g, dtype=float)
-    return weights_cov(np.where(g <= 0, -special.log_ndtr(-g * sharpness), -np.inf))
+    return weights_cov(np.where(g <= 0, -log_smoothed_indicator(g, sharpness), -np.inf))
 
 
 def smoothing_sharpness(g, previous: float, target: float = SMOOTHING_COV) -> float:
@@ -736,6 +745,8 @@ def smoothing_sharpness(g, previous: float, target: float = SMOOTHING_COV) -> fl
     ``g`` (finite), by Brent's method. The c.o.v. is 0 at t = t_(j-1) and tends, as t grows,
     to that of 1[g < 0] / Phi(-g t_(j-1)) (the stop's statistic, above the target unless the
     stop was met); infinity when no finite t reaches the target (the indicator itself)."""
+    if math.isinf(previous):
+        return math.inf
     g = np.asarray(g, dtype=float)
     base = special.log_ndtr(-g * previous)
 
@@ -1230,6 +1241,19 @@ class CrossEntropy(ImportanceSampling):
         stage = runs[STAGE].values
         log_ratio = np.asarray(runs[LOG_LIKELIHOOD_RATIO].values, dtype=float)
         u = np.asarray(runs[STANDARD_NORMAL].values, dtype=float)
+        # the same runs replay to the same state: computed once (plan, extend, analyze and
+        # the report's words each ask), keyed on everything the replay reads
+        key = hashlib.sha256(b"".join(np.ascontiguousarray(a).tobytes() for a in (
+            axes, g, rounds, stage == STAGE_CROSS_ENTROPY, log_ratio, u))).hexdigest()
+        cached = getattr(self, "_adapted", None)
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        state = self.replay_rounds(state, g, rounds, stage, log_ratio, u, axes)
+        self._adapted = (key, state)
+        return state
+
+    def replay_rounds(self, state, g, rounds, stage, log_ratio, u, axes) -> CrossEntropyState:
+        """``adapt``'s rounds, in order."""
         family = self.options.family_for(axes.size)
         sharpness = 0.0
         for r in np.unique(rounds[stage == STAGE_CROSS_ENTROPY]):
@@ -1251,7 +1275,7 @@ class CrossEntropy(ImportanceSampling):
                 sharpness = smoothing_sharpness(g[usable], sharpness,
                                                 self.options.smoothing_cov)
                 state.smoothing.append(1.0 / sharpness)
-                log_weights = special.log_ndtr(-g[usable] * sharpness) + log_ratio[usable]
+                log_weights = log_smoothed_indicator(g[usable], sharpness) + log_ratio[usable]
                 state.effective.append(effective_count(log_weights))
                 state.density = self.fit(u[np.ix_(usable, axes)], log_weights, family)
                 state.fitted.append(family)
