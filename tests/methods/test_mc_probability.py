@@ -95,8 +95,9 @@ def test_clopper_pearson_closed_forms_at_zero_and_all(n):
     assert none.low == 0.0 and every.high == 1.0
     # scipy's incomplete-beta inverse is accurate to ~1e-15 relative (Boost's ibeta_inv);
     # 1e-12 leaves three decades for libm differences in the few operations around it
-    assert none.high == pytest.approx(upper, rel=1e-12)
-    assert every.low == pytest.approx((alpha / 2) ** (1 / n), rel=1e-12)
+    # (abs=0: approx's default 1e-12 would be 3e-7 of the upper bound 3.7e-6 at n = 10^6)
+    assert none.high == pytest.approx(upper, rel=1e-12, abs=0)
+    assert every.low == pytest.approx((alpha / 2) ** (1 / n), rel=1e-12, abs=0)
     assert not none.reason and not every.reason
 
 
@@ -109,8 +110,10 @@ def test_clopper_pearson_bounds_have_tails_alpha_over_two(k, n):
     assert sps.binom.sf(k - 1, n, ci.low) == pytest.approx(0.025, rel=1e-9)
     assert sps.binom.cdf(k, n, ci.high) == pytest.approx(0.025, rel=1e-9)
     ref = sps.binomtest(k, n).proportion_ci(0.95, method="exact")
-    # same beta quantiles: a few ulp apart at most
-    assert (ci.low, ci.high) == pytest.approx((ref.low, ref.high), rel=1e-13)
+    # scipy finds its bounds by brentq on the binomial tails, which stops within its xtol
+    # 2e-12 + rtol 4 eps |p| of the root (ours, beta quantiles, are within a few ulp):
+    # abs=2e-12 is that stop, not approx's default 1e-12 (3e-13 relative apart at k = 1)
+    assert (ci.low, ci.high) == pytest.approx((ref.low, ref.high), rel=1e-14, abs=2e-12)
 
 
 @pytest.mark.parametrize("k, n", [(0, 5), (1, 10), (3, 50), (50, 1000), (1000, 1000)])
@@ -176,10 +179,12 @@ def test_replicate_interval_is_a_t_interval_over_the_replicates():
     fractions = np.array([0.04, 0.06, 0.05, 0.03, 0.07, 0.05, 0.06, 0.04, np.nan])
     mean, stderr, ci = replicate_interval(fractions, 0.95)
     used = fractions[:8]
-    assert mean == pytest.approx(used.mean(), rel=4 * EPS)
-    assert stderr == pytest.approx(used.std(ddof=1) / math.sqrt(8), rel=16 * EPS)
+    # a sum of 8 terms and a division: 4 eps; the sample deviation (8 squares, a sum, a root,
+    # a division) and mean -+ t s.e.: 16 eps (abs=0: approx's default 1e-12 is 2e-11 of these)
+    assert mean == pytest.approx(used.mean(), rel=4 * EPS, abs=0)
+    assert stderr == pytest.approx(used.std(ddof=1) / math.sqrt(8), rel=16 * EPS, abs=0)
     half = sps.t.ppf(0.975, 7) * stderr
-    assert (ci.low, ci.high) == pytest.approx((mean - half, mean + half), rel=16 * EPS)
+    assert (ci.low, ci.high) == pytest.approx((mean - half, mean + half), rel=16 * EPS, abs=0)
     # clipped to [0, 1]: a wide spread around a small p
     _, _, wide = replicate_interval([0.0, 0.0, 0.0, 0.2], 0.95)
     assert wide.low == 0.0 and 0 < wide.high < 1
@@ -193,12 +198,14 @@ def test_replicate_interval_is_a_t_interval_over_the_replicates():
 
 def test_reliability_index_and_cov():
     # ndtri is accurate to a few ulp; dbeta/dp * p / beta = p / (phi(beta) beta) < 1 here
-    assert reliability_index(sps.norm.cdf(-4.75)) == pytest.approx(4.75, rel=1e-13)
+    # (abs=0: approx's default 1e-12 is 2e-13 of beta)
+    assert reliability_index(sps.norm.cdf(-4.75)) == pytest.approx(4.75, rel=1e-13, abs=0)
     assert reliability_index(0.5) == 0.0
     assert reliability_index(0.0) == math.inf and reliability_index(1.0) == -math.inf
     assert math.isnan(reliability_index(math.nan))
     np.testing.assert_array_equal(reliability_index(np.array([0.0, 1.0])), [np.inf, -np.inf])
-    assert binomial_cov(0.05, 1000) == pytest.approx(math.sqrt(0.95 / 50), rel=4 * EPS)
+    # (1 - p) / (n p) in 3 roundings, the root halves them and adds one: 4 eps (abs=0)
+    assert binomial_cov(0.05, 1000) == pytest.approx(math.sqrt(0.95 / 50), rel=4 * EPS, abs=0)
     assert binomial_cov(0.0, 1000) == math.inf and binomial_cov(1.0, 10) == 0.0
     assert math.isnan(binomial_cov(0.0, 0))
 
@@ -284,9 +291,10 @@ def test_no_failure_seen():
     assert int(at["failures"]) == 0 and float(at["failure_probability"]) == 0.0
     assert float(at["reliability_index"]) == math.inf
     assert float(at["failure_probability_cov"]) == math.inf
-    # closed form against beta.ppf(0.975, 1, 64): see the Clopper-Pearson test's bound
+    # closed form against beta.ppf(0.975, 1, 64): see the Clopper-Pearson test's bound (abs=0:
+    # the lower bound is 0 exactly, and approx's default 1e-12 is 2e-11 of the upper)
     assert at["failure_probability_interval"].values == pytest.approx(
-        [0.0, -math.expm1(math.log(0.025) / 64)], rel=1e-12)
+        [0.0, -math.expm1(math.log(0.025) / 64)], rel=1e-12, abs=0)
     _, _, _, rqmc = run_with_states(LINEAR3, linear_space(), y_exceeds(50.0), samples=64,
                                     rule="sobol")
     assert np.isnan(rqmc["failure_probability_interval"].values).all()
@@ -514,8 +522,9 @@ def test_exceedance_log_figure_draws_the_curve_band_threshold_and_p_on_a_log_axi
     ax = fig.axes[0]
     assert ax.get_yscale() == "log" and ax.get_ylabel() == "P[Y > y]"
     assert ax.get_xlabel() == "y: tip [mm]"
-    # the floor is a tenth of the smallest positive number drawn (the band's 0.01)
-    assert ax.get_ylim()[0] == pytest.approx(1e-3, rel=1e-12)
+    # the floor is a tenth of the smallest positive number drawn (the band's 0.01): one
+    # division, and matplotlib's log-axis round trip of a few ulp (abs=0: not the default 1e-12)
+    assert ax.get_ylim()[0] == pytest.approx(1e-3, rel=1e-12, abs=0)
     threshold = [line for line in ax.lines if line.get_label().startswith("threshold")]
     assert len(threshold) == 1 and np.allclose(threshold[0].get_xdata(), 2.0)
     marker = [c for c in ax.containers if c.get_label().startswith("p_f = 0.1 (0.05 .. 0.2)")]
