@@ -6,8 +6,8 @@ until it answers None, then ``analyze``) with a vectorized function in place of 
 (``drive``): the method sees the same design and runs, without the executor's per-realization
 overhead (``uqflow.testing.run_in_memory`` drives it the same way, bit for bit, but builds the
 executor's layout in every round: 2.3 times the CPU on subset simulation's one round a chain
-step, 6 s more on this file). The determinism tests (workers, kill and resume) run real studies through
-``run_study``. Every seed is fixed, so each test is deterministic; a tolerance says which
+step, 6 s more on this file). The determinism tests (workers, kill and resume) run real
+studies through ``run_study``. Every seed is fixed, so each test is deterministic; a tolerance says which
 sampling error bounds it.
 """
 
