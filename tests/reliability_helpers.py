@@ -1,7 +1,8 @@
 """What the reliability tests (issue 18) share: a study file of normal (or any) inputs with
 ``[[limit_states]]``, run through the executor with its accuracy warnings collected or
-silenced, its result without the measured times; and the exact answers of the test problems
-(the paraboloid, the four-branch series system)."""
+silenced, its result without the measured times, its file cut as a kill leaves it, its rounds
+replayed; and the exact answers of the test problems (the paraboloid, the four-branch series
+system)."""
 
 from __future__ import annotations
 
@@ -16,7 +17,10 @@ from scipy import stats as sps
 
 from uqflow.errors import AccuracyWarning
 from uqflow.execute import run_study
+from uqflow.layout import (ROUND, SENSITIVITY_COORD, SENSITIVITY_DIM, STATUS, STATUS_PENDING,
+                           WALL_TIME)
 from uqflow.report import open_result
+from uqflow.store import read_runs, write_result
 from uqflow.study import load_study
 
 # ----------------------------------------------------------------------------- study files
@@ -100,6 +104,42 @@ def comparable(path):
     for key in ("solver_wall_time", "solver_compile_time"):
         stats.attrs.pop(key, None)
     return runs, stats
+
+
+def cut_result(path, keep: int, pending, cut: Path, outputs=("y",)) -> Path:
+    """The result file ``path`` as a study killed there would leave it, written to ``cut``:
+    its first ``keep`` realizations, those at ``pending`` (indices) pending with NaN outputs,
+    wall time and solver sensitivities, the file marked incomplete."""
+    stored, attrs = read_runs(path)
+    stored = stored.isel(realization=np.arange(keep))
+    if SENSITIVITY_DIM in stored.dims:
+        stored = stored.isel({SENSITIVITY_DIM: np.flatnonzero(
+            stored[SENSITIVITY_COORD].values < keep)})
+        undone = np.isin(stored[SENSITIVITY_COORD].values, pending)
+        for var in stored.data_vars.values():
+            if SENSITIVITY_DIM in var.dims and var.dtype.kind == "f":
+                np.moveaxis(var.values, var.dims.index(SENSITIVITY_DIM), 0)[undone] = np.nan
+    stored[STATUS].values[pending] = STATUS_PENDING
+    for name in (*outputs, WALL_TIME):
+        stored[name].values[pending] = np.nan
+    attrs.update(complete=0)
+    attrs.pop("runs_sha256", None)
+    write_result(cut, stored, None, attrs)
+    return cut
+
+
+def assert_rounds_replay(method, runs, variables=("inputs",)) -> None:
+    """A resume asks ``extend`` the same question of the same runs: every prefix of finished
+    rounds gives back, bit for bit, the round that ran next (its ``variables``; NaN equal to
+    NaN), and the whole asks for nothing more. ``method``: as planned, nothing extended."""
+    rounds = runs[ROUND].values
+    for r in range(int(rounds.max())):
+        prefix = runs.isel(realization=np.flatnonzero(rounds <= r))
+        more = method.extend(prefix, prefix)
+        for name in variables:
+            assert np.array_equal(more[name].values, runs[name].values[rounds == r + 1],
+                                  equal_nan=True), (name, r + 1)
+    assert method.extend(runs, runs) is None
 
 
 # ----------------------------------------------------------------------------- exact answers

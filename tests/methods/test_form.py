@@ -27,8 +27,8 @@ from uqflow.methods.form import (STAGE, STAGE_CHECK, STAGE_CURVATURE, Form, Sorm
 from uqflow.report import open_result, summary_table, write_figures
 from uqflow.study import load_study
 
-from reliability_helpers import (comparable, paraboloid_exact, run_quietly, run_warned,
-                                 study_file)
+from reliability_helpers import (assert_rounds_replay, comparable, cut_result, paraboloid_exact,
+                                 run_quietly, run_warned, study_file)
 
 EPS = np.finfo(float).eps
 
@@ -254,13 +254,7 @@ def test_deterministic_and_replayable_round_by_round(tmp_path):
     # rounds gives back, bit for bit, the next round that ran
     method = load_study(tmp_path / "a.toml").method
     method.plan(load_study(tmp_path / "a.toml").space, None, np.random.SeedSequence(1))
-    runs = first.runs
-    rounds = runs[ROUND].values
-    for r in range(int(rounds.max())):
-        prefix = runs.isel(realization=np.flatnonzero(rounds <= r))
-        more = method.extend(prefix, prefix)
-        assert np.array_equal(more[INPUTS].values, runs[INPUTS].values[rounds == r + 1])
-    assert method.extend(runs, runs) is None
+    assert_rounds_replay(method, first.runs)
 
 
 # ----------------------------------------------------------------------------- refusals
@@ -460,7 +454,7 @@ def test_solver_gradient_is_refused_by_a_solver_without_derivatives(tmp_path):
 def test_solver_gradient_study_resumes_to_the_uninterrupted_numbers(tmp_path):
     """Killed with the second search round's run pending (its derivatives not yet there):
     the resumed study runs it with its sensitivities and ends identical, bit for bit."""
-    from uqflow.store import read_runs, write_result
+    from uqflow.store import read_runs
 
     limit = [{"name": "low", "output": "y", "reduce": {"at": {"t": 5.0}}, "below": 0.4}]
     whole, _ = run(tmp_path, DECAY, DECAY_INPUTS, limit,
@@ -468,20 +462,12 @@ def test_solver_gradient_study_resumes_to_the_uninterrupted_numbers(tmp_path):
     rounds = whole.runs[ROUND].values
     assert rounds.max() >= 3
     keep = int(np.flatnonzero(rounds == 1)[-1]) + 1
-    stored, attrs = read_runs(whole.path)
-    stored = stored.isel(realization=np.arange(keep))
-    stored = stored.isel(sensitivity_run=np.flatnonzero(
-        stored["sensitivity_realization"].values < keep))
-    last = keep - 1
-    stored[STATUS].values[last] = "pending"
-    stored["y"].values[last] = np.nan
-    stored["wall_time"].values[last] = np.nan
-    stored["y__gradient"].values[-1] = np.nan
-    stored["y__hessian"].values[-1] = np.nan
-    attrs.update(complete=0)
-    attrs.pop("runs_sha256", None)
-    cut = tmp_path / "cut.nc"
-    write_result(cut, stored, None, attrs)
+    # the round's one run pending: its output and its derivatives NaN in the file
+    assert whole.runs["with_sensitivities"].values[keep - 1]
+    cut = cut_result(whole.path, keep, [keep - 1], tmp_path / "cut.nc")
+    stored = read_runs(cut)[0]
+    assert np.isnan(stored["y__gradient"].values[-1]).all() and \
+        int(stored["sensitivity_realization"].values[-1]) == keep - 1
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", AccuracyWarning)
         resumed = run_study(load_study(tmp_path / "whole.toml"), show_progress=False,

@@ -39,8 +39,8 @@ from uqflow.report import open_result, summary_table
 from uqflow.solver import register_solver
 from uqflow.study import load_study
 
-from reliability_helpers import (four_branch_exact, four_branch_margin, run_warned,
-                                 study_file)
+from reliability_helpers import (assert_rounds_replay, four_branch_exact, four_branch_margin,
+                                 run_warned, study_file)
 
 # 4 standard errors: a normal deviate beyond them 1 time in 16,000
 SE4 = 4.0
@@ -599,14 +599,8 @@ def test_every_round_replays_from_the_runs_before_it(tmp_path, kind):
     method.plan(fresh.space, None, np.random.SeedSequence(3))
     runs = outcome.runs
     rounds = runs[ROUND].values
-    for r in range(int(rounds.max())):
-        prefix = runs.isel(realization=np.flatnonzero(rounds <= r))
-        more = method.extend(prefix, prefix)
-        assert np.array_equal(more[INPUTS].values, runs[INPUTS].values[rounds == r + 1])
-        assert np.array_equal(more[LOG_LIKELIHOOD_RATIO].values,
-                              runs[LOG_LIKELIHOOD_RATIO].values[rounds == r + 1],
-                              equal_nan=True)  # NaN: a search row is no draw
-    assert method.extend(runs, runs) is None
+    # the log ratios too (NaN: a search row is no draw)
+    assert_rounds_replay(method, runs, (INPUTS, LOG_LIKELIHOOD_RATIO))
     # another seed: the same prefix gives other draws in the first round that draws
     method.plan(fresh.space, None, np.random.SeedSequence(4))
     drawn = int(rounds[~np.isin(runs[STAGE].values, [STAGE_SEARCH, STAGE_CHECK])].min())

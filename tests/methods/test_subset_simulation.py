@@ -37,11 +37,10 @@ from uqflow.methods.form import STANDARD_NORMAL
 from uqflow.methods.subset_simulation import (SubsetSimulation, correlation_factor,
                                               lognormal_interval)
 from uqflow.report import open_result, summary_table, write_figures
-from uqflow.store import read_runs, write_result
 from uqflow.study import load_study
 
 import reliability_helpers as helpers
-from reliability_helpers import (comparable, four_branch_exact, four_branches,
+from reliability_helpers import (comparable, cut_result, four_branch_exact, four_branches,
                                  paraboloid_exact, run_quietly)
 
 # ----------------------------------------------------------------------------- the fast path
@@ -350,16 +349,7 @@ def test_a_killed_study_resumes_to_the_uninterrupted_numbers(tmp_path):
     # cross level 2's threshold and seeds, all replayed from the stored runs
     third = np.flatnonzero((level == 1) & (step == 3))
     keep = third[-1] + 1
-    stored, attrs = read_runs(whole.path)
-    stored = stored.isel(realization=np.arange(keep))
-    pending = third[4:]
-    stored[STATUS].values[pending] = "pending"
-    stored["y"].values[pending] = np.nan
-    stored[WALL_TIME].values[pending] = np.nan
-    attrs.update(complete=0)
-    attrs.pop("runs_sha256", None)
-    cut = tmp_path / "cut.nc"
-    write_result(cut, stored, None, attrs)
+    cut = cut_result(whole.path, keep, third[4:], tmp_path / "cut.nc")
     resumed = run_quietly(path, resume=True, output=cut)
     assert resumed.resumed == keep - 6
     (runs_w, stats_w), (runs_c, stats_c) = comparable(whole.path), comparable(cut)
