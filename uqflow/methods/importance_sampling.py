@@ -6,8 +6,10 @@ p_f = P[g(U) <= 0] with U standard normal (the inputs through their Gaussian cop
     p_hat = (1/N) sum 1[g(u_i) <= 0] phi(u_i) / q(u_i),
 
 unbiased for any q that is positive wherever phi is (every density here is a mixture of
-Gaussians with positive weights, so it is). Its standard error is the sample standard deviation
-of the terms y_i = 1[g <= 0] phi/q over sqrt(N); the interval is the normal one,
+Gaussians with positive weights or, for cross-entropy in many dimensions, a von
+Mises-Fisher-Nakagami density, positive for every u != 0, so it is). Its standard error is
+the sample standard deviation of the terms y_i = 1[g <= 0] phi/q over sqrt(N); the interval
+is the normal one,
 p_hat +- z s.e. (clipped to [0, 1]), valid when the terms' distribution is not too
 heavy-tailed, which the effective sample size (Kish) of the failing terms,
 (sum y_i)^2 / sum y_i^2, measures.
@@ -16,7 +18,9 @@ The pieces here are reusable (multifidelity importance sampling builds on them):
 ``GaussianMixture`` (sampling and log density), ``defensive_mixture`` (Hesterberg 1995: a
 Gaussian at a centre mixed with the standard normal itself, which bounds every weight
 phi/q by 1/w), ``cross_entropy_fit`` (the weighted maximum-likelihood Gaussian of the
-cross-entropy method, Rubinstein 1999) and ``importance_estimate``. docs/importance_sampling.md.
+cross-entropy method, Rubinstein 1999), ``fit_gaussian_mixture`` (its weighted-EM mixture),
+the improved cross-entropy rule's ``smoothing_sharpness`` and ``stopping_cov`` (Papaioannou,
+Geyer & Straub 2019) and ``importance_estimate``. docs/importance_sampling.md.
 """
 
 from __future__ import annotations
