@@ -1280,6 +1280,11 @@ class CrossEntropy(ImportanceSampling):
                                                 self.options.smoothing_cov)
                 state.smoothing.append(1.0 / sharpness)
                 log_weights = log_smoothed_indicator(g[usable], sharpness) + log_ratio[usable]
+                if not np.isfinite(log_weights).any():  # s = 0 and no failing draw
+                    state.stopped = (f"no draw of cross-entropy round {state.rounds - 1} "
+                                     f"carries weight (no failure, and the indicator itself "
+                                     f"is the next target)")
+                    break
                 state.effective.append(effective_count(log_weights))
                 state.density = self.fit(u[np.ix_(usable, axes)], log_weights, family)
                 state.fitted.append(family)
