@@ -94,8 +94,8 @@ def finest(u):
 
 def wide_coarse(u):
     """The wide problem's coarse level: linear, its design point 3.25 along the finest's
-    direction turned 15 degrees towards (e1 - e2) / sqrt 2 (orthogonal to it): 0.9 away
-    from the finest's design point, pessimistic (fails at 3.25, not 3.5)."""
+    direction turned 15 degrees towards (e1 - e2) / sqrt 2 (orthogonal to it): 0.92 from
+    the finest's design point, pessimistic (fails at 3.25, not 3.5)."""
     d = u.shape[1]
     turn = math.radians(WIDE_ROTATION_DEG)
     a = np.full(d, 1.0 / math.sqrt(d))
@@ -327,6 +327,9 @@ def _commit():
 
 def section(results, repetitions, commits):
     wide = f"linear-{WIDE_DIM}d"
+    turn = math.radians(WIDE_ROTATION_DEG)
+    distance = math.hypot(BETA - WIDE_COARSE_BETA * math.cos(turn),
+                          WIDE_COARSE_BETA * math.sin(turn))
     return f"""Commit: {", ".join(commits)}. Issue 18's check "side by side with OpenTURNS at equal
 calls: the multifidelity variants clearly better in finest-level cost". Made by
 `python benchmarks/reliability_levels.py --repetitions {repetitions} --part two --save two.json`,
@@ -343,18 +346,17 @@ is here:
   finest failure domain outside it (its worst case: the correction 0.38 must be sampled on
   the finest level). In two inputs FORM costs OpenTURNS a few dozen finest runs, so
   importance sampling at its FORM point is the finest-only method to beat.
-- "{wide}" ({WIDE_DIM} standard normals, finest g = 3.5 - sum(u)/{WIDE_DIM ** 0.5:g}): where the
+- "{wide}" ({WIDE_DIM} standard normals, finest g = 3.5 - sum(u) / {WIDE_DIM ** 0.5:g}): where the
   search for the biasing density is expensive at the finest level: FORM with
-  finite-difference gradients costs about {2 * WIDE_DIM} finest runs an iteration. Its coarse level
-  is linear with its design point {WIDE_COARSE_BETA} along the finest's direction turned
-  {WIDE_ROTATION_DEG:g} degrees ({WIDE_COARSE_BETA * math.sin(math.radians(WIDE_ROTATION_DEG)):.2f}
-  away from the finest design point across it): biased in offset and direction, chosen before
-  any run as a moderate error, not fitted to a result. OpenTURNS runs FORM (Abdo-Rackwitz,
-  its finite-difference gradient; Cobyla does not converge in {WIDE_DIM} inputs) and importance
-  sampling at its design point with the rest of the finest calls uqflow's FORM-guided rows
-  spent (equal finest calls); uqflow's FORM search runs on the coarse level only. The
-  defensive weight w (default 0.1) and the coarse search (FORM or cross-entropy, 500 draws a
-  round) are varied there.
+  finite-difference gradients costs about {2 * WIDE_DIM} finest runs an iteration. Its coarse
+  level is linear, its design point {WIDE_COARSE_BETA} along the finest's direction turned
+  {WIDE_ROTATION_DEG:g} degrees ({distance:.2f} from the finest design point): biased in
+  offset and direction, chosen before any run as a moderate error, not fitted to a result.
+  OpenTURNS runs FORM (Abdo-Rackwitz, its finite-difference gradient; Cobyla does not
+  converge in {WIDE_DIM} inputs) and importance sampling at its design point with the rest of
+  the finest calls uqflow's FORM-guided rows spent (equal finest calls); uqflow's FORM search
+  runs on the coarse level only. The defensive weight w (default 0.1), the finest budget and
+  the coarse search (FORM or cross-entropy, 500 draws a round) are varied there.
 
 OpenTURNS {_ot_version()} runs the finest model only: importance sampling at its FORM point
 ({OT_BUDGET['is_samples']} samples besides FORM's calls in two inputs), SubsetSampling
@@ -394,8 +396,9 @@ def main(argv=None):
         repetitions = saved[0]["repetitions"]
         commits = sorted({part["commit"] for part in saved})
     else:
+        commits = [_commit()]       # the checkout the run starts from, not where it ends
         results = benchmark(args.repetitions, part=args.part)
-        repetitions, commits = args.repetitions, [_commit()]
+        repetitions = args.repetitions
     if args.save:
         args.save.write_text(json.dumps({
             "repetitions": repetitions, "commit": commits[0], "part": args.part,
