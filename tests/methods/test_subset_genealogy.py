@@ -58,24 +58,28 @@ def test_at_level_0_it_is_the_binomial_cov():
     n, failures = 1000, 37
     genealogy = genealogical_cov(np.arange(0, 2 * failures, 2), n)
     p = failures / n
-    assert genealogy.cov_raw == pytest.approx(math.sqrt((1 - p) / (n * p)), rel=1e-13)
-    assert genealogy.families == pytest.approx(failures, rel=1e-13)
+    # a sum of 37 equal squares less 1/N (cancellation 1/(1 - p) ~ 1.04): ~40 eps = 1e-14
+    assert genealogy.cov_raw == pytest.approx(math.sqrt((1 - p) / (n * p)), rel=1e-13, abs=0)
+    # 1 over the same sum: ~40 eps
+    assert genealogy.families == pytest.approx(failures, rel=1e-13, abs=0)
 
 
 def test_with_one_intermediate_level_it_is_au_and_becks_exactly():
     # two levels: sum_c (F_c/F)^2 - 1/N expands into (1 - p0)/(N p0) + (1 - p1)/(N p1)
     # (1 + gamma_1) term by term (docs/subset_simulation.md); 1e-12 bounds the roundings of
-    # sums of a few hundred products (N eps ~ 1e-13). A wrong family (the chain's row in
-    # place of its seed's root) or a -1/N off by one level breaks it at the 1e-3 level.
+    # sums of a few hundred products (N eps ~ 1e-13). Families per state, or 1/(N + 1) in
+    # place of 1/N, break it.
     method, runs, stats = run(beta=1.645, n=3, samples=200, seed=4)
     assert stats.sizes[SUBSET_LEVEL] == 2
     genealogy = method.genealogy(method.replay(runs).levels, runs.sizes["realization"])
+    # two sums of N = 200 terms, differently ordered: N eps ~ 4e-14, 1e-12 with room
     assert genealogy.cov_raw == pytest.approx(value(stats, FAILURE_COV_UNCORRELATED),
-                                              rel=1e-12)
+                                              rel=1e-12, abs=0)
     k = value(stats, FAILURE_FAMILIES)
-    # the reported c.o.v. carries the few-families correction k / (k - 1) of the variance
-    assert value(stats, FAILURE_COV) == pytest.approx(genealogy.cov_raw * math.sqrt(k / (k - 1)),
-                                                      rel=1e-13)
+    # the reported c.o.v. carries the few-families correction k / (k - 1) of the variance:
+    # the same product up to a few roundings (1e-13)
+    assert value(stats, FAILURE_COV) == pytest.approx(
+        genealogy.cov_raw * math.sqrt(k / (k - 1)), rel=1e-13, abs=0)
 
 
 def test_levels_correlated_through_their_seeds_raise_the_cov_above_au_and_becks():
