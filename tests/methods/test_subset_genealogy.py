@@ -12,11 +12,11 @@ import pytest
 
 from uqflow.errors import AccuracyWarning
 from uqflow.inputs import InputSpace, RandomInput
-from uqflow.layout import (FAILURE_COV, FAILURE_COV_UNCORRELATED, FAILURE_FAMILIES,
-                           FAILURE_INTERVAL, FAILURE_PROBABILITY, SUBSET_LEVEL)
+from uqflow.layout import (EXCEEDANCE_INTERVAL, EXCEEDANCE_PROBABILITY, FAILURE_COV,
+                           FAILURE_COV_UNCORRELATED, FAILURE_FAMILIES, FAILURE_INTERVAL, FAILURE_PROBABILITY, SUBSET_LEVEL)
 from uqflow.methods.subset_simulation import (Genealogy, SubsetLevel, SubsetSimulation,
                                               family_roots, genealogical_cov,
-                                              lognormal_interval)
+                                              lognormal_interval, running_genealogy)
 from uqflow.testing import run_in_memory
 
 
@@ -122,3 +122,27 @@ def test_the_reported_interval_is_the_t_interval_of_the_genealogical_cov():
     # the same function of the same stored numbers
     np.testing.assert_array_equal(np.asarray(stats[FAILURE_INTERVAL].values)[0], expected)
     assert isinstance(Genealogy(0.1, 5.0).cov, float)
+
+
+def test_the_running_genealogy_of_every_prefix_is_the_genealogy_of_that_prefix():
+    roots = np.random.default_rng(7).integers(0, 12, size=300)
+    running = running_genealogy(roots, 500)
+    for i in (1, 2, 17, 150, 300):
+        alone = genealogical_cov(roots[:i], 500)
+        # sums of at most 300 squares of integers (exact) divided differently: a few eps
+        assert running.families[i - 1] == pytest.approx(alone.families, rel=1e-14, abs=0)
+        assert running.cov_raw[i - 1] == pytest.approx(alone.cov_raw, rel=1e-13, abs=0)
+    assert running.cov[0] == math.inf     # one state: one family, its spread unknown
+
+
+def test_the_exceedance_band_at_p_f_is_p_fs_interval():
+    _, _, stats = run(beta=2.5, n=2, samples=200, seed=3)
+    p_f = value(stats, FAILURE_PROBABILITY)
+    curve = np.asarray(stats[EXCEEDANCE_PROBABILITY].values)[0]
+    band = np.asarray(stats[EXCEEDANCE_INTERVAL].values)[0]
+    at = np.flatnonzero(curve == p_f)       # the last level's F-th sample: the same product
+    assert at.size >= 1
+    # the same c.o.v. summed in another order (a few eps), through exp(z s) with z s < 4:
+    # 1e-13 relative
+    np.testing.assert_allclose(band[at[0]], np.asarray(stats[FAILURE_INTERVAL].values)[0],
+                               rtol=1e-13, atol=0)

@@ -222,20 +222,54 @@ def genealogical_cov(failure_roots: np.ndarray, roots: int) -> Genealogy:
     return Genealogy(math.sqrt(max(concentration - 1.0 / roots, 0.0)), 1.0 / concentration)
 
 
-def lognormal_interval(p, cov, confidence: float,
-                       degrees_of_freedom: float | None = None) -> np.ndarray:
+@dataclass(frozen=True)
+class RunningGenealogy:
+    """``genealogical_cov`` of the first i states of a level in the order given, i = 1 ..
+    n, as arrays (the exceedance curve's points)."""
+
+    cov_raw: np.ndarray
+    families: np.ndarray
+
+    @property
+    def cov(self) -> np.ndarray:
+        k = self.families
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(k > 1, self.cov_raw * np.sqrt(k / (k - 1)), math.inf)
+
+    @property
+    def degrees_of_freedom(self) -> np.ndarray:
+        return np.maximum(self.families - 1.0, 0.0)
+
+
+def running_genealogy(roots: np.ndarray, level_0_samples: int) -> RunningGenealogy:
+    """``genealogical_cov`` of every prefix of ``roots`` at once: adding a state of a family
+    that has c states so far raises sum_r F_r^2 by 2 c + 1."""
+    n = roots.size
+    by_root = np.argsort(roots, kind="stable")
+    sorted_roots = roots[by_root]
+    first = np.r_[0, np.flatnonzero(np.diff(sorted_roots)) + 1]
+    seen_before = np.empty(n, dtype=np.int64)
+    seen_before[by_root] = np.arange(n) - np.repeat(first, np.diff(np.r_[first, n]))
+    squares = np.cumsum(2 * seen_before + 1).astype(float)
+    count = np.arange(1, n + 1, dtype=float)
+    concentration = squares / count**2
+    return RunningGenealogy(np.sqrt(np.maximum(concentration - 1.0 / level_0_samples, 0.0)),
+                            1.0 / concentration)
+
+
+def lognormal_interval(p, cov, confidence: float, degrees_of_freedom=None) -> np.ndarray:
     """[p exp(-z s), p exp(z s)] (last axis), s^2 = ln(1 + cov^2): the interval of a
     lognormal estimate whose median is p and whose c.o.v. is cov (element-wise; NaN where p
     is not positive or either is not finite). z is the normal quantile, or Student t's with
-    ``degrees_of_freedom`` where the c.o.v. is estimated from few independent groups (below
-    1: the interval is [0, 1])."""
+    ``degrees_of_freedom`` (element-wise) where the c.o.v. is estimated from few independent
+    groups (below 1: the interval is [0, 1])."""
     p, cov = np.broadcast_arrays(np.asarray(p, dtype=float), np.asarray(cov, dtype=float))
     if degrees_of_freedom is None:
         z = float(sps.norm.ppf(0.5 + confidence / 2))
-    elif degrees_of_freedom >= 1:
-        z = float(sps.t.ppf(0.5 + confidence / 2, degrees_of_freedom))
     else:
-        z = math.inf
+        dof = np.asarray(degrees_of_freedom, dtype=float)
+        z = np.where(dof >= 1, sps.t.ppf(0.5 + confidence / 2, np.maximum(dof, 1.0)),
+                     math.inf)
     usable = np.isfinite(p) & np.isfinite(cov) & (p > 0)
     s = np.sqrt(np.log1p(np.where(usable, cov, 0.0) ** 2))
     with np.errstate(invalid="ignore"):     # z = inf with s = 0 where not usable
@@ -501,7 +535,8 @@ class SubsetSimulation(PropagationMethod):
                 "long_name": "runs of the level that did not finish ok (level 0: samples "
                              "left out; later: proposals rejected)"}),
         }
-        data.update(self.exceedance(levels, state, opts.confidence))
+        data.update(self.exceedance(levels, state, opts.confidence,
+                                    runs.sizes[REALIZATION]))
         stats = xr.Dataset(data, coords={LIMIT_STATE: [self.limit_state],
                                          BOUND: [BOUND_LOW, BOUND_HIGH],
                                          SUBSET_LEVEL: np.arange(n_levels)})
@@ -531,8 +566,9 @@ class SubsetSimulation(PropagationMethod):
                              "with the effective families - 1 degrees of freedom",
             EXCEEDANCE_NOTE: ("Au & Beck's construction: each level's samples above its "
                               "threshold at p_0 ... p_(j-1) times their rank among the level's "
-                              "samples; pointwise band lognormal with the c.o.v. of the levels "
-                              "before and of the level's own fraction"),
+                              "samples; pointwise band lognormal with the genealogical c.o.v. "
+                              "of the level's samples up to the point (Student t), p_f's "
+                              "interval at p_f"),
             FAILURE_NOTE: (f"subset simulation, {n_levels} levels of "
                            f"{opts.samples_per_level} samples, p0 = "
                            f"{opts.level_probability:g}; p_f = product of the levels' "
@@ -559,33 +595,37 @@ class SubsetSimulation(PropagationMethod):
                          f"domain without the region where the solver fails")
         return notes
 
-    def exceedance(self, levels, state, confidence) -> dict:
+    def exceedance(self, levels, state, confidence, realizations: int) -> dict:
         """P[g <= b] over the levels (Au & Beck's construction): the samples of level j
-        above its threshold, each at p_0 ... p_{j-1} times its rank among the level's N, with
-        the c.o.v. of the levels before it and of its own fraction; the curve of the output
-        y for a single limit state."""
-        margins, fractions, covs = [], [], []
-        prefix, prefix_var = 1.0, 0.0
+        above its threshold, each at p_0 ... p_{j-1} times its rank among the level's N; each
+        point's band from the genealogy of the level's samples up to it, as p_f's (at p_f
+        it is p_f's interval); the curve of the output y for a single limit state."""
+        margins, fractions, covs, freedoms = [], [], [], []
+        roots_of = family_roots(levels, realizations) if levels else []
+        prefix = 1.0
         for k, level in enumerate(levels):
-            g = np.sort(level.g[np.isfinite(level.g)])
+            finite = np.isfinite(level.g)
+            order = np.argsort(level.g[finite], kind="stable")
+            g, roots = level.g[finite][order], roots_of[k][finite][order]
             n = g.size
             if n == 0:
                 break
             last = k == len(levels) - 1
             rank = np.arange(1, n + 1)
             keep = np.ones(n, bool) if last else g > level.threshold
-            q = rank[keep] / n
+            genealogy = running_genealogy(roots, levels[0].samples)
             margins.append(g[keep])
-            fractions.append(prefix * q)
-            covs.append(np.sqrt(prefix_var + (1 - q) / (n * q) * (1 + level.gamma)))
+            fractions.append(prefix * rank[keep] / n)
+            covs.append(genealogy.cov[keep])
+            freedoms.append(genealogy.degrees_of_freedom[keep])
             prefix *= level.probability
-            prefix_var += level.cov**2 if np.isfinite(level.cov) else 0.0
         g = np.concatenate(margins) if margins else np.zeros(0)
         p = np.concatenate(fractions) if fractions else np.zeros(0)
         cov = np.concatenate(covs) if covs else np.zeros(0)
+        dof = np.concatenate(freedoms) if freedoms else np.zeros(0)
         order = np.argsort(g, kind="stable")
-        g, p, cov = g[order], p[order], cov[order]
-        bounds = lognormal_interval(p, cov, confidence).reshape(-1, 2)
+        g, p, cov, dof = g[order], p[order], cov[order], dof[order]
+        bounds = lognormal_interval(p, cov, confidence, dof).reshape(-1, 2)
         if isinstance(state, LimitStateSystem):
             level, comparison, quantity = g, "<=", f"margin g of the {state.kind} system"
             threshold, units = 0.0, ""
@@ -603,8 +643,9 @@ class SubsetSimulation(PropagationMethod):
             EXCEEDANCE_PROBABILITY: ((LIMIT_STATE, EXCEEDANCE_POINT), [p], {
                 "long_name": f"P[Y {comparison} y]", UNITS: "1"}),
             EXCEEDANCE_INTERVAL: ((LIMIT_STATE, EXCEEDANCE_POINT, BOUND), [bounds], {
-                "long_name": "pointwise interval (lognormal with the c.o.v. of the levels "
-                             "so far and of the level's fraction)", UNITS: "1"}),
+                "long_name": "pointwise interval (lognormal with the genealogical c.o.v. "
+                             "of the level's samples up to the point, Student t)",
+                UNITS: "1"}),
             EXCEEDANCE_QUANTITY: ((LIMIT_STATE,), [quantity]),
             EXCEEDANCE_COMPARISON: ((LIMIT_STATE,), [comparison]),
             EXCEEDANCE_THRESHOLD: ((LIMIT_STATE,), [threshold]),
@@ -675,7 +716,7 @@ def levels_figure(view, output=None):
         failure_interval=stats[FAILURE_INTERVAL].values[0], comparison=comparison,
         name=str(stats[EXCEEDANCE_QUANTITY].values[0]), units=units,
         curve_label="subset levels: p_0 ... p_(j-1) x the level's fraction",
-        band_label=f"{level} pointwise band (lognormal, Au & Beck's c.o.v.)",
+        band_label=f"{level} pointwise band (lognormal, genealogical c.o.v.)",
         title=f"{view.study}: subset levels of '{stats.attrs.get(LIMIT_STATE, '')}'\n"
               f"({view.description})")
     if fig is None:
