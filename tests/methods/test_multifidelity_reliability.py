@@ -31,10 +31,9 @@ from scipy import stats as sps
 
 import uqflow
 from uqflow.errors import AccuracyWarning, StudyError
-from uqflow.execute import run_study
 from uqflow.inputs import InputSpace, RandomInput
-from uqflow.layout import (BOUND, EQUIVALENT_FINEST_COST, EQUIVALENT_FINEST_RUNS,
-                           FAILURE_COV, FAILURE_INTERVAL, FAILURE_PROBABILITY,
+from uqflow.layout import (EQUIVALENT_FINEST_COST, EQUIVALENT_FINEST_RUNS,
+                           FAILURE_COV, FAILURE_PROBABILITY,
                            FAILURE_STDERR, FIDELITY_COST, FIDELITY_RUNS, FINEST_COST_RATIO,
                            GUIDE_PROBABILITY, GUIDE_TOTAL_COST, INPUTS, LEVEL, ROUND,
                            STATUS, STATUS_OK)
@@ -50,6 +49,8 @@ from uqflow.realization import empty_runs
 from uqflow.report import open_result, summary_table, write_figures
 from uqflow.store import read_runs, write_result
 from uqflow.study import load_study
+
+from reliability_helpers import comparable, run_quietly as run
 
 BETA, BIAS = 3.5, 0.5           # biased: the finest P = Phi(-3.5) = 2.33e-4
 BETA2, SHIFT = 2.0, 10.0        # missed: the second region Phi(-2) = 0.0228
@@ -437,21 +438,6 @@ def study_file(tmp_path, name, method=None, *, levels=True, workers=0, limit_sta
     path = tmp_path / f"{name}.toml"
     path.write_text("\n".join(lines))
     return path
-
-
-def run(path, **kwargs):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", AccuracyWarning)
-        return run_study(load_study(path), show_progress=False, force=True, **kwargs)
-
-
-def comparable(path):
-    tree = open_result(path)
-    runs = tree["runs"].to_dataset().drop_vars(["wall_time", "compile_time"], errors="ignore")
-    stats = tree["statistics"].to_dataset()
-    stats.attrs.pop("solver_wall_time")
-    stats.attrs.pop("solver_compile_time", None)
-    return runs, stats
 
 
 def test_a_study_runs_each_stage_on_its_level_and_reports_the_saving(tmp_path):

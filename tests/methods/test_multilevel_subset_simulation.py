@@ -29,7 +29,6 @@ from scipy import stats as sps
 
 import uqflow
 from uqflow.errors import AccuracyWarning, StudyError
-from uqflow.execute import run_study
 from uqflow.inputs import InputSpace, RandomInput
 from uqflow.layout import (CHAIN, CHAIN_STEP, EQUIVALENT_FINEST_COST, EQUIVALENT_FINEST_RUNS,
                            FAILURE_COV, FAILURE_PROBABILITY, FIDELITY_COST, FIDELITY_RUNS,
@@ -49,6 +48,8 @@ from uqflow.realization import empty_runs
 from uqflow.report import open_result, summary_table, write_figures
 from uqflow.store import read_runs, write_result
 from uqflow.study import load_study
+
+from reliability_helpers import run_quietly as run
 
 EXACT = float(sps.norm.sf(3.5))     # the finest level of both families
 
@@ -361,12 +362,6 @@ def study_file(tmp_path, name, *, workers=0, method=None):
     path = tmp_path / f"{name}.toml"
     path.write_text("\n".join(lines))
     return path
-
-
-def run(path, **kwargs):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", AccuracyWarning)
-        return run_study(load_study(path), show_progress=False, force=True, **kwargs)
 
 
 def comparable(path):
