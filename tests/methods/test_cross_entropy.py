@@ -58,7 +58,6 @@ def first(stats, name):
 
 # ----------------------------------------------------------------------------- the method
 
-@pytest.mark.slow
 def test_a_linear_limit_state_in_100_dimensions_at_beta_4_75():
     # g = 4.75 - a.u in 100 standard normals, p = Phi(-4.75) = 1.017e-6: 500 draws a round,
     # family "auto" fits the vMFN density; the estimate is within 4 of its standard errors
