@@ -424,6 +424,7 @@ def run_block_here(block: PyBlock, folder: Path, monkeypatch) -> None:
 
     import matplotlib.pyplot as plt
 
+    import uqflow.testing  # noqa: F401  (its tiny solver registers at first import: not in a copy)
     from uqflow.methods.base import method_registry
     from uqflow.solver import solver_registry
     for registry in (method_registry, solver_registry):
