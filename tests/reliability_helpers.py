@@ -150,6 +150,7 @@ def paraboloid_exact(beta: float, kappa: float, n: int) -> float:
     w ~ N(0, 1), one quadrature to 1e-12 relative."""
     def integrand(q):
         return sps.norm.sf(beta + kappa / 2 * q) * sps.chi2.pdf(q, n - 1)
+    # quadrature to its 1e-12 relative error estimate (smooth integrand)
     return integrate.quad(integrand, 0, np.inf, epsabs=0, epsrel=1e-12)[0]
 
 
@@ -173,5 +174,6 @@ def four_branch_exact(k: float = 6.0) -> float:
     normals) the safe set is |a| < 3 + b^2/5, |b| < k/2, a one-dimensional integral (quad
     to 1e-13 relative)."""
     safe = integrate.quad(lambda b: sps.norm.pdf(b) * (1 - 2 * sps.norm.sf(3 + b * b / 5)),
+                          # quadrature to its 1e-13 relative error estimate (smooth integrand)
                           -k / 2, k / 2, epsabs=0, epsrel=1e-13)[0]
     return 1.0 - safe

@@ -63,6 +63,7 @@ def test_reliability_benchmark_runs_in_quick_mode(monkeypatch):
     # side a few correctly rounded operations (no libm): 1e-14 is 45 eps (abs=0: approx's
     # default 1e-12 would hide a relative error of 3e-12 here)
     assert mc["cov_reported"] == pytest.approx(
+        # bound: the same formula, a few roundings per term: 1e-14
         np.mean([math.sqrt((1 - k / 100) / k) for k in counts]), rel=1e-14, abs=0)
     text = bench.report({"r_minus_s": results}, 2, math.inf)
     assert "| uqflow | form | 1 |" in text and "| uqflow | monte-carlo | 2 | 100 |" in text

@@ -52,6 +52,7 @@ def test_the_closed_forms_by_hand():
     assert REFERENCES["r_minus_s"]["p_f"] == pytest.approx(
         0.5 * math.erfc(math.sqrt(2.0) / math.sqrt(2.0)), rel=1e-12, abs=0)  # erfc: a few ulp
     assert REFERENCES["two_design_points"]["p_f"] == pytest.approx(
+        # bound: erfc to a few ulp, two terms added: 1e-12
         0.5 * math.erfc(3 / math.sqrt(2)) + 0.5 * math.erfc(3.2 / math.sqrt(2)), rel=1e-12,
         abs=0)      # a few ulp of each tail (abs=0: approx's default is 5e-10 of this p)
     # the lognormal p: beta ~ 3.6 from a few flops, each a few ulp; p's relative error is
@@ -75,6 +76,7 @@ def test_the_stored_monte_carlo_check_agrees(name):
     # the stored stderr is this formula's value, written to 17 digits by json: 1e-12
     # (abs=0: the stderr is 1e-6 to 3e-5, where approx's default abs 1e-12 is up to 1e-6 of it)
     assert mc["stderr"] == pytest.approx(math.sqrt(mc["p_f"] * (1 - mc["p_f"]) / mc["samples"]),
+                                         # bound: json's 17 digits of the same formula: 1e-12
                                          rel=1e-12, abs=0)
     # 4 standard errors: a correct reference fails this 1 in 16,000 times
     assert abs(mc["p_f"] - REFERENCES[name]["p_f"]) < 4 * mc["stderr"]
@@ -126,6 +128,7 @@ def test_the_lognormal_copula_is_the_normal_scores_correlation():
     assert np.allclose(np.corrcoef(scores.T), problem.correlation, atol=0.01)
     # the stored value of the same formula: a few ulp of the tail (abs=0: not approx's 1e-12)
     assert sps.norm.cdf(-problems.lognormal_beta()) == pytest.approx(
+        # bound: the same formula, a few ulp of the normal tail: 1e-12
         REFERENCES["correlated_lognormals"]["p_f"], rel=1e-12, abs=0)
 
 

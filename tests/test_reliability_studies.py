@@ -101,6 +101,7 @@ def test_thin_plate_monte_carlo_accounts_for_every_realization(plate_results):
         # quantile apart at most (abs: 0 where the bound is 0, not approx's default 1e-12)
         assert float(bounds.sel({BOUND: BOUND_LOW})) == pytest.approx(exact.low, rel=1e-12,
                                                                        abs=1e-300)
+        # bound: a few ulp of the beta quantile: 1e-12
         assert float(bounds.sel({BOUND: BOUND_HIGH})) == pytest.approx(exact.high, rel=1e-12,
                                                                         abs=0)
     assert set(runs[STATUS].values) <= {"ok", "failed"}

@@ -94,6 +94,7 @@ def four_branch(u, k=7.0):
 def four_branch_exact(k=7.0):
     """P[failure] from the one-dimensional integral of P[safe] in b = (u1 - u2)/sqrt 2."""
     safe = integrate.quad(lambda b: sps.norm.pdf(b) * (1 - 2 * sps.norm.sf(3 + b * b / 5)),
+                          # quadrature of a smooth integrand, to its 1e-13 relative error estimate
                           -k / 2, k / 2, epsabs=0, epsrel=1e-13)[0]
     return 1.0 - safe
 
@@ -141,6 +142,7 @@ def test_the_vmfn_density_integrates_to_one_and_its_ratio_is_phi_over_q():
         # terms up to ~300 each rounded to a few eps: ~1e-13 absolute, 1e-10 leaves room
         assert np.allclose(density.log_likelihood_ratio(u),
                            standard_normal_log_pdf(u) - density.log_pdf(u), rtol=0,
+                           # bound: ~300-sized terms each a few eps, ~1e-13 absolute (above)
                            atol=1e-10)
     # |S^2| = 4 pi: a log, a gammaln and a sum, each correctly rounded (a few eps)
     assert log_sphere_area(3) == pytest.approx(math.log(4 * math.pi), rel=1e-15)

@@ -162,6 +162,7 @@ def test_sorm_formulas_against_their_closed_forms():
     # 1e-15 relative, and the product of two square roots adds a few eps (abs=0: approx's
     # default 1e-12 is 1e-9 of this p ~ 1e-3)
     assert got[1] == pytest.approx(sps.norm.sf(3.0) / math.sqrt((1 + 0.2 * psi) *
+        # bound: a few eps of log terms ~5 and two square roots, 1e-13 (above)
                                                                 (1 - 0.1 * psi)), rel=1e-13,
                                    abs=0)
     assert why == []
@@ -405,6 +406,7 @@ def test_solver_gradient_takes_the_reduced_element_max(tmp_path):
     # alpha^2 of that gradient (1, 0) exactly: its rounding, 1e-12 absolute (rtol=0: the
     # default 1e-7 would be the real tolerance)
     np.testing.assert_allclose(stats["importance_factor"].values[0], [1.0, 0.0], rtol=0,
+                               # bound: alpha^2's own rounding, 1e-12 absolute (above)
                                atol=1e-12)
     search = outcome.runs[STAGE].values == "search"
     assert np.all(outcome.runs["with_sensitivities"].values == search)
@@ -521,6 +523,7 @@ def test_form_warns_of_another_design_point(tmp_path):
     # the probes: -u*, and |u*| along x2 either way (the +x1 probe is u* itself); u* is
     # exact to its rounding (a few eps of 2.9), 1e-12 absolute (rtol=0: not the default 1e-7)
     np.testing.assert_allclose(stats["check_point"].values,
+                               # bound: u*'s rounding, a few eps of 2.9, 1e-12 absolute (above)
                                [[-2.9, 0.0], [0.0, 2.9], [0.0, -2.9]], rtol=0, atol=1e-12)
     assert np.isinf(stats["check_failure_distance"].values[1:]).all()
     assert warning[0] in summary_table(open_result(outcome.path))

@@ -74,6 +74,7 @@ def test_log_pdf_is_the_weighted_sum_of_normal_densities():
     assert np.allclose(mixture.log_pdf(u), expected, rtol=1e-12, atol=1e-12)
     # (atol=0: allclose's default 1e-8 would be the real tolerance)
     assert np.allclose(standard_normal_log_pdf(u),
+                       # bound: a sum of 3 squares and a log, a few eps: 1e-12 relative
                        sps.multivariate_normal(np.zeros(3)).logpdf(u), rtol=1e-12, atol=0)
 
 
@@ -151,6 +152,7 @@ def test_cross_entropy_fit_floors_a_singular_covariance():
     # the floor is set exactly; V diag V^T and eigvalsh each err by about n eps |C| (LAPACK's
     # backward error: 2 x 2.2e-16 x 4/3 = 6e-16) absolute: 1e-14 is 16 of them
     assert values[0] == pytest.approx(COVARIANCE_FLOOR, rel=0, abs=1e-14)
+    # bound: LAPACK's n eps |C| = 6e-16 absolute (above): 1e-14
     assert values[1] == pytest.approx(4.0 / 3.0, rel=0, abs=1e-14)
     assert np.linalg.eigvalsh(cross_entropy_fit(u, np.zeros(3), floor=1e-3).covariances[0])[
         0] == pytest.approx(1e-3, rel=0, abs=1e-14)  # the floor given; rounding as above
@@ -176,12 +178,14 @@ def test_estimate_without_weights_is_the_plain_fraction():
     # the sample standard deviation of 0/1 terms: sqrt(k (n - k) / (n (n - 1)))
     # 1e-14: a few roundings of a square root and a division
     assert estimate.stderr == pytest.approx(math.sqrt(7 * 43 / (50 * 49)) / math.sqrt(50),
+        # bound: one square root of exact integers' ratio, a few eps: 1e-14
                                             rel=1e-14, abs=0)
     # (sum w)^2 / sum w^2 = 49 / 7 of exact sums: one rounding
     assert estimate.effective_sample_size == pytest.approx(7.0, rel=1e-14, abs=0)
     z = sps.norm.ppf(0.975)
     # the same few roundings on both sides (p - z s.e., s.e. / p): 1e-14 relative
     assert estimate.low == pytest.approx(p - z * estimate.stderr, rel=1e-14, abs=0)
+    # bound: one division, a few eps: 1e-14
     assert estimate.cov == pytest.approx(estimate.stderr / p, rel=1e-14, abs=0)
     none = importance_estimate(np.zeros(5, bool), np.zeros(5), 0.95)
     assert none.probability == 0 and math.isinf(none.cov) and math.isnan(none.high)

@@ -97,6 +97,7 @@ def test_clopper_pearson_closed_forms_at_zero_and_all(n):
     # 1e-12 leaves three decades for libm differences in the few operations around it
     # (abs=0: approx's default 1e-12 would be 3e-7 of the upper bound 3.7e-6 at n = 10^6)
     assert none.high == pytest.approx(upper, rel=1e-12, abs=0)
+    # bound: ibeta_inv ~1e-15 relative plus a few libm roundings: 1e-12
     assert every.low == pytest.approx((alpha / 2) ** (1 / n), rel=1e-12, abs=0)
     assert not none.reason and not every.reason
 
@@ -294,6 +295,7 @@ def test_no_failure_seen():
     # closed form against beta.ppf(0.975, 1, 64): see the Clopper-Pearson test's bound (abs=0:
     # the lower bound is 0 exactly, and approx's default 1e-12 is 2e-11 of the upper)
     assert at["failure_probability_interval"].values == pytest.approx(
+        # bound: ibeta_inv ~1e-15 relative plus expm1/log roundings: 1e-12
         [0.0, -math.expm1(math.log(0.025) / 64)], rel=1e-12, abs=0)
     _, _, _, rqmc = run_with_states(LINEAR3, linear_space(), y_exceeds(50.0), samples=64,
                                     rule="sobol")

@@ -14,7 +14,7 @@ from uqflow.errors import AccuracyWarning
 from uqflow.inputs import InputSpace, RandomInput
 from uqflow.layout import (EXCEEDANCE_INTERVAL, EXCEEDANCE_PROBABILITY, FAILURE_COV,
                            FAILURE_COV_UNCORRELATED, FAILURE_FAMILIES, FAILURE_INTERVAL, FAILURE_PROBABILITY, SUBSET_LEVEL)
-from uqflow.methods.subset_simulation import (Genealogy, SubsetLevel, SubsetSimulation,
+from uqflow.methods.subset_simulation import (SubsetLevel, SubsetSimulation,
                                               family_roots, genealogical_cov,
                                               lognormal_interval, running_genealogy)
 from uqflow.testing import run_in_memory
@@ -74,11 +74,13 @@ def test_with_one_intermediate_level_it_is_au_and_becks_exactly():
     genealogy = method.genealogy(method.replay(runs).levels, runs.sizes["realization"])
     # two sums of N = 200 terms, differently ordered: N eps ~ 4e-14, 1e-12 with room
     assert genealogy.cov_raw == pytest.approx(value(stats, FAILURE_COV_UNCORRELATED),
+                                              # bound: two N = 200 sums, N eps ~ 4e-14: 1e-12
                                               rel=1e-12, abs=0)
     k = value(stats, FAILURE_FAMILIES)
     # the reported c.o.v. carries the few-families correction k / (k - 1) of the variance:
     # the same product up to a few roundings (1e-13)
     assert value(stats, FAILURE_COV) == pytest.approx(
+        # bound: the same product up to a few roundings: 1e-13
         genealogy.cov_raw * math.sqrt(k / (k - 1)), rel=1e-13, abs=0)
 
 
@@ -107,6 +109,7 @@ def test_the_interval_takes_student_t_with_families_minus_one_degrees_of_freedom
     # t_{0.975, 4} = 2.7764451051977987 (scipy's t.ppf, about 1e-15 relative); the same
     # arithmetic as the closed form up to a few roundings
     assert math.log(high / low) == pytest.approx(2 * 2.7764451051977987 * s, rel=1e-12)
+    # bound: sqrt of a product of two exps, a few eps: 1e-14
     assert math.sqrt(low * high) == pytest.approx(1e-4, rel=1e-14)
     normal = lognormal_interval(1e-4, 0.3, 0.95)
     assert normal[0] > low and normal[1] < high
@@ -121,7 +124,6 @@ def test_the_reported_interval_is_the_t_interval_of_the_genealogical_cov():
     expected = lognormal_interval(p, cov, 0.95, degrees_of_freedom=k - 1)
     # the same function of the same stored numbers
     np.testing.assert_array_equal(np.asarray(stats[FAILURE_INTERVAL].values)[0], expected)
-    assert isinstance(Genealogy(0.1, 5.0).cov, float)
 
 
 def test_the_running_genealogy_of_every_prefix_is_the_genealogy_of_that_prefix():
@@ -131,6 +133,7 @@ def test_the_running_genealogy_of_every_prefix_is_the_genealogy_of_that_prefix()
         alone = genealogical_cov(roots[:i], 500)
         # sums of at most 300 squares of integers (exact) divided differently: a few eps
         assert running.families[i - 1] == pytest.approx(alone.families, rel=1e-14, abs=0)
+        # bound: exact integer sums divided differently, a few eps: 1e-13
         assert running.cov_raw[i - 1] == pytest.approx(alone.cov_raw, rel=1e-13, abs=0)
     assert running.cov[0] == math.inf     # one state: one family, its spread unknown
 
@@ -145,4 +148,5 @@ def test_the_exceedance_band_at_p_f_is_p_fs_interval():
     # the same c.o.v. summed in another order (a few eps), through exp(z s) with z s < 4:
     # 1e-13 relative
     np.testing.assert_allclose(band[at[0]], np.asarray(stats[FAILURE_INTERVAL].values)[0],
+                               # bound: the c.o.v. summed in another order, through exp(z s): 1e-13
                                rtol=1e-13, atol=0)
