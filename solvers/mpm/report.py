@@ -46,7 +46,8 @@ from uqflow.errors import StudyError
 from uqflow.layout import (COMPILE_TIME, FAILED_RUNS, INPUT_CV, LONG_NAME, METHOD,
                            METHOD_OPTIONS, REALIZATION, RUNS_GROUP, SOLVER_COMPILE_TIME,
                            SOLVER_DESCRIPTION, SOLVER_RUNS, SOLVER_WALL_TIME, STATISTIC,
-                           STATISTIC_MEAN, STATISTIC_STDERR, STATISTIC_VARIANCE,
+                           STATISTIC_MEAN, STATISTIC_STD, STATISTIC_STDERR,
+                           STATISTIC_VARIANCE,
                            STATISTICS_GROUP, STATUS, STATUS_FAILED, STATUS_OK, STATUS_PENDING,
                            STUDY_FILE, STUDY_NAME, STUDY_READ_FILES,
                            STUDY_TEXT, STUDY_TEXT_OMITTED, UNITS, WALL_TIME, WITH_SENSITIVITIES,
@@ -166,8 +167,14 @@ class MPMResult:
             and "control" not in self.stats.attrs
 
     def statistic(self, output: str, label: str) -> xr.DataArray | None:
-        if self.stats is None or output not in self.stats \
-                or label not in self.stats[STATISTIC].values:
+        if self.stats is None or output not in self.stats:
+            return None
+        labels = self.stats[STATISTIC].values
+        if label == STATISTIC_VARIANCE and label not in labels and STATISTIC_STD in labels:
+            # methods that describe their draws by mean and std (subset simulation's level-0
+            # samples, importance sampling's weighted moments) store no variance
+            return self.stats[output].sel(statistic=STATISTIC_STD) ** 2
+        if label not in labels:
             return None
         return self.stats[output].sel(statistic=label)
 

@@ -37,13 +37,15 @@ def write(path: Path, *, method: str, mean=1.0e9, variance=5e15, stderr=None, va
           status=None, wall=1.0, cv=0.1, parameters=JC, scene=("scene.toml", SCENE_SHA),
           outputs=("flow_stress",), stats_attrs=None, statistics=True,
           with_sensitivities=None, extra_stats=None, compile_time=None, study_text=True,
-          extra_runs=None, probe_xy=None, long_names=None, attrs_extra=None) -> Path:
+          extra_runs=None, probe_xy=None, long_names=None, attrs_extra=None,
+          with_variance=True) -> Path:
     """A result file: ``values`` (realization, time, probe) or one realization at ``mean``;
     statistics ``mean``, ``variance``, ``std`` (and ``stderr`` when given) over (time, probe);
     ``compile_time`` (s per realization) as the executor records it, none when None (a result
     from before it did); ``study_text=False``: the study text not stored (too large);
     ``probe_xy``: the probes' points (m) as coordinates probe_x, probe_y, as the solver writes
-    them; ``long_names``: {output: long_name}; ``attrs_extra``: more root attributes."""
+    them; ``long_names``: {output: long_name}; ``attrs_extra``: more root attributes;
+    ``with_variance=False``: mean and std only, as subset simulation stores them."""
     values = np.asarray(values if values is not None else _field(mean)[None], float)
     n = values.shape[0]
     status = np.asarray(status if status is not None else ["ok"] * n)
@@ -77,6 +79,8 @@ def write(path: Path, *, method: str, mean=1.0e9, variance=5e15, stderr=None, va
         block = [_field(mean), _field(variance), np.sqrt(_field(variance))]
         if stderr is not None:
             block.append(_field(stderr))
+        if not with_variance:
+            del labels[1], block[1]
         stats = xr.Dataset({o: (("statistic", "time", "probe"), np.stack(block),
                                 _attrs(o)) for o in outputs} | inputs,
                            coords={**coords, "statistic": labels})
@@ -174,6 +178,20 @@ def test_a_reference_without_a_variance_error_prints_its_variance_alone(tmp_path
     text = mpm_report.moments_tables(results, outputs)
     ref_row = next(l for l in text.splitlines() if l.startswith("H ") and "(ref)" in l)
     assert "n/a" not in ref_row and "0.005" in ref_row
+
+
+def test_a_result_with_mean_and_std_only_prints_the_std_squared_as_variance(tmp_path):
+    """Subset simulation stores its level-0 samples' mean and std, no variance: the table
+    prints std squared, not nan."""
+    ref = write(tmp_path / "mc.nc", method="monte-carlo", mean=1.0e9, variance=5e15,
+                stderr=0.005e9)
+    subset = write(tmp_path / "sus.nc", method="subset-simulation", mean=1.0e9,
+                   variance=6e15, with_variance=False)
+    results, outputs, _ = mpm_report.load_results(trees(ref, subset))
+    text = mpm_report.moments_tables(results, outputs)
+    row = next(l for l in text.splitlines() if l.startswith("H ") and "sus.nc" in l)
+    # sqrt(6e15)**2 = 6e15 to a few ulps; 6/5 - 1 = +20 %
+    assert "nan" not in row and "+20 %" in row
 
 
 def test_each_cv_has_its_own_reference_and_rows(tmp_path):
