@@ -172,6 +172,12 @@ BIASING_COMPONENT, BIASING_WEIGHT, BIASING_MEAN = ("biasing_component", "biasing
 #: weight, and the cost of both stages
 GUIDE_ROUNDS, GUIDE_REACHED = "guide_search_rounds", "guide_reached"
 GUIDE_DEFENSIVE_WEIGHT, GUIDE_TOTAL_COST = "guide_defensive_weight", "guide_total_cost"
+#: search = "form"'s refinement on the finest level (multifidelity-importance-sampling):
+#: (limit_state) the first-order reliability index of the finest level's linearization where
+#: the refinement ended, (g - grad g . u) / |grad g| (NaN without one); attributes: its rounds
+#: and how far it moved the biasing density's centre from the coarse design point
+FINEST_SEARCH_INDEX = "finest_search_reliability_index"
+FINEST_SEARCH_ROUNDS, FINEST_SEARCH_SHIFT = "finest_search_rounds", "finest_search_shift"
 
 # multilevel-subset-simulation (uqflow.methods.multilevel_subset_simulation; it writes the
 # subset_* and fidelity_* names above too)

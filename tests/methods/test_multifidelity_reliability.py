@@ -35,14 +35,15 @@ from uqflow.inputs import InputSpace, RandomInput
 from uqflow.layout import (EQUIVALENT_FINEST_COST, EQUIVALENT_FINEST_RUNS,
                            FAILURE_COV, FAILURE_PROBABILITY,
                            FAILURE_STDERR, FIDELITY_COST, FIDELITY_RUNS, FINEST_COST_RATIO,
+                           FINEST_SEARCH_INDEX, FINEST_SEARCH_ROUNDS,
                            GUIDE_PROBABILITY, GUIDE_TOTAL_COST, INPUTS, LEVEL, ROUND,
-                           STATUS, STATUS_OK)
+                           STATUS, STATUS_FAILED, STATUS_OK, BIASING_MEAN)
 from uqflow.levels import LevelsSpec, resolve_levels
 from uqflow.limit_states import LimitStates
 from uqflow.methods import get_method
 from uqflow.methods.form import STAGE, STANDARD_NORMAL
 from uqflow.methods.importance_sampling import standard_normal_log_pdf
-from uqflow.methods.multifidelity_reliability import (STAGE_ESTIMATE,
+from uqflow.methods.multifidelity_reliability import (STAGE_ESTIMATE, STAGE_FINEST_SEARCH,
                                                       MultifidelityImportanceSampling,
                                                       with_defensive)
 from uqflow.realization import empty_runs
@@ -108,8 +109,10 @@ def configured(levels=LEVELS, **options) -> MultifidelityImportanceSampling:
 def evaluate(design, problem, levels=LEVELS):
     runs = empty_runs(design, BiasedSolver.from_scene({}).outputs())
     h = _resolution(np.asarray(levels)[design[LEVEL].values])
-    runs["g"].values[:] = problem(design[INPUTS].values, h)
-    runs[STATUS].values[:] = STATUS_OK
+    g = problem(design[INPUTS].values, h)
+    runs["g"].values[:] = g
+    # a problem marks a run that fails (a solver error) with NaN
+    runs[STATUS].values[:] = np.where(np.isfinite(g), STATUS_OK, STATUS_FAILED)
     runs["wall_time"].values[:] = 0.0
     return runs
 
@@ -159,10 +162,12 @@ def test_the_finest_probability_is_unbiased_where_the_coarse_level_is_biased(sea
     assert abs(p - exact) <= 4 * stderr
     # 1000 draws near the design point: c.o.v. about 0.07 (plain MC would need 2e5 runs)
     assert float(stats[FAILURE_COV].values[0]) < 0.1
-    # stage 1 on the coarse level only, stage 2 on the finest only
+    # stage 1 on the coarse level only (FORM's refinement, its own stage, on the finest),
+    # stage 2 on the finest only
     level, stage = runs[LEVEL].values, runs[STAGE].values
     assert set(level[stage == STAGE_ESTIMATE]) == {1}
-    assert set(level[stage != STAGE_ESTIMATE]) == {0}
+    assert set(level[(stage != STAGE_ESTIMATE) & (stage != STAGE_FINEST_SEARCH)]) == {0}
+    assert set(level[stage == STAGE_FINEST_SEARCH]) == ({1} if search == "form" else set())
     assert int((stage == STAGE_ESTIMATE).sum()) == 1000
     # the coarse level's own estimate is its own, biased one: FORM's Phi(-beta_coarse) (the
     # coarse design point is (beta - c, 0): beta_coarse = 3) or the cross-entropy estimate of
@@ -371,14 +376,19 @@ def test_the_equivalent_finest_level_cost_is_plain_monte_carlo_at_the_same_cov()
     assert list(stats[FIDELITY_COST].values) == [1.0, 10.0]
 
 
-def test_draws_depend_on_the_seed_and_the_runs_alone():
-    first = drive(configured(costs=[1.0, 10.0]), biased, seed=3)[1]
-    again = drive(configured(costs=[1.0, 10.0]), biased, seed=3)[1]
-    other = drive(configured(costs=[1.0, 10.0]), biased, seed=4)[1]
+@pytest.mark.parametrize("search", ["cross-entropy", "form"])
+def test_draws_depend_on_the_seed_and_the_runs_alone(search):
+    first = drive(configured(search=search, costs=[1.0, 10.0]), biased, seed=3)[1]
+    again = drive(configured(search=search, costs=[1.0, 10.0]), biased, seed=3)[1]
+    other = drive(configured(search=search, costs=[1.0, 10.0]), biased, seed=4)[1]
     np.testing.assert_array_equal(first[INPUTS].values, again[INPUTS].values)
-    assert not np.array_equal(first[INPUTS].values[:10], other[INPUTS].values[:10])
+    estimate_rows = first[STAGE].values == STAGE_ESTIMATE
+    assert not np.array_equal(first[INPUTS].values[estimate_rows][:10],
+                              other[INPUTS].values[other[STAGE].values == STAGE_ESTIMATE][:10])
+    if search == "form":    # the refinement's round ran, between FORM's and the estimate
+        assert (first[STAGE].values == STAGE_FINEST_SEARCH).sum() == 3
     # every prefix of finished rounds gives back, bit for bit, the round that ran next
-    method = configured(costs=[1.0, 10.0])
+    method = configured(search=search, costs=[1.0, 10.0])
     method.plan(space(), None, np.random.SeedSequence(3))
     rounds = first[ROUND].values
     for r in range(int(rounds.max())):
@@ -402,6 +412,78 @@ def test_target_cov_adds_batches_until_it_is_met():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", AccuracyWarning)
         assert float(method.analyze(prefix, prefix)[FAILURE_COV].values[0]) > 0.1
+
+
+# --------------------------------------------------------------- FORM's refinement, finest level
+
+#: the rotated family: the finest g = beta - a.u along a = (cos 30, sin 30) degrees, P =
+#: Phi(-beta); the coarse level's g = 3 - b.u, b turned 20 degrees from a: its design point
+#: 3 b is 1.23 from the finest's 3.5 a
+FINEST_DIRECTION = np.array([math.cos(math.radians(30.0)), math.sin(math.radians(30.0))])
+COARSE_DIRECTION = np.array([math.cos(math.radians(50.0)), math.sin(math.radians(50.0))])
+
+
+def rotated(u, h):
+    return np.where(h > 0, 3.0 - u @ COARSE_DIRECTION, BETA - u @ FINEST_DIRECTION)
+
+
+def test_the_refinement_centres_the_biasing_density_at_the_finest_design_point():
+    stats, runs = drive(configured(search="form", costs=[1.0, 10.0]), rotated, seed=3)
+    centre = stats[BIASING_MEAN].values[0]
+    # one HL-RF step from any point of a linear g lands on its design point: the forward
+    # differences of a linear g are exact but for rounding, g's values (|g| < 5) rounded at
+    # eps = 2.2e-16 over the step 0.01 leave ~1e-13 in the gradient, and beta = 3.5 times
+    # that in the centre; 1e-9 is far outside it, and far inside the 1.23 the coarse point is off
+    np.testing.assert_allclose(centre, BETA * FINEST_DIRECTION, rtol=0, atol=1e-9)
+    assert float(stats[FINEST_SEARCH_INDEX].values[0]) == pytest.approx(BETA, abs=1e-9)
+    assert stats.attrs[FINEST_SEARCH_ROUNDS] == 1
+    # without the refinement the centre is the coarse design point (FORM's tolerance 1e-3)
+    coarse = drive(configured(search="form", costs=[1.0, 10.0], finest_search_rounds=0),
+                   rotated, seed=3)[0]
+    np.testing.assert_allclose(coarse[BIASING_MEAN].values[0], 3.0 * COARSE_DIRECTION,
+                               atol=1e-2)
+    assert stats.attrs["finest_search_shift"] == pytest.approx(
+        float(np.linalg.norm(BETA * FINEST_DIRECTION - 3.0 * COARSE_DIRECTION)), abs=1e-2)
+    p, stderr = estimate(stats)
+    assert abs(p - sps.norm.sf(BETA)) <= 4 * stderr    # 4 standard errors: 1 in 16,000
+
+
+def test_the_refinements_stencil_runs_count_in_the_finest_cost():
+    stats, runs = drive(configured(search="form", costs=[1.0, 10.0]), rotated, seed=3)
+    stage, level = runs[STAGE].values, runs[LEVEL].values
+    refining = stage == STAGE_FINEST_SEARCH
+    # the coarse design point and its forward-difference stencil: n + 1 = 3 finest runs
+    assert refining.sum() == 3 and set(level[refining]) == {1}
+    finest = int((level == 1).sum())
+    assert finest == 1003 and int(stats[FIDELITY_RUNS].values[1]) == finest
+    coarse = int((level == 0).sum())
+    # integers times integral costs, far below 2**53: exact in float64
+    assert stats.attrs[GUIDE_TOTAL_COST] == coarse * 1.0 + finest * 10.0
+    # the equivalent cost over what both stages and the refinement cost: a product and a
+    # quotient (condition number 1): a few roundings of eps/2, far inside 1e-12
+    assert float(stats[FINEST_COST_RATIO].values[0]) == pytest.approx(
+        float(stats[EQUIVALENT_FINEST_COST].values[0]) / (coarse + 10.0 * finest), rel=1e-12)
+
+
+def test_a_refinement_whose_finest_run_fails_falls_back_to_the_coarse_design_point():
+    plain = drive(configured(search="form", costs=[1.0, 10.0], finest_search_rounds=0),
+                  rotated, seed=3)[0]
+    coarse_point = plain[BIASING_MEAN].values[0]
+
+    def broken(u, h):   # the finest runs within 0.05 of the coarse design point fail
+        g = rotated(u, h)
+        near = np.linalg.norm(u - coarse_point, axis=1) < 0.05
+        return np.where((h == 0) & near, np.nan, g)
+
+    stats, runs = drive(configured(search="form", costs=[1.0, 10.0]), broken, seed=3)
+    # the same centre, bit for bit, as without the refinement
+    np.testing.assert_array_equal(stats[BIASING_MEAN].values[0], coarse_point)
+    assert np.isnan(float(stats[FINEST_SEARCH_INDEX].values[0]))
+    assert "gradient at the coarse design point is not usable" in stats.attrs["warnings"]
+    assert "finest-level runs of the design point's refinement did not run ok" in \
+        stats.attrs["warnings"]
+    p, stderr = estimate(stats)
+    assert abs(p - sps.norm.sf(BETA)) <= 4 * stderr    # 4 standard errors: 1 in 16,000
 
 
 # --------------------------------------------------------------- studies through the executor
@@ -472,13 +554,20 @@ def test_measured_costs_are_each_levels_median_run_time_less_compile_time(tmp_pa
     assert stats.attrs[GUIDE_TOTAL_COST] == pytest.approx(spent, rel=1e-14)
 
 
-def test_a_killed_study_resumes_to_the_uninterrupted_numbers(tmp_path):
-    path = study_file(tmp_path, "whole")
+@pytest.mark.parametrize("search", ["cross-entropy", "form"])
+def test_a_killed_study_resumes_to_the_uninterrupted_numbers(tmp_path, search):
+    path = study_file(tmp_path, "whole", {"search": search})
     whole = run(path)
     runs_w, stats_w = comparable(whole.path)
     last = int(whole.runs[ROUND].values.max())
-    # killed in the first cross-entropy round, and in the finest-level round
-    for keep, finished in ((1, 30), (last + 1, 40)):
+    # killed in the first cross-entropy round (FORM: its first round, and the refinement's
+    # round at the finest level, one of its 3 runs done), and in the finest-level round
+    stage = whole.runs[STAGE].values
+    refined = int(whole.runs[ROUND].values[stage == STAGE_FINEST_SEARCH].max()) \
+        if search == "form" else None
+    kills = ((1, 30), (last + 1, 40)) if search == "cross-entropy" else \
+        ((1, 2), (refined + 1, 1), (last + 1, 40))
+    for keep, finished in kills:
         stored, attrs = read_runs(whole.path)
         stored = stored.isel(realization=np.flatnonzero(stored[ROUND].values < keep))
         pending = np.flatnonzero(stored[ROUND].values == keep - 1)[finished:]
@@ -496,9 +585,11 @@ def test_a_killed_study_resumes_to_the_uninterrupted_numbers(tmp_path):
 
 
 @pytest.mark.slow
-def test_one_and_two_workers_give_identical_results(tmp_path):
-    # a smaller study (dask's start dominates): cross-entropy rounds of 20, 40 finest draws
-    small = {"coarse_samples": 20, "samples": 40}
+@pytest.mark.parametrize("small", [{"coarse_samples": 20, "samples": 40},
+                                   {"search": "form", "samples": 40}])
+def test_one_and_two_workers_give_identical_results(tmp_path, small):
+    # a smaller study (dask's start dominates): cross-entropy rounds of 20, or FORM's
+    # search and its refinement at the finest level; 40 finest draws
     paths = [run(study_file(tmp_path, f"w{w}", small, workers=w, batch=9)).path
              for w in (0, 2)]
     (runs0, stats0), (runs2, stats2) = map(comparable, paths)

@@ -51,7 +51,8 @@ from uqflow.layout import (BIASING_COMPONENT, BIASING_MEAN, BIASING_WEIGHT, BOUN
                            EQUIVALENT_FINEST_RUNS, FAILURE_COV, FAILURE_INTERVAL,
                            FAILURE_LEFT_OUT, FAILURE_PROBABILITY, FAILURE_RUNS,
                            FAILURE_STDERR, FAILURES, FIDELITY_COST, FIDELITY_RUNS,
-                           FIDELITY_VALUE, FINEST_COST_RATIO, GUIDE_DEFENSIVE_WEIGHT,
+                           FIDELITY_VALUE, FINEST_COST_RATIO, FINEST_SEARCH_INDEX,
+                           FINEST_SEARCH_ROUNDS, FINEST_SEARCH_SHIFT, GUIDE_DEFENSIVE_WEIGHT,
                            GUIDE_PROBABILITY, GUIDE_REACHED, GUIDE_ROUNDS, GUIDE_TOTAL_COST,
                            LEVEL, LIMIT_STATE, PARAMETER, RELIABILITY_INDEX, REALIZATION,
                            ROUND, SOLVER_RUNS, STATISTIC, STATISTIC_MEAN, STATISTIC_STD,
@@ -68,9 +69,11 @@ from uqflow.methods.importance_sampling import (GaussianMixture, cross_entropy_f
 from uqflow.probability import reliability_index
 from uqflow.report import FigureSpec, MethodReport, new_figure, number
 
-#: what a row is besides FORM's search rows: a cross-entropy draw at the coarse level, or a
-#: draw of the biasing density at the finest level
+#: what a row is besides FORM's search rows: a cross-entropy draw at the coarse level, a
+#: draw of the biasing density at the finest level, or a point (with its forward-difference
+#: stencil) of the design point's refinement at the finest level (search = "form")
 STAGE_CROSS_ENTROPY, STAGE_ESTIMATE = "cross-entropy", "estimate"
+STAGE_FINEST_SEARCH = "finest-search"
 SEARCH_CROSS_ENTROPY, SEARCH_FORM = "cross-entropy", "form"
 #: children of the plan's SeedSequence: (stream, round) for each round's draws
 CROSS_ENTROPY_STREAM, ESTIMATE_STREAM = 1, 2
@@ -96,6 +99,11 @@ class MultifidelityImportanceOptions(MethodOptions):
                               "normal units")
     max_search_rounds: int = Field(20, ge=1, le=1000, description="most rounds of stage 1 "
                                    "(cross-entropy rounds, or FORM iterations)")
+    finest_search_rounds: int = Field(1, ge=0, le=100, description="search = form: rounds "
+                                      "of the improved HL-RF search continued on the finest "
+                                      "level from the coarse design point (forward "
+                                      "differences, n + 1 finest runs a round); 0: the "
+                                      "biasing density stays at the coarse design point")
     defensive_weight: float = Field(0.1, gt=0, lt=1, description="weight w of the standard "
                                     "normal in the biasing density (1 - w) q* + w phi")
     samples: int = Field(1000, ge=2, le=MAX_REALIZATIONS, description="finest-level runs of "
@@ -116,6 +124,7 @@ class MultifidelityImportanceOptions(MethodOptions):
         for key in ("quantile", "min_spread", "search_levels"):
             self.only_where(key, self.search == SEARCH_CROSS_ENTROPY,
                             'search = "cross-entropy"')
+        self.only_where("finest_search_rounds", self.search == SEARCH_FORM, 'search = "form"')
         self.only_where("max_samples", self.target_cov is not None, "target_cov")
         if isinstance(self.costs, list) and not all(0 < c <= MAX_COST for c in self.costs):
             raise ValueError(f"every cost must be > 0 and <= {MAX_COST:.2g} (costs are "
@@ -136,6 +145,14 @@ class Guide:
     note: str = ""                       # why stage 1 did not reach it, in words
     next_density: GaussianMixture | None = None  # what the next cross-entropy round draws
     next_level: int = 0                  # and at which level
+    # search = "form"'s refinement at the finest level: the point of its next round (None:
+    # none to run), its rounds so far, the first-order beta where it ended, and how far it
+    # moved the centre from the coarse design point
+    finest_next: np.ndarray | None = None
+    finest_rounds: int = 0
+    finest_beta: float = math.nan
+    finest_shift: float = math.nan
+    finest_note: str = ""                # why the refinement fell back, in words
 
 
 @register_method("multifidelity-importance-sampling")
@@ -163,6 +180,18 @@ class MultifidelityImportanceSampling(PropagationMethod):
             form.limit_states, form.limit_state = limit_states, self.options.limit_state
         self.limit_states, self.limit_state = limit_states, form.limit_state
         self._form = form
+        # the refinement at the finest level: FORM's search from the coarse design point,
+        # forward differences (n + 1 finest runs a round, where central ones cost 2n + 1),
+        # as many rounds as asked, no design-point check (the coarse level's search had
+        # the chance to see the failure region's shape)
+        rounds = getattr(self.options, "finest_search_rounds", 0)
+        self._finest_form = None
+        if self.options.search == SEARCH_FORM and rounds > 0:
+            finest = Form(limit_state=form.limit_state, gradient="forward",
+                          max_iterations=rounds, design_point_check=False)
+            finest.name = self.name
+            finest.limit_states, finest.limit_state = limit_states, form.limit_state
+            self._finest_form = finest
 
     def check_levels(self, levels) -> None:
         self.n_levels = len(levels)
@@ -184,6 +213,8 @@ class MultifidelityImportanceSampling(PropagationMethod):
         if not hasattr(self, "n_levels"):
             raise StudyError(f"method '{self.name}' needs the study's [levels]", key="levels")
         self._space, self._seed = space, seed
+        if getattr(self, "_finest_form", None) is not None:
+            self._finest_form._space = space
         if self.options.search == SEARCH_FORM:
             return self.at_level(self._form.plan(space, fields, seed), GUIDE_LEVEL)
         return self.draw_rows(standard_normal(len(space)), CROSS_ENTROPY_STREAM, 0,
@@ -216,6 +247,11 @@ class MultifidelityImportanceSampling(PropagationMethod):
         stage = runs[STAGE].values
         last_round = int(runs[ROUND].values.max())
         if not guide.done:
+            if guide.finest_next is not None:
+                rows = self._finest_form.search_rows(guide.finest_next, last_round + 1)
+                rows = rows.assign_coords({STAGE: (REALIZATION, np.full(
+                    rows.sizes[REALIZATION], STAGE_FINEST_SEARCH, dtype=object))})
+                return self.at_level(rows, self.n_levels - 1)
             if self.options.search == SEARCH_FORM:
                 search = self.stage_rows(runs, stage == STAGE_SEARCH)
                 return self.at_level(self._form.extend(search, search), GUIDE_LEVEL)
@@ -271,9 +307,52 @@ class MultifidelityImportanceSampling(PropagationMethod):
             beta = float(-gradient @ search.point.u / np.linalg.norm(gradient))
         note = "" if search.converged else \
             f"FORM on the coarse level did not converge ({search.stopped})"
-        density = defensive_mixture(centre, defensive_weight=self.options.defensive_weight)
-        return Guide(rounds, True, density, reached=bool(search.converged),
-                     coarse_probability=float(sps.norm.sf(beta)), note=note)
+        guide = Guide(rounds, True, None, reached=bool(search.converged),
+                      coarse_probability=float(sps.norm.sf(beta)), note=note)
+        if getattr(self, "_finest_form", None) is not None:
+            centre = self.refine_at_finest(runs, centre, guide)
+            if guide.finest_next is not None:
+                guide.done = False
+                return guide
+        guide.density = defensive_mixture(centre,
+                                          defensive_weight=self.options.defensive_weight)
+        return guide
+
+    def refine_at_finest(self, runs: xr.Dataset, coarse: np.ndarray, guide: Guide):
+        """The centre of the biasing density after the finest level's rounds so far, from
+        their runs alone: FORM's improved HL-RF search continued at the finest level from
+        the coarse design point. Its last accepted point u with g and grad g there proposes
+        u + lambda d (d the HL-RF step, lambda the line search's current step, 1 after an
+        accepted trial): for a linear finest g that is its design point exactly, whatever
+        the coarse point's error. Sets ``guide.finest_next`` while rounds remain; falls back
+        to the coarse design point, with a note, where g or its gradient is unusable."""
+        mask = runs[STAGE].values == STAGE_FINEST_SEARCH
+        if not mask.any():
+            guide.finest_next = coarse
+            return coarse
+        rows = self.stage_rows(runs, mask)
+        # the finest rows replay as FORM's own search rows
+        rows = rows.assign_coords({STAGE: (REALIZATION, np.full(rows.sizes[REALIZATION],
+                                                                STAGE_SEARCH, dtype=object))})
+        search = self._finest_form.replay(rows)
+        guide.finest_rounds = len(search.iterations)
+        following = search.next_point()
+        if following is not None:
+            guide.finest_next = following
+            return coarse
+        point = search.point
+        if point is None:
+            guide.finest_note = (
+                "the finest level's g or its gradient at the coarse design point is not "
+                "usable (a run of its stencil failed, or the gradient is zero): the biasing "
+                "density stays at the coarse design point")
+            guide.finest_shift = 0.0
+            return coarse
+        centre = point.u + search.step * search.direction
+        norm = float(np.linalg.norm(point.gradient))
+        guide.finest_beta = float((point.g - point.gradient @ point.u) / norm)
+        guide.finest_shift = float(np.linalg.norm(centre - coarse))
+        return centre
 
     def cross_entropy_guide(self, runs: xr.Dataset) -> Guide:
         opts = self.options
@@ -372,7 +451,14 @@ class MultifidelityImportanceSampling(PropagationMethod):
             warnings.append(f"{left_out} finest-level runs did not run ok and are left out "
                             f"(neither failure nor safe): P[failure] is biased if solver "
                             f"errors depend on the inputs")
-        coarse_failed = int(((~estimate_rows) & ~ok).sum())
+        if guide.finest_note:
+            warnings.append(guide.finest_note)
+        finest_search = stage == STAGE_FINEST_SEARCH
+        finest_search_failed = int((finest_search & ~ok).sum())
+        if finest_search_failed:
+            warnings.append(f"{finest_search_failed} finest-level runs of the design point's "
+                            f"refinement did not run ok")
+        coarse_failed = int(((~estimate_rows) & ~finest_search & ~ok).sum())
         if coarse_failed:
             warnings.append(f"{coarse_failed} coarse-level runs of stage 1 did not run ok; "
                             f"stage 1 used the others")
@@ -420,6 +506,10 @@ class MultifidelityImportanceSampling(PropagationMethod):
             GUIDE_PROBABILITY: (one, [guide.coarse_probability], {
                 "long_name": "stage 1's P[failure] at the coarsest level (a guide: biased)",
                 UNITS: "1"}),
+            FINEST_SEARCH_INDEX: (one, [guide.finest_beta], {
+                "long_name": "first-order reliability index of the finest level's "
+                             "linearization where the design point's refinement ended",
+                UNITS: "1"}),
             FIDELITY_RUNS: ((LEVEL,), level_runs),
             FIDELITY_COST: ((LEVEL,), costs, {UNITS: "s" if opts.costs == "measured"
                                            else "stated"}),
@@ -444,6 +534,8 @@ class MultifidelityImportanceSampling(PropagationMethod):
         stats.attrs[LIMIT_STATE] = self.limit_state
         stats.attrs.update({CONFIDENCE: opts.confidence, "search": opts.search,
                             GUIDE_ROUNDS: guide.rounds, GUIDE_REACHED: int(guide.reached),
+                            FINEST_SEARCH_ROUNDS: guide.finest_rounds,
+                            FINEST_SEARCH_SHIFT: guide.finest_shift,
                             GUIDE_DEFENSIVE_WEIGHT: opts.defensive_weight,
                             "limit_state_event": getattr(state, "describe", lambda: "")(),
                             GUIDE_TOTAL_COST: spent})
@@ -510,6 +602,7 @@ class MultifidelityImportanceSampling(PropagationMethod):
             f"{number(value(GUIDE_PROBABILITY))}"
             + ("" if int(attrs.get(GUIDE_REACHED, 0)) else " (failure region NOT reached)")
             + f"; defensive weight {number(attrs.get(GUIDE_DEFENSIVE_WEIGHT, math.nan))}",
+            *finest_search_words(attrs, value(FINEST_SEARCH_INDEX)),
             "runs per level (" + ", ".join(values) + "): " + ", ".join(map(str, runs)),
             f"plain Monte Carlo at the finest level needs "
             f"{number(value(EQUIVALENT_FINEST_RUNS))} runs for this c.o.v. (cost "
@@ -521,6 +614,22 @@ class MultifidelityImportanceSampling(PropagationMethod):
         return MethodReport(
             description=f"multifidelity importance sampling of '{name}', {total} runs",
             notes=notes, figures=[FigureSpec("stages", stages_figure, per_output=False)])
+
+
+def finest_search_words(attrs, beta: float) -> list[str]:
+    """The report's line on the design point's refinement at the finest level (none where
+    it did not run)."""
+    rounds = int(attrs.get(FINEST_SEARCH_ROUNDS, 0))
+    if not rounds:
+        return []
+    if not np.isfinite(beta):
+        return [f"design point refined on the finest level: {rounds} round(s), NOT usable: "
+                f"the biasing density stays at the coarse design point"]
+    return [f"design point refined on the finest level: {rounds} round(s) of FORM's search "
+            f"from the coarse design point, first-order beta there {number(beta)}; the "
+            f"biasing density's centre moved "
+            f"{number(float(attrs.get(FINEST_SEARCH_SHIFT, math.nan)))} from the coarse "
+            f"design point"]
 
 
 def guide_levels(runs: list[int]) -> str:
@@ -544,9 +653,14 @@ def stages_figure(view, output=None):
     names = [str(p) for p in runs[PARAMETER].values[axes]]
     u = np.asarray(runs[STANDARD_NORMAL].values, dtype=float)[:, axes]
     finest = np.asarray(runs[STAGE].values == STAGE_ESTIMATE)
+    refining = np.asarray(runs[STAGE].values == STAGE_FINEST_SEARCH)
+    coarse = ~finest & ~refining
     fig, ax = new_figure(width=5.6, height=5.0)
-    ax.scatter(u[~finest, 0], u[~finest, 1], s=6, color="#9e9e9e", alpha=0.6,
-               label=f"stage 1, coarser level(s) ({int((~finest).sum())} runs)")
+    ax.scatter(u[coarse, 0], u[coarse, 1], s=6, color="#9e9e9e", alpha=0.6,
+               label=f"stage 1, coarser level(s) ({int(coarse.sum())} runs)")
+    if refining.any():
+        ax.scatter(u[refining, 0], u[refining, 1], s=18, marker="^", color="#e67e22",
+                   label=f"design point refined, finest level ({int(refining.sum())} runs)")
     ax.scatter(u[finest, 0], u[finest, 1], s=6, color="#1f4e79", alpha=0.6,
                label=f"stage 2, finest level ({int(finest.sum())} runs)")
     ax.scatter(means[:-1, axes[0]], means[:-1, axes[1]], marker="x", s=80, color="#c0392b",
