@@ -131,21 +131,34 @@ MFIS_CROSS_ENTROPY = dict(search="cross-entropy", coarse_samples=500, samples=10
 MLSUS_FULL = dict(samples_per_level=500, costs=COSTS)
 #: uqflow's rows of the two-input problems: label: (class, options)
 UQFLOW = {MFIS: (MultifidelityImportanceSampling, MFIS_CROSS_ENTROPY),
+          f"{MFIS}, search = form": (MultifidelityImportanceSampling,
+                                     dict(search="form", samples=1000, costs=COSTS)),
           MLSUS: (MultilevelSubsetSimulation, MLSUS_FULL)}
-#: and of the wide one: the coarse search by FORM (2 d + 1 coarse runs an iteration) with
-#: three defensive weights and with fewer finest draws than OpenTURNS' FORM alone costs
-#: there, by cross-entropy, and multilevel subset simulation
+#: and of the wide one: the coarse search by FORM (2 d + 1 coarse runs an iteration) and its
+#: refinement at the finest level (the default: d + 1 finest runs) with 300, 1000 and 2000
+#: finest draws, without the refinement (the coarse design point), with three defensive
+#: weights, by cross-entropy, and multilevel subset simulation
+#: the finest draws of the wide problem's FORM-guided rows; OpenTURNS runs at each's calls
+WIDE_BUDGETS = (1000, 300, 2000)
 UQFLOW_WIDE = {
     f"{MFIS}, search = form": (MultifidelityImportanceSampling,
                                dict(search="form", samples=1000, costs=COSTS)),
+    f"{MFIS}, search = form, 300 finest draws": (
+        MultifidelityImportanceSampling, dict(search="form", samples=300, costs=COSTS)),
+    f"{MFIS}, search = form, 2000 finest draws": (
+        MultifidelityImportanceSampling, dict(search="form", samples=2000, costs=COSTS)),
+    f"{MFIS}, search = form, finest_search_rounds = 0": (
+        MultifidelityImportanceSampling,
+        dict(search="form", samples=1000, costs=COSTS, finest_search_rounds=0)),
+    f"{MFIS}, search = form, finest_search_rounds = 0, 300 finest draws": (
+        MultifidelityImportanceSampling,
+        dict(search="form", samples=300, costs=COSTS, finest_search_rounds=0)),
     f"{MFIS}, search = form, w = 0.3": (
         MultifidelityImportanceSampling,
         dict(search="form", samples=1000, costs=COSTS, defensive_weight=0.3)),
     f"{MFIS}, search = form, w = 0.02": (
         MultifidelityImportanceSampling,
         dict(search="form", samples=1000, costs=COSTS, defensive_weight=0.02)),
-    f"{MFIS}, search = form, 300 finest draws": (
-        MultifidelityImportanceSampling, dict(search="form", samples=300, costs=COSTS)),
     f"{MFIS}, search = cross-entropy": (MultifidelityImportanceSampling, MFIS_CROSS_ENTROPY),
     MLSUS: (MultilevelSubsetSimulation, MLSUS_FULL),
 }
@@ -295,11 +308,18 @@ def benchmark(repetitions, quick=False, part="all"):
             results[("finest only", name)] = summarize(rows)
             print(name, results[("finest only", name)], flush=True)
     if part != "two":
-        equal = round(results[(wide, f"{MFIS}, search = form")]["calls"])
-        for name in OT_WIDE:
-            rows = [openturns_runs(name, seed, WIDE_DIM, equal) for seed in range(repetitions)]
-            results[(f"{wide}, finest only", name)] = summarize(rows)
-            print(name, results[(f"{wide}, finest only", name)], flush=True)
+        # importance sampling at equal finest calls with each FORM-guided budget (the
+        # refinement's stencil runs included: they are level-1 calls), subset sampling once
+        for draws in WIDE_BUDGETS:
+            label = f"{MFIS}, search = form" + ("" if draws == 1000 else
+                                                 f", {draws} finest draws")
+            equal = round(results[(wide, label)]["calls"])
+            for name in OT_WIDE if draws == 1000 else OT_WIDE[:1]:
+                rows = [openturns_runs(name, seed, WIDE_DIM, equal)
+                        for seed in range(repetitions)]
+                key = name if name != OT_WIDE[0] else f"{name}, {equal} finest calls asked"
+                results[(f"{wide}, finest only", key)] = summarize(rows)
+                print(key, results[(f"{wide}, finest only", key)], flush=True)
     return results
 
 
@@ -354,15 +374,21 @@ is here:
   offset and direction, chosen before any run as a moderate error, not fitted to a result.
   OpenTURNS runs FORM (Abdo-Rackwitz, its finite-difference gradient; Cobyla does not
   converge in {WIDE_DIM} inputs) and importance sampling at its design point with the rest of
-  the finest calls uqflow's FORM-guided rows spent (equal finest calls); uqflow's FORM search
-  runs on the coarse level only. The defensive weight w (default 0.1), the finest budget and
-  the coarse search (FORM or cross-entropy, 500 draws a round) are varied there.
+  the finest calls uqflow's FORM-guided rows spent (equal finest calls, at each of their
+  budgets; where FORM alone costs OpenTURNS more than the calls asked, its importance
+  sampling still gets 2 samples, and its row says how many calls it took). uqflow's FORM
+  search runs on the coarse level, then (the default, finest_search_rounds = 1) one HL-RF
+  step on the finest level from the coarse design point: its forward-difference stencil,
+  {WIDE_DIM + 1} finest calls, counted in the row's finest calls. The refinement (and its
+  absence, finest_search_rounds = 0), the defensive weight w (default 0.1), the finest
+  budget and the coarse search (FORM or cross-entropy, 500 draws a round) are varied there.
 
 OpenTURNS {_ot_version()} runs the finest model only: importance sampling at its FORM point
 ({OT_BUDGET['is_samples']} samples besides FORM's calls in two inputs), SubsetSampling
 ({OT_BUDGET['subset_per_level']} per level), Monte Carlo ({OT_BUDGET['mc_samples']} samples).
 uqflow: multifidelity importance sampling with 1000 finest draws (cross-entropy search with
-500 coarse draws a round unless the row says otherwise); multilevel subset simulation with
+500 coarse draws a round unless the row says otherwise; search = form with its default
+refinement, d + 1 finest calls more); multilevel subset simulation with
 500 samples per level, p0 = 0.1, burn-in 40. Seeds 0 to {repetitions - 1}. Measured c.o.v. =
 standard deviation of p_f over the repetitions / exact. "finest calls × c.o.v.²" (measured)
 is the finest calls needed for a c.o.v. of 1: at equal target accuracy finest-level cost goes
