@@ -31,7 +31,9 @@ import uqflow
 from uqflow.errors import AccuracyWarning, StudyError
 from uqflow.inputs import InputSpace, RandomInput
 from uqflow.layout import (CHAIN, CHAIN_STEP, EQUIVALENT_FINEST_COST, EQUIVALENT_FINEST_RUNS,
-                           FAILURE_COV, FAILURE_PROBABILITY, FIDELITY_COST, FIDELITY_RUNS,
+                           FAILURE_COV, FAILURE_COV_CORRELATED, FAILURE_COV_UNCORRELATED,
+                           FAILURE_FAMILIES, FAILURE_INTERVAL, FAILURE_PROBABILITY,
+                           FIDELITY_COST, FIDELITY_RUNS,
                            FINEST_COST_RATIO, INPUTS, LEVEL, MULTILEVEL_TOTAL_COST, SEED_KEY,
                            STATUS, STATUS_FAILED, STATUS_OK, SUBSET_CORRECTION,
                            SUBSET_CORRECTION_COV, SUBSET_FIDELITY, SUBSET_THRESHOLD,
@@ -42,8 +44,9 @@ from uqflow.methods import get_method
 from uqflow.methods.form import STAGE, STANDARD_NORMAL
 from uqflow.methods.multilevel_subset_simulation import (STAGE_CHAIN, STAGE_CHECK,
                                                          STAGE_DRAW, STAGE_UPDATE,
-                                                         MultilevelSubsetSimulation)
-from uqflow.methods.subset_simulation import SubsetSimulation
+                                                         MultilevelSubsetSimulation, Subset,
+                                                         influence_genealogy)
+from uqflow.methods.subset_simulation import SubsetLevel, SubsetSimulation, lognormal_interval
 from uqflow.realization import empty_runs
 from uqflow.report import open_result, summary_table, write_figures
 from uqflow.store import read_runs, write_result
@@ -82,8 +85,11 @@ def configured(method_class=MultilevelSubsetSimulation, levels=(0.0, 1.0), **opt
     template = NarrowSolver.from_scene({}).outputs()
     method.check_limit_states(LimitStates.from_tables(LIMIT_STATE, template))
     if method_class is MultilevelSubsetSimulation:
-        method.check_levels(resolve_levels(LevelsSpec(key="level", values=list(levels)), {},
-                                           NarrowSolver, ["g"], "scene"))
+        # one level (a study's [levels] needs two): the method is then subset simulation
+        # with its own draws, what its c.o.v. is compared with
+        spec = LevelsSpec(key="level", values=list(levels)) if len(levels) > 1 else \
+            LevelsSpec.model_construct(key="level", values=list(levels))
+        method.check_levels(resolve_levels(spec, {}, NarrowSolver, ["g"], "scene"))
     return method
 
 
@@ -283,6 +289,119 @@ def test_narrow_coarse_level_unbiased_with_the_burn_in_and_not_without():
     mean0, stderr0 = log_errors([value(s, FAILURE_PROBABILITY) for s in fresh],
                                 [value(s, FAILURE_COV) for s in fresh])
     assert mean0 < -3 * stderr0
+
+
+# --------------------------------------------------------------- the c.o.v.
+
+def hand_built_subsets():
+    """Three subsets over six level-0 draws (rows 0-5): subset 1 on level 0 from chains
+    seeded by rows 1 and 4 (row 4's chain stays once), then a change to level 1 whose
+    fraction is taken on subset 1's chains' states re-run there (one update failed: NaN),
+    seeded by rows 7 and 4 twice (the seeds' random draw may repeat a row that repeats),
+    and whose own two chains, seeded at random by rows 12 and 7, throw one step away before
+    the correction's samples (one check failed)."""
+    nan = math.nan
+    s0 = Subset(0, 0, np.arange(6)[None, :], np.array([[5.0, 0.5, 3.0, 4.0, 0.2, 6.0]]),
+                threshold=1.0, chain_rows=np.array([[1, 6, 7], [4, 4, 8]]))
+    s1 = Subset(1, 0, s0.chain_rows, np.array([[0.9, 0.5, -0.1], [0.2, 0.2, 0.8]]),
+                threshold=0.3, chain_rows=np.array([[7, 9, 10], [4, 11, 11], [4, 4, 12]]))
+    s2 = Subset(2, 1, s1.chain_rows, np.array([[-1.0, -0.2, nan], [2.0, -0.5, -0.5],
+                                               [3.0, 3.0, -2.0]]),
+                changed=True, threshold=0.0, chain_rows=np.array([[12, 15, 16, 17],
+                                                                  [7, 7, 18, 19]]), burn=1,
+                check_g=np.array([[0.1, 0.5, nan], [0.2, 0.25, 0.9]]))
+    for s in (s0, s1, s2):
+        with np.errstate(invalid="ignore"):
+            s.hits = s.g <= s.threshold
+        s.probability = float(s.hits.sum() / np.isfinite(s.g).sum())
+    return [s0, s1, s2]
+
+
+def test_families_are_traced_through_seeds_level_changes_and_burn_in():
+    # roots: subset 1's samples of families 1 and 4 (3 each, hits 1 and 2); subset 2's of
+    # 1 (rows 7, 9, 10: 2 ran ok, 2 hits) and 4 (6 ok, 3 hits); the correction's kept
+    # states of 4 (row 12's chain: 2 judged, 1 inside 0.3) and 1 (row 7's: 3, 2 inside).
+    # psi_1 = (1/2 - 1/6) + (1/3 - 1/2) + (2/5 - 2/8) - (2/3 - 3/5) = 1/4,
+    # psi_4 = (1/2 - 1/6) + (2/3 - 1/2) + (3/5 - 6/8) - (1/3 - 2/5) = 5/12,
+    # psi_0,2,3,5 = -1/6: sum psi^2 = 25/72
+    genealogy = MultilevelSubsetSimulation.subset_genealogy(hand_built_subsets(), 30)
+    # bound: sums of a dozen fractions of order 1, a few eps each: 1e-14
+    assert genealogy.cov_raw == pytest.approx(math.sqrt(25 / 72), rel=1e-14, abs=0)
+    # the last fraction's hits: families 1 and 4 with shares 2/5 and 3/5
+    # bound: 1 over a sum of two squares, a few eps: 1e-14
+    assert genealogy.families == pytest.approx(1 / 0.52, rel=1e-14, abs=0)
+
+
+def test_on_one_level_it_is_subset_simulations_genealogical_cov():
+    # no level change: each subset's seeds are the previous one's hits, psi_r telescopes to
+    # F_r / F - 1 / N and sum psi_r^2 is subset simulation's sum (F_r / F)^2 - 1 / N
+    method = configured(levels=(0.0,), burn_in=0, samples_per_level=200, costs=[1.0])
+    assert method.n_levels == 1
+    stats, runs = drive(method, nested, 2)
+    subsets = method.replay(runs).subsets
+    assert len(subsets) >= 3 and stats.attrs["converged"] == 1
+    levels = [SubsetLevel(s.index, s.points, s.g) for s in subsets]
+    single = SubsetSimulation.genealogy(levels, runs.sizes["realization"])
+    # two sums of N = 200 terms of order 1/N, differently grouped, against a difference of
+    # order 1/F: N eps / (F (cov^2)) ~ 1e-13; 1e-12 with room
+    assert value(stats, FAILURE_COV) == pytest.approx(single.cov, rel=1e-12, abs=0)
+    assert value(stats, FAILURE_FAMILIES) == single.families
+    # three levels correlated through their seeds: not Au & Beck's sum
+    assert abs(value(stats, FAILURE_COV) / value(stats, FAILURE_COV_UNCORRELATED) - 1) > 0.01
+
+
+def test_at_a_level_change_a_correction_that_moves_with_the_fraction_cancels_it():
+    # the correction's samples and hits share the last fraction's families exactly: a
+    # family that is rich in failures is as rich in the correction's hits, so p_f's ratio
+    # does not move with it and the relative variance is the first fraction's alone,
+    # 1/A_0 - 1/N_0 (= Au & Beck's delta_0^2); Au & Beck's terms add both ratios' on top
+    first = (np.arange(10), np.arange(10) < 4)            # A_0 = 4 of N_0 = 10
+    families = np.array([0, 0, 0, 1, 2, 3, 3, 1])         # the later samples' roots
+    hits = np.array([True, True, False, True, False, True, False, False])
+    genealogy = influence_genealogy([first, (families, hits)], [(families, hits)], 10)
+    # bound: a sum of 10 squares of differences of fractions, a few eps: 1e-14
+    assert genealogy.cov_raw == pytest.approx(math.sqrt(1 / 4 - 1 / 10), rel=1e-14, abs=0)
+    # the correction's term dropped (a level change read as no change): larger
+    alone = influence_genealogy([first, (families, hits)], [], 10)
+    assert alone.cov_raw > 1.05 * genealogy.cov_raw
+
+
+def test_a_level_change_reports_the_genealogical_cov_with_its_t_interval():
+    method = configured(burn_in=7, samples_per_level=100, level_probability=0.2,
+                        costs=[1.0, 10.0])
+    stats, runs = drive(method, narrow, 1)
+    assert 1 in stats[SUBSET_FIDELITY].values and stats.attrs["converged"] == 1
+    correction = stats[SUBSET_CORRECTION].values
+    assert np.any(correction < 1)
+    genealogy = method.subset_genealogy(method.replay(runs).subsets,
+                                        runs.sizes["realization"])
+    p, cov = value(stats, FAILURE_PROBABILITY), value(stats, FAILURE_COV)
+    assert cov == genealogy.cov and value(stats, FAILURE_FAMILIES) == genealogy.families
+    # the same function of the same stored numbers
+    np.testing.assert_array_equal(stats[FAILURE_INTERVAL].values[0], lognormal_interval(
+        p, cov, 0.95, degrees_of_freedom=genealogy.families - 1))
+    # Au & Beck's terms stored beside: every fraction's and correction's delta
+    terms = np.concatenate([stats["subset_cov"].values, stats[SUBSET_CORRECTION_COV].values])
+    # bound: the same sum of a few squares in the same order: a few eps, 1e-14
+    assert value(stats, FAILURE_COV_UNCORRELATED) == pytest.approx(
+        math.sqrt(np.sum(terms**2)), rel=1e-14, abs=0)
+    # bound: the same sum in the same order, a few eps: 1e-14
+    assert value(stats, FAILURE_COV_CORRELATED) == pytest.approx(np.sum(terms), rel=1e-14,
+                                                                 abs=0)
+    assert abs(cov / value(stats, FAILURE_COV_UNCORRELATED) - 1) > 0.05
+
+
+def test_one_family_leaves_no_interval():
+    subsets = hand_built_subsets()
+    last = subsets[-1]
+    # every failure of the last fraction in family 4 (row 7's chain's states re-run safe)
+    last.g[0] = [1.0, 1.0, math.nan]
+    last.hits = last.g <= 0
+    genealogy = MultilevelSubsetSimulation.subset_genealogy(subsets, 30)
+    assert genealogy.families == 1.0 and genealogy.cov == math.inf
+    assert genealogy.degrees_of_freedom == 0.0
+    assert np.all(np.isnan(lognormal_interval(1e-4, genealogy.cov, 0.95,
+                                              genealogy.degrees_of_freedom)))
 
 
 # --------------------------------------------------------------- the cost

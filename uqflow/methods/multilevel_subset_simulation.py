@@ -57,7 +57,8 @@ from uqflow import probability
 from uqflow.errors import AccuracyWarning, StudyError
 from uqflow.layout import (BOUND, BOUND_HIGH, BOUND_LOW, CHAIN, CHAIN_STEP, CONFIDENCE,
                            EQUIVALENT_FINEST_COST, EQUIVALENT_FINEST_RUNS, FAILURE_COV,
-                           FAILURE_COV_CORRELATED, FAILURE_INTERVAL, FAILURE_NOTE,
+                           FAILURE_COV_CORRELATED, FAILURE_COV_UNCORRELATED,
+                           FAILURE_FAMILIES, FAILURE_INTERVAL, FAILURE_NOTE,
                            FAILURE_PROBABILITY, FAILURES, FIDELITY_COST, FIDELITY_RUNS,
                            FIDELITY_VALUE, FINEST_COST_RATIO, INTERVAL_METHOD, LEVEL,
                            LIMIT_STATE, MULTILEVEL_TOTAL_COST, PARAMETER, REALIZATION,
@@ -71,9 +72,10 @@ from uqflow.methods.base import finish_statistics, make_design, register_method
 from uqflow.methods.fidelity_sampling import MAX_COST
 from uqflow.methods.form import STAGE, STANDARD_NORMAL, to_inputs
 from uqflow.methods.multifidelity_reliability import MultifidelityImportanceSampling
-from uqflow.methods.subset_simulation import (INITIAL_SCALE, SubsetLevel, SubsetSimulation,
-                                              SubsetSimulationOptions, correlation_factor,
-                                              lognormal_interval)
+from uqflow.methods.subset_simulation import (INITIAL_SCALE, Genealogy, SubsetLevel,
+                                              SubsetSimulation, SubsetSimulationOptions,
+                                              correlation_factor, family_roots,
+                                              genealogical_cov, lognormal_interval)
 from uqflow.report import FigureSpec, MethodReport, new_figure, number
 
 #: what a row is: a first-subset draw, a chain's proposal, a sample re-run at the next level
@@ -131,6 +133,15 @@ class Subset:
     correction: float = 1.0
     correction_cov: float = 0.0
     on_level: int = 1                # its rank among the subsets of its level, from 1
+    #: the samples counted in the fraction's numerator (g <= the threshold it is taken at)
+    hits: np.ndarray | None = None
+    #: the chains run from its seeds, (chains, burn + kept) rows with the seed first: the
+    #: next subset's samples are their kept states [:, burn:]
+    chain_rows: np.ndarray | None = None
+    burn: int = 0
+    #: at a level change, those kept states' margins at the previous subset's level (the
+    #: correction's samples)
+    check_g: np.ndarray | None = None
 
     @property
     def samples(self) -> int:
@@ -151,6 +162,33 @@ class Replay:
     pending: tuple | None = None     # (kind, ...) of the next round
     converged: bool = False
     stopped: str = ""
+
+
+def influence_genealogy(fractions, corrections, roots: int) -> Genealogy:
+    """The c.o.v. of p_f = prod_k A_k / N_k / prod_changes C_k / M_k from the level-0
+    families of all its samples (docs/rare_events_across_levels.md, "The genealogical
+    c.o.v."). ``fractions`` and ``corrections``: one (sample_roots, inside) pair per ratio,
+    the level-0 family of each of its samples that ran ok and whether it is counted in the
+    numerator. Each family r moves ln p_f by its influence
+
+        psi_r = sum_k (A_kr / A_k - N_kr / N_k) - sum_changes (C_kr / C_k - M_kr / M_k),
+
+    the families are independent, so the relative variance is sum_r psi_r^2 (delta
+    method). Within one level the seeds' share of a family is its previous hits' share and
+    psi_r telescopes to F_r / F - 1 / N: subset simulation's ``genealogical_cov``. Kish's
+    effective families are those of the last fraction's hits, as there."""
+    influence = np.zeros(roots)
+    for sign, ratios in ((1.0, fractions), (-1.0, corrections)):
+        for sample_roots, inside in ratios:
+            hits = sample_roots[inside]
+            if hits.size == 0:
+                return Genealogy(math.inf, 0.0)
+            influence += sign * (np.bincount(hits, minlength=roots) / hits.size -
+                                 np.bincount(sample_roots, minlength=roots) /
+                                 sample_roots.size)
+    last_roots, last_inside = fractions[-1]
+    families = genealogical_cov(last_roots[last_inside], roots).families
+    return Genealogy(math.sqrt(float(np.sum(influence**2))), families)
 
 
 @register_method("multilevel-subset-simulation")
@@ -274,8 +312,9 @@ class MultilevelSubsetSimulation(SubsetSimulation):
             current.threshold = 0.0 if reached else 0.5 * (ranked[seeds - 1] + ranked[seeds])
             current.probability = float(np.sum(ranked[:n_ok] <= current.threshold)) / n_ok
             with np.errstate(invalid="ignore"):
+                current.hits = current.g <= current.threshold
                 current.gamma = 0.0 if current.index == 0 else \
-                    correlation_factor(current.g <= current.threshold)
+                    correlation_factor(current.hits)
             finest = current.level == self.n_levels - 1
             last = reached and finest
             previous = replay.subsets[-2] if len(replay.subsets) > 1 else None
@@ -291,8 +330,9 @@ class MultilevelSubsetSimulation(SubsetSimulation):
                 # subset's level, so p_f is what was reached, flagged as not converged
                 current.probability = float(np.sum(ranked[:n_ok] <= 0)) / n_ok
                 with np.errstate(invalid="ignore"):
+                    current.hits = current.g <= 0
                     current.gamma = 0.0 if current.index == 0 else \
-                        correlation_factor(current.g <= 0)
+                        correlation_factor(current.hits)
                 return replay
             if last and not current.changed:
                 replay.converged = True
@@ -320,6 +360,7 @@ class MultilevelSubsetSimulation(SubsetSimulation):
                 replay.pending = (STAGE_CHAIN, current.level, current.index + 1,
                                   replay.pending)
                 return replay
+            current.chain_rows, current.burn = chains.rows, burn
             points = chains.rows[:, burn:]
             kept_g = chains.g[:, burn:]
             move_up = not finest and (reached or current.on_level >=
@@ -379,12 +420,40 @@ class MultilevelSubsetSimulation(SubsetSimulation):
             inside = g_old <= previous.threshold
         m = int(judged.sum())
         c = float(inside[judged].sum()) / m if m else math.nan
-        current.correction = c
+        current.correction, current.check_g = c, g_old
         if not (m and c > 0):
             current.correction_cov = math.inf
             return
         gamma = correlation_factor(inside) if judged.all() else 0.0
         current.correction_cov = math.sqrt((1 - c) / (m * c) * (1 + gamma))
+
+    @staticmethod
+    def subset_genealogy(subsets: list[Subset], realizations: int) -> Genealogy:
+        """``influence_genealogy`` of a replay's subsets: every sample's level-0 family
+        through its chain's seed (``family_roots`` over the first subset's draws and each
+        subset's chains, burn-in included). A subset's samples are the previous one's
+        chains' kept states, re-run at its level after a change (the rows of the points,
+        not of their re-runs: a re-run is the same point); the correction's samples are its
+        own chains' kept states."""
+        if not subsets or not all(np.isfinite(s.probability) for s in subsets):
+            return Genealogy(math.nan, 0.0)
+        chained = [s for s in subsets if s.chain_rows is not None]
+        lineage = [SubsetLevel(0, subsets[0].points, subsets[0].g)] + [
+            SubsetLevel(i + 1, s.chain_rows, np.zeros(s.chain_rows.shape))
+            for i, s in enumerate(chained)]
+        roots = family_roots(lineage, realizations)
+        kept = {s.index: r[:, s.burn:] for s, r in zip(chained, roots[1:])}
+        fractions, corrections = [], []
+        for s in subsets:
+            sample_roots = roots[0] if s.index == 0 else kept[s.index - 1]
+            ok = np.isfinite(s.g)
+            fractions.append((sample_roots[ok], s.hits[ok]))
+            if s.changed and s.check_g is not None:
+                judged = np.isfinite(s.check_g)
+                with np.errstate(invalid="ignore"):
+                    inside = s.check_g[judged] <= subsets[s.index - 1].threshold
+                corrections.append((kept[s.index][judged], inside))
+        return influence_genealogy(fractions, corrections, subsets[0].points.size)
 
     # ------------------------------------------------------------------ statistics
     def run_costs(self, runs: xr.Dataset) -> np.ndarray:
@@ -403,11 +472,14 @@ class MultilevelSubsetSimulation(SubsetSimulation):
         correction_covs = np.array([s.correction_cov for s in subsets])
         p_f = float(np.prod(probabilities) / np.prod(corrections))
         terms = np.concatenate([covs, correction_covs])
-        cov = float(math.sqrt(np.sum(terms**2)))
+        cov_uncorrelated = float(math.sqrt(np.sum(terms**2)))
         cov_correlated = float(np.sum(terms))
+        genealogy = self.subset_genealogy(subsets, runs.sizes[REALIZATION])
+        cov = genealogy.cov
         if p_f == 0:
-            cov = cov_correlated = math.inf
-        low, high = map(float, lognormal_interval(p_f, cov, opts.confidence))
+            cov = cov_uncorrelated = cov_correlated = math.inf
+        low, high = map(float, lognormal_interval(p_f, cov, opts.confidence,
+                                                  genealogy.degrees_of_freedom))
         if not replay.converged:
             warnings.append(f"multilevel subset simulation did not reach the finest level's "
                             f"failure domain ({replay.stopped}): p_f cannot be trusted")
@@ -430,9 +502,18 @@ class MultilevelSubsetSimulation(SubsetSimulation):
                              "fractions over the corrections at level changes", UNITS: "1"}),
             FAILURE_INTERVAL: ((LIMIT_STATE, BOUND), [[low, high]], {
                 "long_name": f"{100 * opts.confidence:g} % interval of p_f (lognormal with "
-                             f"the c.o.v.)", UNITS: "1"}),
-            FAILURE_COV: (one, [cov], {"long_name": "c.o.v. of p_f, the fractions and "
-                                                    "corrections uncorrelated", UNITS: "1"}),
+                             f"the genealogical c.o.v., Student t quantile)", UNITS: "1"}),
+            FAILURE_COV: (one, [cov], {
+                "long_name": "c.o.v. of p_f from the level-0 families of the fractions' and "
+                             "corrections' samples (genealogical, subsets' correlation "
+                             "included)", UNITS: "1"}),
+            FAILURE_FAMILIES: (one, [genealogy.families], {
+                "long_name": "effective number of level-0 families of the last subset's "
+                             "failures (Kish); the interval's t has one fewer degrees of "
+                             "freedom", UNITS: "1"}),
+            FAILURE_COV_UNCORRELATED: (one, [cov_uncorrelated], {
+                "long_name": "c.o.v. of p_f, the fractions and corrections uncorrelated "
+                             "(Au & Beck)", UNITS: "1"}),
             FAILURE_COV_CORRELATED: (one, [cov_correlated], {
                 "long_name": "c.o.v. of p_f, fully correlated", UNITS: "1"}),
             RELIABILITY_INDEX: (one, [probability.reliability_index(p_f)], {UNITS: "1"}),
@@ -483,15 +564,22 @@ class MultilevelSubsetSimulation(SubsetSimulation):
             "stop_reason": replay.stopped, CONFIDENCE: opts.confidence,
             "level_probability_p0": opts.level_probability,
             "samples_per_level": opts.samples_per_level, SUBSET_BURN_IN: opts.burn_in,
-            MULTILEVEL_TOTAL_COST: spent, INTERVAL_METHOD: "lognormal from the c.o.v.",
+            MULTILEVEL_TOTAL_COST: spent,
+            INTERVAL_METHOD: "lognormal from the genealogical c.o.v., Student t quantile "
+                             "with the effective families - 1 degrees of freedom",
             FAILURE_NOTE: (f"multilevel subset simulation (Ullmann & Papaioannou), "
                            f"{len(subsets)} subsets of {opts.samples_per_level} samples on "
                            f"levels {', '.join(str(s.level) for s in subsets)}, level "
                            f"changes at subsets {changes or 'none'} with {opts.burn_in} "
                            f"burn-in steps per chain; p_f = product of the fractions over "
-                           f"the corrections P[previous event | new one]; c.o.v. by Au & "
-                           f"Beck, terms uncorrelated (fully correlated: "
-                           f"{cov_correlated:.3g})")})
+                           f"the corrections P[previous event | new one]; c.o.v. from the "
+                           f"level-0 families of the fractions' and corrections' samples "
+                           f"({genealogy.families:.3g} effective families of the failures), "
+                           f"which counts the subsets' correlation through the seeds (Au & "
+                           f"Beck's, terms uncorrelated: {cov_uncorrelated:.3g}; fully "
+                           f"correlated: {cov_correlated:.3g}); "
+                           f"{100 * opts.confidence:g} % interval lognormal with median p_f "
+                           f"and a Student t quantile")})
         return stats
 
     @staticmethod
@@ -546,7 +634,11 @@ class MultilevelSubsetSimulation(SubsetSimulation):
                 f"multilevel subset simulation, limit state '{name}': p_f at the finest level "
                 f"= {number(float(stats[FAILURE_PROBABILITY].values[0]))} ({level} interval "
                 f"{number(low)} .. {number(high)}, lognormal), c.o.v. "
-                f"{number(float(stats[FAILURE_COV].values[0]))}, beta = "
+                f"{number(float(stats[FAILURE_COV].values[0]))} (from "
+                f"{number(float(stats[FAILURE_FAMILIES].values[0]))} effective level-0 "
+                f"families; Au & Beck's, terms uncorrelated, "
+                f"{number(float(stats[FAILURE_COV_UNCORRELATED].values[0]))}; fully "
+                f"correlated {number(float(stats[FAILURE_COV_CORRELATED].values[0]))}), beta = "
                 f"{number(float(stats[RELIABILITY_INDEX].values[0]))}"
                 + ("" if int(attrs.get("converged", 0)) else
                    f" (NOT converged: {attrs.get('stop_reason', '')})"))
