@@ -66,7 +66,8 @@ from _record import ROOT, write_section  # noqa: E402
 import uqflow  # noqa: E402
 from uqflow.errors import AccuracyWarning  # noqa: E402
 from uqflow.inputs import InputSpace, RandomInput  # noqa: E402
-from uqflow.layout import (FAILURE_COV, FAILURE_PROBABILITY, INPUTS, LEVEL,  # noqa: E402
+from uqflow.layout import (FAILURE_COV, FAILURE_INTERVAL, FAILURE_PROBABILITY,  # noqa: E402
+                           INPUTS, LEVEL,
                            STATUS, STATUS_FAILED, STATUS_OK)
 from uqflow.levels import LevelsSpec, resolve_levels  # noqa: E402
 from uqflow.limit_states import LimitStates  # noqa: E402
@@ -201,7 +202,8 @@ def evaluate(design, problem):
 
 def drive(method, problem, seed):
     """plan, extend until None, analyze, as the executor does: (p, reported cov, finest
-    calls, total cost in finest-run units)."""
+    calls, total cost in finest-run units, whether the reported interval holds the exact
+    p)."""
     design = method.plan(space(PROBLEMS[problem][0]), None, np.random.SeedSequence(seed))
     runs = evaluate(design, problem)
     glue = dict(dim="realization", data_vars="minimal", coords="minimal", compat="override",
@@ -217,8 +219,10 @@ def drive(method, problem, seed):
     level = runs[LEVEL].values
     n_fine = int((level == 1).sum())
     cost = n_fine + int((level == 0).sum()) * COSTS[0] / COSTS[1]
+    low, high = np.ravel(stats[FAILURE_INTERVAL].values)[:2]
     return (float(np.ravel(stats[FAILURE_PROBABILITY].values)[0]),
-            float(np.ravel(stats[FAILURE_COV].values)[0]), n_fine, cost)
+            float(np.ravel(stats[FAILURE_COV].values)[0]), n_fine, cost,
+            bool(low <= EXACT <= high))
 
 
 # --------------------------------------------------------------- OpenTURNS, finest only
@@ -275,7 +279,11 @@ OT_WIDE = ["ot-importance-at-form", "ot-subset-sampling"]
 # --------------------------------------------------------------- the table
 
 def summarize(rows):
-    p, cov, fine, cost = (np.array(c, dtype=float) for c in zip(*rows))
+    """The row's figures; ``covered``: how many reported intervals held the exact p (uqflow's
+    rows, which carry a fifth column; None for OpenTURNS')."""
+    columns = list(zip(*rows))
+    p, cov, fine, cost = (np.array(c, dtype=float) for c in columns[:4])
+    covered = int(sum(columns[4])) if len(columns) > 4 else None
     measured = float(np.std(p, ddof=1) / EXACT) if len(p) > 1 else float("nan")
     calls = float(fine.mean())
     merit = calls * measured ** 2
@@ -283,12 +291,13 @@ def summarize(rows):
     return dict(mean=float(p.mean()), bias=float(p.mean() / EXACT - 1), reported=float(cov.mean()),
                 measured=measured, calls=calls, cost=float(cost.mean()), merit=merit,
                 mc_equivalent=mc_equivalent, speedup=mc_equivalent / float(cost.mean()),
-                reps=len(p))
+                reps=len(p), covered=covered)
 
 
-def benchmark(repetitions, quick=False, part="all"):
+def benchmark(repetitions, quick=False, part="all", methods=None):
     """The rows: ``part`` "two" (the two-input problems and OpenTURNS on them), "wide" (the
-    many-input problem and OpenTURNS on it) or "all"."""
+    many-input problem and OpenTURNS on it) or "all"; ``methods``: only the uqflow rows whose
+    label is one of these (and no OpenTURNS row)."""
     results = {}
     wide = f"linear-{WIDE_DIM}d"
     for problem, (dim, _) in PROBLEMS.items():
@@ -296,11 +305,13 @@ def benchmark(repetitions, quick=False, part="all"):
             continue
         rows_of = UQFLOW_QUICK if quick else UQFLOW if dim == 2 else UQFLOW_WIDE
         for name, (cls, options) in rows_of.items():
+            if methods is not None and name not in methods:
+                continue
             rows = [drive(configured(cls, options, dim), problem, seed)
                     for seed in range(repetitions)]
             results[(problem, name)] = summarize(rows)
             print(problem, name, results[(problem, name)], flush=True)
-    if quick:
+    if quick or methods is not None:
         return results
     if part != "wide":
         for name in OT_METHODS:
@@ -325,12 +336,14 @@ def benchmark(repetitions, quick=False, part="all"):
 
 def table(results):
     lines = ["| problem | method | reps | mean p_f / exact | reported c.o.v. | measured c.o.v. "
-             "| finest calls | total cost (finest units) | finest calls × c.o.v.² "
-             "| finest-MC equivalent / total cost |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "| 95 % intervals holding p_f | finest calls | total cost (finest units) "
+             "| finest calls × c.o.v.² | finest-MC equivalent / total cost |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for (problem, name), r in results.items():
+        covered = "—" if r.get("covered") is None else f"{r['covered']}"
         lines.append(f"| {problem} | {name} | {r['reps']} | {r['mean'] / EXACT:.3f} | "
-                     f"{r['reported']:.3f} | {r['measured']:.3f} | {r['calls']:.0f} | "
+                     f"{r['reported']:.3f} | {r['measured']:.3f} | {covered} | "
+                     f"{r['calls']:.0f} | "
                      f"{r['cost']:.0f} | {r['merit']:.1f} | {r['speedup']:.0f} |")
     return "\n".join(lines)
 
@@ -390,7 +403,9 @@ uqflow: multifidelity importance sampling with 1000 finest draws (cross-entropy 
 500 coarse draws a round unless the row says otherwise; search = form with its default
 refinement, d + 1 finest calls more); multilevel subset simulation with
 500 samples per level, p0 = 0.1, burn-in 40. Seeds 0 to {repetitions - 1}. Measured c.o.v. =
-standard deviation of p_f over the repetitions / exact. "finest calls × c.o.v.²" (measured)
+standard deviation of p_f over the repetitions / exact; "95 % intervals holding p_f": of
+the repetitions, how many reported intervals held the exact p_f (uqflow's rows; — where the
+saved row predates the count). "finest calls × c.o.v.²" (measured)
 is the finest calls needed for a c.o.v. of 1: at equal target accuracy finest-level cost goes
 as this figure (lower is better). The last column is finest-level Monte Carlo's cost for the
 same measured c.o.v., (1 - p) / (p c.o.v.²), over the method's total cost.
@@ -405,6 +420,8 @@ def main(argv=None):
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--part", choices=["all", "two", "wide"], default="all",
                         help="run only the two-input problems or only the wide one")
+    parser.add_argument("--methods", nargs="+", help="run only the uqflow rows with these "
+                        "labels (e.g. multilevel-subset-simulation), no OpenTURNS rows")
     parser.add_argument("--save", type=Path, help="write the rows as JSON (no BENCHMARKS.md)")
     parser.add_argument("--report-from", type=Path, nargs="+",
                         help="write BENCHMARKS.md's section from saved parts")
@@ -423,7 +440,7 @@ def main(argv=None):
         commits = sorted({part["commit"] for part in saved})
     else:
         commits = [_commit()]       # the checkout the run starts from, not where it ends
-        results = benchmark(args.repetitions, part=args.part)
+        results = benchmark(args.repetitions, part=args.part, methods=args.methods)
         repetitions = args.repetitions
     if args.save:
         args.save.write_text(json.dumps({
