@@ -630,6 +630,11 @@ def _result_rows(res, ref, out, k, j, probe, div, ref_mean, ref_var, ref_se,
         rows.append([probe, res.cv_text, res.file, res.label, f"{runs}",
                      "no statistics (study did not finish)", "", "", ""])
         return rows
+    if res.statistic(out, STATISTIC_MEAN) is None:
+        # FORM and SORM estimate a probability of failure, not the output's moments
+        rows.append([probe, res.cv_text, res.file, res.label, f"{runs}",
+                     "no moments (its report gives what it estimates)", "", "", ""])
+        return rows
     if res is ref:
         mean_text = f"{_fmt(mean / div)} ± {_fmt(ref_se / div, 2)}"
         # no "± n/a": a variance without a standard error is printed alone (the notes say why)
@@ -851,7 +856,9 @@ def draw_figures(results: list[MPMResult], outputs: list[str], folder: Path,
                  time: float | None = None, reference: str | None = None) -> list[Path]:
     """``mpm_<output>_<probe>.png`` for every common output and probe, into ``folder``; the
     reference of each C.V. is the one of the tables (chosen at the same time)."""
-    with_stats = [r for r in results if r.stats is not None]
+    # a result without moments (FORM, SORM) has no curve to draw
+    with_stats = [r for r in results if r.stats is not None and any(
+        r.statistic(out, STATISTIC_MEAN) is not None for out in outputs)]
     if not with_stats:
         return []
     groups = [[r for r in g if r.stats is not None] for g in _groups(with_stats)]

@@ -38,14 +38,15 @@ def write(path: Path, *, method: str, mean=1.0e9, variance=5e15, stderr=None, va
           outputs=("flow_stress",), stats_attrs=None, statistics=True,
           with_sensitivities=None, extra_stats=None, compile_time=None, study_text=True,
           extra_runs=None, probe_xy=None, long_names=None, attrs_extra=None,
-          with_variance=True) -> Path:
+          with_variance=True, moments=True) -> Path:
     """A result file: ``values`` (realization, time, probe) or one realization at ``mean``;
     statistics ``mean``, ``variance``, ``std`` (and ``stderr`` when given) over (time, probe);
     ``compile_time`` (s per realization) as the executor records it, none when None (a result
     from before it did); ``study_text=False``: the study text not stored (too large);
     ``probe_xy``: the probes' points (m) as coordinates probe_x, probe_y, as the solver writes
     them; ``long_names``: {output: long_name}; ``attrs_extra``: more root attributes;
-    ``with_variance=False``: mean and std only, as subset simulation stores them."""
+    ``with_variance=False``: mean and std only, as subset simulation stores them;
+    ``moments=False``: the outputs at the design point only, as FORM and SORM store them."""
     values = np.asarray(values if values is not None else _field(mean)[None], float)
     n = values.shape[0]
     status = np.asarray(status if status is not None else ["ok"] * n)
@@ -81,6 +82,8 @@ def write(path: Path, *, method: str, mean=1.0e9, variance=5e15, stderr=None, va
             block.append(_field(stderr))
         if not with_variance:
             del labels[1], block[1]
+        if not moments:
+            labels, block = ["design_point"], [_field(mean)]
         stats = xr.Dataset({o: (("statistic", "time", "probe"), np.stack(block),
                                 _attrs(o)) for o in outputs} | inputs,
                            coords={**coords, "statistic": labels})
@@ -192,6 +195,16 @@ def test_a_result_with_mean_and_std_only_prints_the_std_squared_as_variance(tmp_
     row = next(l for l in text.splitlines() if l.startswith("H ") and "sus.nc" in l)
     # sqrt(6e15)**2 = 6e15 to a few ulps; 6/5 - 1 = +20 %
     assert "nan" not in row and "+20 %" in row
+
+
+def test_a_result_without_moments_says_so_instead_of_nan(tmp_path):
+    """SORM stores the outputs at its design point, no mean or variance."""
+    ref = write(tmp_path / "mc.nc", method="monte-carlo", stderr=0.005e9)
+    sorm = write(tmp_path / "sorm.nc", method="sorm", moments=False)
+    results, outputs, _ = mpm_report.load_results(trees(ref, sorm))
+    text = mpm_report.moments_tables(results, outputs)
+    row = next(l for l in text.splitlines() if l.startswith("H ") and "sorm.nc" in l)
+    assert "nan" not in row and "no moments" in row
 
 
 def test_each_cv_has_its_own_reference_and_rows(tmp_path):
@@ -430,6 +443,12 @@ def test_figures_are_written_and_no_pyplot_figure_is_left(tmp_path):
         f"mpm_{o}_{p}.png" for o in ("flow_stress", "S11") for p in PROBES)
     assert all(p.is_file() and p.stat().st_size > 0 for p in pngs)
     assert plt.get_fignums() == open_before
+
+
+def test_a_result_without_moments_draws_no_empty_mean_figure(tmp_path):
+    sorm = write(tmp_path / "sorm.nc", method="sorm", moments=False)
+    _, pngs = mpm_report.report(trees(sorm), tmp_path / "figs")
+    assert not [p for p in pngs if p.name.startswith("mpm_")]
 
 
 def test_the_mpm_solver_hook_is_the_report(tmp_path):
