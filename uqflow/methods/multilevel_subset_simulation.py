@@ -35,9 +35,23 @@ SeedSequence spawned per (fidelity level, subset, step); rows that re-run a poin
 level carry its ``seed_key``. So the answer is the same for any worker count and after a
 resume.
 
-The c.o.v.: each subset's fraction and each correction has Au & Beck's delta^2 =
-(1 - p) / (M p) (1 + gamma), gamma from its chains' indicator correlation; they are summed
-as uncorrelated (their fully correlated sum is stored beside). Cost: runs per level, the
+The c.o.v. is the genealogical one, carried over from ``subset-simulation``: every sample
+of every fraction and correction descends from one first-subset draw r through its chain's
+seeds (at a level change the seeds drawn at random, the re-runs being the same points), and
+with N_kr, A_kr (M_kr, C_kr) the samples of fraction k (of a correction) from family r and
+those of them counted in its numerator, r moves ln p_f by
+
+    psi_r = sum_k (A_kr / A_k - N_kr / N_k) - sum_changes (C_kr / C_k - M_kr / M_k);
+
+the families are independent, so the relative variance is sum_r psi_r^2 (delta method).
+Within a level the seeds' share of a family is its previous hits' share, psi_r telescopes to
+F_r / F - 1 / N and this is subset simulation's estimator exactly; across a level change it
+counts what Au & Beck's uncorrelated sum leaves out, the subsets' correlation through the
+seeds and a correction's with its fraction (``influence_genealogy``). With k effective
+families (Kish, of the last fraction's failures) the variance carries k / (k - 1) and the
+interval a Student t quantile with k - 1 degrees of freedom, as in ``subset-simulation``.
+Au & Beck's delta^2 = (1 - p) / (M p) (1 + gamma) of every fraction and correction are
+stored beside, summed as uncorrelated and as fully correlated. Cost: runs per level, the
 equivalent plain Monte Carlo at the finest level for the same c.o.v. as
 ``multifidelity-importance-sampling`` reports it.
 """
