@@ -177,7 +177,7 @@ GUIDE_DEFENSIVE_WEIGHT, GUIDE_TOTAL_COST = "guide_defensive_weight", "guide_tota
 #: the refinement ended, (g - grad g . u) / |grad g| (NaN without one); attributes: its rounds
 #: and how far it moved the biasing density's centre from the coarse design point
 FINEST_SEARCH_INDEX = "finest_search_reliability_index"
-FINEST_SEARCH_ROUNDS, FINEST_SEARCH_SHIFT = "finest_search_rounds", "finest_search_shift"
+FINEST_SEARCH_ROUNDS, FINEST_SEARCH_SHIFT = "finest_search_rounds_run", "finest_search_shift"
 
 # multilevel-subset-simulation (uqflow.methods.multilevel_subset_simulation; it writes the
 # subset_* and fidelity_* names above too)

@@ -3,15 +3,19 @@ importance sampling", CMAME 300): a cheap level finds the failure region, the fi
 alone estimates P[failure], without bias.
 
 Stage 1 runs on the coarsest level of the study's ``[levels]`` (level 0): either FORM's
-improved HL-RF search (``uqflow.methods.form.Form``, composed, its rows at level 0), or
-cross-entropy rounds (Rubinstein): ``coarse_samples`` draws of the current density q_k, the
-``quantile`` of their margins g as the next intermediate threshold gamma_k = max(quantile, 0),
-and q_k+1 fitted to the draws with g <= gamma_k weighted by phi / q_k, until gamma_k = 0 (the
-coarse failure region is reached) or ``max_search_rounds``. The biasing density is
+improved HL-RF search (``uqflow.methods.form.Form``, composed, its rows at level 0), then
+``finest_search_rounds`` rounds of the same search continued on the finest level from the
+coarse design point (a second composed Form, forward differences: n + 1 finest runs a
+round), whose next step centres the density (a linear finest g's design point after one
+round); or the single-level cross-entropy method's rounds
+(``uqflow.methods.importance_sampling.CrossEntropy``: its improved or quantile rule, a
+mixture of Gaussians or, from 20 inputs on, a von Mises-Fisher-Nakagami density), each of
+``coarse_samples`` coarse draws, until the rule's stop (the coarse failure region is reached)
+or ``max_search_rounds``. The biasing density is
 
     q = (1 - w) q* + w phi,
 
-q* the Gaussian at FORM's design point (unit covariance) or the last cross-entropy fit, phi the
+q* the Gaussian at that centre (unit covariance) or the last cross-entropy density, phi the
 standard normal density of the inputs' standard normal space and w = ``defensive_weight``:
 the likelihood ratio phi / q is then at most 1 / w everywhere, so where the coarse level
 misses a failure region of the finest one the estimate keeps a finite variance and stays
@@ -34,6 +38,7 @@ from completion order: workers and resumes give the same rows.
 
 from __future__ import annotations
 
+import hashlib
 import math
 import warnings as pywarnings
 from dataclasses import dataclass
@@ -54,18 +59,29 @@ from uqflow.layout import (BIASING_COMPONENT, BIASING_MEAN, BIASING_WEIGHT, BOUN
                            FIDELITY_VALUE, FINEST_COST_RATIO, FINEST_SEARCH_INDEX,
                            FINEST_SEARCH_ROUNDS, FINEST_SEARCH_SHIFT, GUIDE_DEFENSIVE_WEIGHT,
                            GUIDE_PROBABILITY, GUIDE_REACHED, GUIDE_ROUNDS, GUIDE_TOTAL_COST,
-                           LEVEL, LIMIT_STATE, PARAMETER, RELIABILITY_INDEX, REALIZATION,
+                           LEVEL, LIMIT_STATE, LOG_LIKELIHOOD_RATIO, PARAMETER,
+                           RELIABILITY_INDEX, REALIZATION,
                            ROUND, SOLVER_RUNS, STATISTIC, STATISTIC_MEAN, STATISTIC_STD,
                            STATISTIC_STDERR, STATUS, STATUS_PENDING, UNITS, WALL_TIME,
                            ok_mask, output_names)
+from uqflow.layout import (CE_FAMILY, CE_RULE, NAKAGAMI_M, NAKAGAMI_OMEGA, VMF_DIRECTION,
+                           VMF_KAPPA)
 from uqflow.methods.base import (MAX_REALIZATIONS, MethodOptions, PropagationMethod,
                                  finish_statistics, make_design, register_method)
 from uqflow.methods.fidelity_sampling import MAX_COST
 from uqflow.methods.form import (STAGE, STAGE_SEARCH, STANDARD_NORMAL, STENCIL_OFFSET, Form,
                                  to_inputs)
-from uqflow.methods.importance_sampling import (GaussianMixture, cross_entropy_fit,
-                                                defensive_mixture, importance_estimate,
-                                                standard_normal, standard_normal_log_pdf)
+from uqflow.methods.importance_sampling import (DEGENERATE_SHARE, FEW_EFFECTIVE,
+                                                SMOOTHING_COV,
+                                                CrossEntropy, CrossEntropyState,
+                                                GaussianMixture, defensive_mixture,
+                                                effective_count,
+                                                fit_gaussian_mixture, importance_estimate,
+                                                log_likelihood_ratio, standard_normal,
+                                                standard_normal_log_pdf,
+                                                standard_normal_start)
+from uqflow.methods.von_mises_fisher_nakagami import (VonMisesFisherNakagami,
+                                                      fit_von_mises_fisher_nakagami)
 from uqflow.probability import reliability_index
 from uqflow.report import FigureSpec, MethodReport, new_figure, number
 
@@ -79,6 +95,8 @@ SEARCH_CROSS_ENTROPY, SEARCH_FORM = "cross-entropy", "form"
 CROSS_ENTROPY_STREAM, ESTIMATE_STREAM = 1, 2
 #: the level stage 1 runs at: the coarsest of [levels] (values are coarsest first)
 GUIDE_LEVEL = 0
+#: cross-entropy fits kept for the next replay (each round's, of a study's max_search_rounds)
+MAX_KEPT_FITS = 1000
 
 
 class MultifidelityImportanceOptions(MethodOptions):
@@ -92,11 +110,28 @@ class MultifidelityImportanceOptions(MethodOptions):
     search_levels: Literal["coarsest", "all"] = Field(
         "coarsest", description="levels the cross-entropy rounds run at: the coarsest, or "
                                 "every level but the finest in turn, coarsest first")
-    quantile: float = Field(0.1, gt=0, lt=0.5, description="share of a cross-entropy round's "
-                            "draws whose margin sets the next intermediate threshold")
+    # the cross-entropy rounds are the single-level cross-entropy method's
+    # (uqflow.methods.importance_sampling.CrossEntropy): the same rules, families and names
+    rule: Literal["improved", "quantile"] = Field(
+        "improved", description="improved: smoothed intermediate targets Phi(-g/s_j) phi "
+                                "(Papaioannou et al. 2019); quantile: the classic "
+                                "rho-quantile thresholds and elites (Rubinstein 1999)")
+    smoothing_cov: float = Field(SMOOTHING_COV, gt=0, le=10, description="improved rule: "
+                                 "target c.o.v. of the weights between successive smoothed "
+                                 "targets, and the stop's c.o.v. of 1[g <= 0] / Phi(-g/s)")
+    rho: float = Field(0.1, gt=0, le=0.5, description="quantile rule: share of a round's "
+                       "draws whose margin sets the next intermediate threshold")
+    family: Literal["auto", "gaussian", "vmfn"] = Field(
+        "auto", description="density fitted: gaussian (a mixture of `components` "
+                            "Gaussians), vmfn (von Mises-Fisher direction, Nakagami radius), "
+                            "auto: vmfn from 20 inputs on, else gaussian")
+    components: int | None = Field(None, ge=1, le=20, description="Gaussians of the "
+                                   "gaussian family (default 4 for the improved rule, 1 for "
+                                   "the quantile rule)")
+    covariance: Literal["auto", "full", "diagonal", "identity"] = Field(
+        "auto", description="covariance of each fitted Gaussian (cross-entropy's)")
     min_spread: float = Field(1.0, gt=0, le=10, description="least standard deviation of "
-                              "the cross-entropy Gaussian in any direction, in standard "
-                              "normal units")
+                              "a fitted Gaussian in any direction, in standard normal units")
     max_search_rounds: int = Field(20, ge=1, le=1000, description="most rounds of stage 1 "
                                    "(cross-entropy rounds, or FORM iterations)")
     finest_search_rounds: int = Field(1, ge=0, le=100, description="search = form: rounds "
@@ -121,9 +156,16 @@ class MultifidelityImportanceOptions(MethodOptions):
     def _applies(self):
         self.only_where("coarse_samples", self.search == SEARCH_CROSS_ENTROPY,
                         'search = "cross-entropy"')
-        for key in ("quantile", "min_spread", "search_levels"):
+        for key in ("rule", "smoothing_cov", "rho", "family", "components", "covariance",
+                    "min_spread", "search_levels"):
             self.only_where(key, self.search == SEARCH_CROSS_ENTROPY,
                             'search = "cross-entropy"')
+        self.only_where("rho", self.rule == "quantile", 'rule = "quantile" (the improved '
+                        'rule sets its targets by smoothing_cov)')
+        self.only_where("smoothing_cov", self.rule == "improved", 'rule = "improved"')
+        for key in ("components", "covariance", "min_spread"):
+            self.only_where(key, self.family != "vmfn", "the gaussian family (family = "
+                            '"vmfn" fits a direction and a radius)')
         self.only_where("finest_search_rounds", self.search == SEARCH_FORM, 'search = "form"')
         self.only_where("max_samples", self.target_cov is not None, "target_cov")
         if isinstance(self.costs, list) and not all(0 < c <= MAX_COST for c in self.costs):
@@ -153,6 +195,10 @@ class Guide:
     finest_beta: float = math.nan
     finest_shift: float = math.nan
     finest_note: str = ""                # why the refinement fell back, in words
+    # the cross-entropy search: the family its last fit is of, and that fit's effective
+    # count of draws (Kish)
+    family: str = ""
+    fit_effective: float = math.nan
 
 
 @register_method("multifidelity-importance-sampling")
@@ -212,6 +258,10 @@ class MultifidelityImportanceSampling(PropagationMethod):
                              f"[[limit_states]] table", key="limit_states")
         if not hasattr(self, "n_levels"):
             raise StudyError(f"method '{self.name}' needs the study's [levels]", key="levels")
+        if self.options.search == SEARCH_CROSS_ENTROPY and self.options.family == "vmfn" \
+                and len(space) < 2:
+            raise StudyError(f'family = "vmfn" needs at least 2 inputs (a direction on a '
+                             f'sphere), the study has {len(space)}', key="method.family")
         self._space, self._seed = space, seed
         if getattr(self, "_finest_form", None) is not None:
             self._finest_form._space = space
@@ -234,6 +284,13 @@ class MultifidelityImportanceSampling(PropagationMethod):
                               {"long_name": "point in standard normal space"}),
             STENCIL_OFFSET: ((REALIZATION, PARAMETER), np.zeros_like(u)),
             STAGE: (REALIZATION, np.full(n, stage, dtype=object))})
+        if self.options.search == SEARCH_CROSS_ENTROPY:
+            # the cross-entropy rounds replay their fits from these (as the single-level
+            # method does); every row of the search carries one, so the rounds concatenate
+            design = design.assign_coords({LOG_LIKELIHOOD_RATIO: (REALIZATION, np.asarray(
+                log_likelihood_ratio(density, u), dtype=float), {
+                    "long_name": "log phi(u) - log q(u) of the density the row was drawn "
+                                 "from"})})
         return self.at_level(design, level)
 
     @staticmethod
@@ -287,9 +344,25 @@ class MultifidelityImportanceSampling(PropagationMethod):
             return self.form_guide(runs)
         return self.cross_entropy_guide(runs)
 
-    def biasing(self, centre_density: GaussianMixture) -> GaussianMixture:
+    def biasing(self, centre_density):
         """(1 - w) q* + w phi."""
-        return with_defensive(centre_density, self.options.defensive_weight)
+        if isinstance(centre_density, GaussianMixture):
+            return with_defensive(centre_density, self.options.defensive_weight)
+        return DefensiveMixture(centre_density, self.options.defensive_weight)
+
+    def cross_entropy(self) -> "GuideCrossEntropy":
+        """The single-level cross-entropy method with this method's options, whose rounds
+        replay one level's rows."""
+        opts = self.options
+        given = {key: getattr(opts, key) for key in (
+            "rule", "family", "smoothing_cov", "rho", "components", "covariance")
+            if key in opts.model_fields_set}
+        method = GuideCrossEntropy(samples=opts.coarse_samples, **given)
+        method.floor = opts.min_spread**2
+        if getattr(self, "_fits", None) is None:
+            self._fits = {}
+        method.fits = self._fits
+        return method
 
     def form_guide(self, runs: xr.Dataset) -> Guide:
         search_rows = self.stage_rows(runs, runs[STAGE].values == STAGE_SEARCH)
@@ -355,49 +428,77 @@ class MultifidelityImportanceSampling(PropagationMethod):
         return centre
 
     def cross_entropy_guide(self, runs: xr.Dataset) -> Guide:
-        opts = self.options
+        """The single-level cross-entropy method's rounds (its rule and family), replayed
+        level by level from the rows' margins and stored log likelihood ratios: a level's
+        rounds start from the density the level below ended with."""
         stage = runs[STAGE].values
         rounds_of = runs[ROUND].values
+        level_of = runs[LEVEL].values
         mask = stage == STAGE_CROSS_ENTROPY
-        n = runs.sizes[PARAMETER]
-        density = standard_normal(n)
         g_all = self.margins(runs)
         u_all = np.asarray(runs[STANDARD_NORMAL].values, dtype=float)
-        done_rounds = np.unique(rounds_of[mask])
-        fitted, probability = density, math.nan
+        ratio_all = np.asarray(runs[LOG_LIKELIHOOD_RATIO].values, dtype=float) \
+            if LOG_LIKELIHOOD_RATIO in runs.coords else np.full(runs.sizes[REALIZATION],
+                                                                 np.nan)
+        # the same rows replay to the same guide: computed once (extend, analyze and the
+        # output moments each ask), keyed on everything the replay reads
+        rows = np.flatnonzero(mask)
+        key = hashlib.sha256(b"".join(np.ascontiguousarray(a).tobytes() for a in (
+            rows, g_all[rows], rounds_of[rows], level_of[rows], u_all[rows],
+            ratio_all[rows]))).hexdigest()
+        cached = getattr(self, "_cross_entropy_guide", None)
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        guide = self.replay_cross_entropy(mask, g_all, rounds_of, level_of, stage, u_all,
+                                          ratio_all)
+        self._cross_entropy_guide = (key, guide)
+        return guide
+
+    def replay_cross_entropy(self, mask, g_all, rounds_of, level_of, stage, u_all,
+                             ratio_all) -> Guide:
+        """``cross_entropy_guide``'s rounds, level by level."""
+        opts = self.options
+        n = u_all.shape[1]
+        axes = np.arange(n)
+        done = int(np.unique(rounds_of[mask]).size)
+        method = self.cross_entropy()
+        family = method.options.family_for(n)
+        density = standard_normal_start(n)
         # the level the rounds run at: the next one up each time a level's failure region
         # is reached, until the last level before the finest (search_levels = "all")
-        level = GUIDE_LEVEL
         last = self.n_levels - 2 if opts.search_levels == "all" else GUIDE_LEVEL
-        for r in done_rounds:
-            rows = np.flatnonzero(mask & (rounds_of == r))
-            g, u = g_all[rows], u_all[rows]
-            judged = np.isfinite(g)
-            log_ratio = standard_normal_log_pdf(u) - density.log_pdf(u)
-            if not judged.any():
-                note = f"every coarse run of cross-entropy round {int(r)} failed"
-                return Guide(int(r) + 1, True, self.biasing(fitted), note=note)
-            threshold = max(float(np.quantile(g[judged], opts.quantile)), 0.0)
-            elite = judged & (g <= threshold)
-            fitted = cross_entropy_fit(u[elite], log_ratio[elite],
-                                       floor=opts.min_spread**2)
-            if threshold == 0.0 and level < last:
-                level += 1
-                density = fitted
+        for level in range(last + 1):
+            rows = np.flatnonzero(mask & (level_of == level))
+            state = CrossEntropyState(density)
+            if rows.size:
+                state = method.replay_rounds(state, g_all[rows], rounds_of[rows], stage[rows],
+                                             ratio_all[rows], u_all[rows], axes)
+            effective = state.effective[-1] if state.effective else math.nan
+            if state.stopped:
+                note = f"cross-entropy at level {level} stopped: {state.stopped}"
+                return Guide(done, True, self.biasing(state.density), note=note,
+                             family=family, fit_effective=effective)
+            if state.reached and level < last:
+                density = state.density
                 continue
-            if threshold == 0.0:
-                failed = np.asarray(g[judged] <= 0)
-                probability = importance_estimate(failed, log_ratio[judged],
+            if state.reached:
+                # the round that reached the failure region: its own weighted estimate of
+                # this level's P[failure]
+                final = rows[rounds_of[rows] == rounds_of[rows].max()]
+                judged = final[np.isfinite(g_all[final])]
+                probability = importance_estimate(g_all[judged] <= 0, ratio_all[judged],
                                                   opts.confidence).probability
-                return Guide(int(r) + 1, True, self.biasing(fitted), reached=True,
-                             coarse_probability=float(probability))
-            density = fitted
-        rounds = int(done_rounds.size)
-        if rounds >= opts.max_search_rounds:
-            note = (f"the cross-entropy rounds did not reach the failure region of level "
-                    f"{last} in max_search_rounds = {opts.max_search_rounds}")
-            return Guide(rounds, True, self.biasing(fitted), note=note)
-        return Guide(rounds, False, None, next_density=density, next_level=level)
+                return Guide(done, True, self.biasing(state.density), reached=True,
+                             coarse_probability=float(probability), family=family,
+                             fit_effective=effective)
+            if done >= opts.max_search_rounds:
+                note = (f"the cross-entropy rounds did not reach the failure region of level "
+                        f"{last} in max_search_rounds = {opts.max_search_rounds}")
+                return Guide(done, True, self.biasing(state.density), note=note,
+                             family=family, fit_effective=effective)
+            return Guide(done, False, None, next_density=state.density, next_level=level,
+                         family=family, fit_effective=effective)
+        raise AssertionError("unreachable: the last level returns")
 
     # ------------------------------------------------------------------ stage 2
     def estimate(self, runs: xr.Dataset, guide: Guide):
@@ -472,6 +573,28 @@ class MultifidelityImportanceSampling(PropagationMethod):
                 warnings.append("no finest-level run of the biasing density failed: "
                                 "P[failure] is 0 with an undefined c.o.v.; the biasing "
                                 "density may miss the failure region")
+            elif ess < FEW_EFFECTIVE and ess < DEGENERATE_SHARE * failures:
+                # both: a share of the failing draws alone (importance-sampling's rule) would
+                # call a density at the coarse design point in many inputs degenerate where
+                # its reported c.o.v. holds (benchmarks/reliability_levels.py, linear-100d:
+                # ESS near a tenth of the failures, some 30 draws)
+                warnings.append(
+                    f"the importance weights have degenerated: effective sample size "
+                    f"{ess:.3g} of {failures} failing finest-level draws; a few draws carry "
+                    f"the estimate (the biasing density misses part of the finest failure "
+                    f"region, or is too narrow): it stays unbiased, but its standard error "
+                    f"and interval cannot be trusted")
+            elif ess < FEW_EFFECTIVE:
+                warnings.append(f"effective sample size {ess:.3g} < {FEW_EFFECTIVE:g}: the "
+                                f"normal interval rests on too few effective draws")
+        n_inputs = runs.sizes[PARAMETER]
+        if guide.fit_effective < n_inputs:
+            warnings.append(
+                f"the last cross-entropy fit rests on {guide.fit_effective:.3g} effective "
+                f"draws for {n_inputs} inputs: its centre is off by about sqrt(d / n) = "
+                f"{math.sqrt(n_inputs / guide.fit_effective):.2g} (standard normal units, or "
+                f"radians), which can inflate the weights' second moment by about "
+                f"e^(d / n); raise coarse_samples or use search = \"form\"")
         costs = self.run_costs(runs)
         level = runs[LEVEL].values
         done = runs[STATUS].values != STATUS_PENDING
@@ -514,7 +637,7 @@ class MultifidelityImportanceSampling(PropagationMethod):
             FIDELITY_COST: ((LEVEL,), costs, {UNITS: "s" if opts.costs == "measured"
                                            else "stated"}),
         }
-        if guide.density is not None:
+        if isinstance(guide.density, GaussianMixture):
             data[BIASING_WEIGHT] = ((BIASING_COMPONENT,), np.asarray(guide.density.weights, float))
             data[BIASING_MEAN] = ((BIASING_COMPONENT, PARAMETER),
                                   np.asarray(guide.density.means, float),
@@ -526,6 +649,15 @@ class MultifidelityImportanceSampling(PropagationMethod):
                                          PARAMETER: runs[PARAMETER].values})
         stats = stats.assign_coords({FIDELITY_VALUE: (LEVEL, np.asarray(self.level_values,
                                                                     dtype=float))})
+        if isinstance(guide.density, DefensiveMixture):
+            vmfn = guide.density.density
+            stats[VMF_DIRECTION] = ((PARAMETER,), vmfn.mean_direction, {
+                "long_name": "mean direction of the von Mises-Fisher part of the biasing "
+                             "density in standard normal space", UNITS: "1"})
+            stats.attrs.update({VMF_KAPPA: float(vmfn.kappa), NAKAGAMI_M: float(vmfn.m),
+                                NAKAGAMI_OMEGA: float(vmfn.omega)})
+        if opts.search == SEARCH_CROSS_ENTROPY:
+            stats.attrs.update({CE_RULE: opts.rule, CE_FAMILY: guide.family})
         self.output_moments(stats, runs, guide, estimate_rows)
         for message in warnings:
             pywarnings.warn(message, AccuracyWarning, stacklevel=2)
@@ -596,7 +728,10 @@ class MultifidelityImportanceSampling(PropagationMethod):
             f"{number(value(RELIABILITY_INDEX))}; {int(value(FAILURES))} failures in "
             f"{int(value(FAILURE_RUNS))} finest-level runs, effective sample size "
             f"{number(value(EFFECTIVE_SAMPLE_SIZE))}",
-            f"stage 1 ({attrs.get('search', '?')}) on {guide_levels(runs)}: "
+            f"stage 1 ({attrs.get('search', '?')}"
+            + (f", {attrs[CE_RULE]} rule, {attrs.get(CE_FAMILY, '?')} family"
+               if CE_RULE in attrs else "")
+            + f") on {guide_levels(runs)}: "
             f"{int(attrs.get(GUIDE_ROUNDS, 0))} rounds, "
             f"{sum(runs[:-1])} runs, its own P[failure] there "
             f"{number(value(GUIDE_PROBABILITY))}"
@@ -679,3 +814,70 @@ def with_defensive(density: GaussianMixture, weight: float) -> GaussianMixture:
     return GaussianMixture(np.append((1.0 - weight) * density.weights, weight),
                            np.vstack([density.means, np.zeros((1, d))]),
                            np.concatenate([density.covariances, np.eye(d)[None]]))
+
+
+class GuideCrossEntropy(CrossEntropy):
+    """The single-level cross-entropy method's rounds (``replay_rounds``: its rules and
+    families), with its Gaussian fits' eigenvalues floored at ``floor`` = min_spread^2 (the
+    quantile rule's single Gaussian too): a coarse failure region narrower than the finest's
+    may move the biasing density, never narrow it below the inputs' own spread."""
+
+    floor: float = 1.0
+    #: fits already made, keyed on their points, weights and family: every round replays the
+    #: rounds before it, and a mixture's EM is what a replay costs
+    fits: dict | None = None
+
+    def fit(self, u, log_weights, family: str):
+        key = hashlib.sha256(b"".join(np.ascontiguousarray(a).tobytes() for a in (
+            np.asarray(u, dtype=float), np.asarray(log_weights, dtype=float)))
+            + family.encode()).hexdigest()
+        if self.fits is not None and key in self.fits:
+            return self.fits[key]
+        if family == "vmfn":
+            fitted = fit_von_mises_fisher_nakagami(u, log_weights)
+        else:
+            fitted = fit_gaussian_mixture(u, log_weights, self.options.mixture_components,
+                                          floor=self.floor, covariance=self.options.covariance)
+        if self.fits is not None:
+            if len(self.fits) >= MAX_KEPT_FITS:
+                self.fits.pop(next(iter(self.fits)))
+            self.fits[key] = fitted
+        return fitted
+
+    def quantile_round(self, state, u, g, log_ratio, family) -> None:
+        usable = np.isfinite(g)
+        threshold = max(float(np.quantile(g[usable], self.options.rho)), 0.0)
+        elite = usable & (g <= threshold)
+        state.density = self.fit(u[elite], log_ratio[elite], family)
+        state.thresholds.append(threshold)
+        state.elites.append(int(elite.sum()))
+        state.effective.append(effective_count(log_ratio[elite]))
+        state.fitted.append(family)
+        state.reached = threshold == 0.0
+
+
+@dataclass(frozen=True, eq=False)
+class DefensiveMixture:
+    """(1 - weight) q* + weight phi for a q* that is not a Gaussian mixture (the von
+    Mises-Fisher-Nakagami density): sampling and log q, as ``GaussianMixture`` offers."""
+
+    density: VonMisesFisherNakagami
+    weight: float
+
+    @property
+    def dimension(self) -> int:
+        return self.density.dimension
+
+    def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        """``n`` draws: which component by one uniform each, then q*'s draws, then phi's,
+        all from ``rng`` (the same state gives the same draws)."""
+        defensive = rng.random(int(n)) < self.weight
+        out = np.empty((int(n), self.dimension))
+        out[~defensive] = self.density.sample(rng, int((~defensive).sum()))
+        out[defensive] = rng.standard_normal((int(defensive.sum()), self.dimension))
+        return out
+
+    def log_pdf(self, u: np.ndarray) -> np.ndarray:
+        u = np.atleast_2d(np.asarray(u, dtype=float))
+        return np.logaddexp(math.log1p(-self.weight) + self.density.log_pdf(u),
+                            math.log(self.weight) + standard_normal_log_pdf(u))
