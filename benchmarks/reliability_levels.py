@@ -161,6 +161,11 @@ UQFLOW_WIDE = {
         MultifidelityImportanceSampling,
         dict(search="form", samples=1000, costs=COSTS, defensive_weight=0.02)),
     f"{MFIS}, search = cross-entropy": (MultifidelityImportanceSampling, MFIS_CROSS_ENTROPY),
+    # the cross-entropy search before it became the single-level method's (improved rule,
+    # von Mises-Fisher-Nakagami from 20 inputs): one Gaussian on the quantile rule's elites
+    f"{MFIS}, search = cross-entropy, rule = quantile, family = gaussian": (
+        MultifidelityImportanceSampling,
+        dict(MFIS_CROSS_ENTROPY, rule="quantile", family="gaussian")),
     MLSUS: (MultilevelSubsetSimulation, MLSUS_FULL),
 }
 #: --quick: toy sizes
@@ -294,10 +299,10 @@ def summarize(rows):
                 reps=len(p), covered=covered)
 
 
-def benchmark(repetitions, quick=False, part="all", methods=None):
+def benchmark(repetitions, quick=False, part="all", methods=None, openturns=False):
     """The rows: ``part`` "two" (the two-input problems and OpenTURNS on them), "wide" (the
     many-input problem and OpenTURNS on it) or "all"; ``methods``: only the uqflow rows whose
-    label is one of these (and no OpenTURNS row)."""
+    label is one of these (and no OpenTURNS row unless ``openturns``)."""
     results = {}
     wide = f"linear-{WIDE_DIM}d"
     for problem, (dim, _) in PROBLEMS.items():
@@ -311,7 +316,7 @@ def benchmark(repetitions, quick=False, part="all", methods=None):
                     for seed in range(repetitions)]
             results[(problem, name)] = summarize(rows)
             print(problem, name, results[(problem, name)], flush=True)
-    if quick or methods is not None:
+    if quick or (methods is not None and not openturns):
         return results
     if part != "wide":
         for name in OT_METHODS:
@@ -422,6 +427,9 @@ def main(argv=None):
                         help="run only the two-input problems or only the wide one")
     parser.add_argument("--methods", nargs="+", help="run only the uqflow rows with these "
                         "labels (e.g. multilevel-subset-simulation), no OpenTURNS rows")
+    parser.add_argument("--openturns", action="store_true", help="with --methods, run "
+                        "OpenTURNS' rows of the part too (in the wide part they need the "
+                        "FORM-guided multifidelity rows among the methods)")
     parser.add_argument("--save", type=Path, help="write the rows as JSON (no BENCHMARKS.md)")
     parser.add_argument("--report-from", type=Path, nargs="+",
                         help="write BENCHMARKS.md's section from saved parts")
@@ -440,7 +448,8 @@ def main(argv=None):
         commits = sorted({part["commit"] for part in saved})
     else:
         commits = [_commit()]       # the checkout the run starts from, not where it ends
-        results = benchmark(args.repetitions, part=args.part, methods=args.methods)
+        results = benchmark(args.repetitions, part=args.part, methods=args.methods,
+                            openturns=args.openturns)
         repetitions = args.repetitions
     if args.save:
         args.save.write_text(json.dumps({
