@@ -646,7 +646,8 @@ def _result_rows(res, ref, out, k, j, probe, div, ref_mean, ref_var, ref_se,
         z = (mean - ref_mean) / ref_se if np.isfinite(ref_se) and ref_se > 0 else math.nan
         vs_mean = _pct(_rel(mean, ref_mean)) + (f" ({z:+.2g})" if np.isfinite(z) else "")
         rows.append([probe, res.cv_text, res.file, res.label, f"{runs}", _fmt(mean / div),
-                     vs_mean, _fmt(var / div ** 2, 4), _pct(_rel(var, ref_var))])
+                     vs_mean, _fmt(var / div ** 2, 4) if np.isfinite(var) else "-",
+                     _pct(_rel(var, ref_var))])
     surrogate = res.stats.get(f"{out}_surrogate")
     if surrogate is not None:
         mean = _value(surrogate.sel(surrogate_statistic="mean"), k, j)

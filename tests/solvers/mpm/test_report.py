@@ -197,6 +197,17 @@ def test_a_result_with_mean_and_std_only_prints_the_std_squared_as_variance(tmp_
     assert "nan" not in row and "+20 %" in row
 
 
+def test_a_weighted_mean_without_a_variance_prints_a_dash(tmp_path):
+    """Importance sampling stores its weighted mean only."""
+    ref = write(tmp_path / "mc.nc", method="monte-carlo", stderr=0.005e9)
+    weighted = write(tmp_path / "is.nc", method="importance-sampling", with_variance=False)
+    results, outputs, _ = mpm_report.load_results(trees(ref, weighted))
+    results[1].stats = results[1].stats.sel(statistic=["mean"])
+    text = mpm_report.moments_tables(results, outputs)
+    row = next(l for l in text.splitlines() if l.startswith("H ") and "is.nc" in l)
+    assert "nan" not in row and row.split()[-2:] == ["-", "-"]
+
+
 def test_a_result_without_moments_says_so_instead_of_nan(tmp_path):
     """SORM stores the outputs at its design point, no mean or variance."""
     ref = write(tmp_path / "mc.nc", method="monte-carlo", stderr=0.005e9)
