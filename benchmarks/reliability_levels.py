@@ -66,7 +66,8 @@ from _record import ROOT, write_section  # noqa: E402
 import uqflow  # noqa: E402
 from uqflow.errors import AccuracyWarning  # noqa: E402
 from uqflow.inputs import InputSpace, RandomInput  # noqa: E402
-from uqflow.layout import (FAILURE_COV, FAILURE_INTERVAL, FAILURE_PROBABILITY,  # noqa: E402
+from uqflow.layout import (FAILURE_COV, FAILURE_COV_UNCORRELATED,  # noqa: E402
+                           FAILURE_FAMILIES, FAILURE_INTERVAL, FAILURE_PROBABILITY,
                            INPUTS, LEVEL,
                            STATUS, STATUS_FAILED, STATUS_OK)
 from uqflow.levels import LevelsSpec, resolve_levels  # noqa: E402
@@ -75,6 +76,7 @@ from uqflow.methods.multifidelity_reliability import \
     MultifidelityImportanceSampling  # noqa: E402
 from uqflow.methods.multilevel_subset_simulation import \
     MultilevelSubsetSimulation  # noqa: E402
+from uqflow.methods.subset_simulation import lognormal_interval  # noqa: E402
 from uqflow.realization import empty_runs  # noqa: E402
 
 BETA = 3.5
@@ -208,7 +210,9 @@ def evaluate(design, problem):
 def drive(method, problem, seed):
     """plan, extend until None, analyze, as the executor does: (p, reported cov, finest
     calls, total cost in finest-run units, whether the reported interval holds the exact
-    p)."""
+    p, and for a genealogical c.o.v. a dict of what is stored beside it: Au & Beck's
+    uncorrelated c.o.v. and whether its lognormal 95 % interval holds p, the effective
+    families and the c.o.v. without their k / (k - 1))."""
     design = method.plan(space(PROBLEMS[problem][0]), None, np.random.SeedSequence(seed))
     runs = evaluate(design, problem)
     glue = dict(dim="realization", data_vars="minimal", coords="minimal", compat="override",
@@ -225,9 +229,18 @@ def drive(method, problem, seed):
     n_fine = int((level == 1).sum())
     cost = n_fine + int((level == 0).sum()) * COSTS[0] / COSTS[1]
     low, high = np.ravel(stats[FAILURE_INTERVAL].values)[:2]
-    return (float(np.ravel(stats[FAILURE_PROBABILITY].values)[0]),
-            float(np.ravel(stats[FAILURE_COV].values)[0]), n_fine, cost,
-            bool(low <= EXACT <= high))
+    p, cov = (float(np.ravel(stats[name].values)[0]) for name in (FAILURE_PROBABILITY,
+                                                                   FAILURE_COV))
+    beside = {}
+    if FAILURE_FAMILIES in stats:
+        uncorrelated, k = (float(np.ravel(stats[name].values)[0]) for name in (
+            FAILURE_COV_UNCORRELATED, FAILURE_FAMILIES))
+        a_low, a_high = lognormal_interval(p, uncorrelated, 0.95)
+        beside = dict(reported_uncorrelated=uncorrelated, families=k,
+                      covered_uncorrelated=bool(a_low <= EXACT <= a_high),
+                      reported_without_families_factor=cov * math.sqrt((k - 1) / k)
+                      if k > 1 else math.inf)
+    return p, cov, n_fine, cost, bool(low <= EXACT <= high), beside
 
 
 # --------------------------------------------------------------- OpenTURNS, finest only
@@ -289,6 +302,10 @@ def summarize(rows):
     columns = list(zip(*rows))
     p, cov, fine, cost = (np.array(c, dtype=float) for c in columns[:4])
     covered = int(sum(columns[4])) if len(columns) > 4 else None
+    beside = {}
+    for key in (columns[5][0] if len(columns) > 5 else {}):
+        values = [row[key] for row in columns[5]]
+        beside[key] = int(sum(values)) if key.startswith("covered") else float(np.mean(values))
     measured = float(np.std(p, ddof=1) / EXACT) if len(p) > 1 else float("nan")
     calls = float(fine.mean())
     merit = calls * measured ** 2
@@ -296,7 +313,7 @@ def summarize(rows):
     return dict(mean=float(p.mean()), bias=float(p.mean() / EXACT - 1), reported=float(cov.mean()),
                 measured=measured, calls=calls, cost=float(cost.mean()), merit=merit,
                 mc_equivalent=mc_equivalent, speedup=mc_equivalent / float(cost.mean()),
-                reps=len(p), covered=covered)
+                reps=len(p), covered=covered, **beside)
 
 
 def benchmark(repetitions, quick=False, part="all", methods=None, openturns=False):
