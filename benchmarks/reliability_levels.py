@@ -346,6 +346,8 @@ def benchmark(repetitions, quick=False, part="all", methods=None, openturns=Fals
         for draws in WIDE_BUDGETS:
             label = f"{MFIS}, search = form" + ("" if draws == 1000 else
                                                  f", {draws} finest draws")
+            if (wide, label) not in results:    # a --methods run without that row
+                continue
             equal = round(results[(wide, label)]["calls"])
             for name in OT_WIDE if draws == 1000 else OT_WIDE[:1]:
                 rows = [openturns_runs(name, seed, WIDE_DIM, equal)
