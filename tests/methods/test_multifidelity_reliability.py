@@ -351,6 +351,35 @@ def test_the_docs_relative_variance_of_a_shifted_biasing_density_is_exact():
     turn = math.radians(15.0)
     assert round(relative_variance(BETA, 3.25 * math.cos(turn), 3.25 * math.sin(turn)), 1) \
         == 10.3
+    # with the defensive share, centred at the finest design point (the refinement's centre):
+    # q/phi = (1 - w) exp(beta t - beta^2 / 2) + w depends on t = a.u alone, so the second
+    # moment is the one-dimensional integral of phi(t) / (q/phi) over t > beta
+    def defensive(w):
+        def integrand(t):
+            return math.exp(sps.norm.logpdf(t) - np.logaddexp(
+                math.log1p(-w) + BETA * t - BETA**2 / 2, math.log(w)))
+        # quadrature to its 1e-10 relative error estimate (smooth, decaying like phi): the
+        # rounded figure below is 4 orders of magnitude coarser
+        return integrate.quad(integrand, BETA, np.inf, epsabs=0, epsrel=1e-10)[0] / \
+            sps.norm.sf(BETA) ** 2 - 1
+    # w -> 0 gives back the shifted Gaussian's 3.94 (w = 1e-9 changes it by ~1e-9 relative)
+    assert defensive(1e-9) == pytest.approx(relative_variance(BETA, BETA, 0.0), rel=1e-6)
+    assert round(defensive(0.1), 2) == 4.49
+    # the docs' finest runs x c.o.v.^2 at a budget of N finest runs: N R_w / (N - d - 1) for
+    # the refined multifidelity estimate (d = 100: its refinement's 101 runs; d = 2: 3), and
+    # N R / (N - c_FORM) for FORM + importance sampling at the finest design point, c_FORM the
+    # benchmark's OpenTURNS FORM cost (609 in 100 inputs, 100 in two)
+    exact = relative_variance(BETA, BETA, 0.0)
+    assert [round(1101 * defensive(w) / 1000, 2) for w in (0.02, 0.1, 0.3)] == \
+        [4.45, 4.94, 6.67]
+    assert round(2101 * defensive(0.1) / 2000, 2) == 4.72
+    assert (round(1101 * exact / (1101 - 609), 2), round(2101 * exact / (2101 - 609), 2)) == \
+        (8.82, 5.55)
+    assert (round(1003 * defensive(0.1) / 1000, 2), round(1100 * exact / 1000, 2)) == \
+        (4.50, 4.34)
+    # where the two meet: N R_w / (N - 101) = N R / (N - 609)
+    meet = (609 * defensive(0.1) - 101 * exact) / (defensive(0.1) - exact)
+    assert round(meet, -2) == 4300
 
 
 def test_the_equivalent_finest_level_cost_is_plain_monte_carlo_at_the_same_cov():
