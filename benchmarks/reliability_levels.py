@@ -310,7 +310,14 @@ def summarize(rows):
     calls = float(fine.mean())
     merit = calls * measured ** 2
     mc_equivalent = (1 - EXACT) / (EXACT * measured ** 2)
-    return dict(mean=float(p.mean()), bias=float(p.mean() / EXACT - 1), reported=float(cov.mean()),
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # in ln p: the spread, the reported c.o.v.'s lognormal s = sqrt(ln(1 + cov^2)) (its
+        # quadratic mean) and the largest p / exact, for estimates with a heavy right tail
+        spread_log = float(np.std(np.log(p / EXACT), ddof=1)) if len(p) > 1 else math.nan
+        reported_log = float(np.sqrt(np.mean(np.log1p(cov**2))))
+    return dict(spread_log=spread_log, reported_log=reported_log,
+                largest=float(p.max() / EXACT),
+                mean=float(p.mean()), bias=float(p.mean() / EXACT - 1), reported=float(cov.mean()),
                 measured=measured, calls=calls, cost=float(cost.mean()), merit=merit,
                 mc_equivalent=mc_equivalent, speedup=mc_equivalent / float(cost.mean()),
                 reps=len(p), covered=covered, **beside)
