@@ -137,6 +137,16 @@ UQFLOW = {MFIS: (MultifidelityImportanceSampling, MFIS_CROSS_ENTROPY),
           f"{MFIS}, search = form": (MultifidelityImportanceSampling,
                                      dict(search="form", samples=1000, costs=COSTS)),
           MLSUS: (MultilevelSubsetSimulation, MLSUS_FULL)}
+#: the coarse level as a control variate of the FORM-guided estimate (10 coarse draws per
+#: finest draw; its coarse event matched to the finest first-order index, or g_c <= 0)
+MFIS_CONTROL = dict(search="form", costs=COSTS, control_variate=True)
+CONTROL = ", control variate"
+UQFLOW.update({
+    f"{MFIS}, search = form{CONTROL}": (MultifidelityImportanceSampling,
+                                        dict(MFIS_CONTROL, samples=1000)),
+    f"{MFIS}, search = form{CONTROL}, control_event = coarse": (
+        MultifidelityImportanceSampling,
+        dict(MFIS_CONTROL, samples=1000, control_event="coarse"))})
 #: and of the wide one: the coarse search by FORM (2 d + 1 coarse runs an iteration) and its
 #: refinement at the finest level (the default: d + 1 finest runs) with 300, 1000 and 2000
 #: finest draws, without the refinement (the coarse design point), with three defensive
@@ -169,6 +179,12 @@ UQFLOW_WIDE = {
         MultifidelityImportanceSampling,
         dict(MFIS_CROSS_ENTROPY, rule="quantile", family="gaussian")),
     MLSUS: (MultilevelSubsetSimulation, MLSUS_FULL),
+    **{f"{MFIS}, search = form" + ("" if draws == 1000 else f", {draws} finest draws")
+       + CONTROL: (MultifidelityImportanceSampling, dict(MFIS_CONTROL, samples=draws))
+       for draws in WIDE_BUDGETS},
+    f"{MFIS}, search = form{CONTROL}, control_event = coarse": (
+        MultifidelityImportanceSampling,
+        dict(MFIS_CONTROL, samples=1000, control_event="coarse")),
 }
 #: --quick: toy sizes
 UQFLOW_QUICK = {
@@ -353,6 +369,8 @@ def benchmark(repetitions, quick=False, part="all", methods=None, openturns=Fals
         for draws in WIDE_BUDGETS:
             label = f"{MFIS}, search = form" + ("" if draws == 1000 else
                                                  f", {draws} finest draws")
+            if (wide, label) not in results:    # the control variate's row: the same calls
+                label += CONTROL
             if (wide, label) not in results:    # a --methods run without that row
                 continue
             equal = round(results[(wide, label)]["calls"])

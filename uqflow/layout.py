@@ -178,6 +178,18 @@ GUIDE_DEFENSIVE_WEIGHT, GUIDE_TOTAL_COST = "guide_defensive_weight", "guide_tota
 #: and how far it moved the biasing density's centre from the coarse design point
 FINEST_SEARCH_INDEX = "finest_search_reliability_index"
 FINEST_SEARCH_ROUNDS, FINEST_SEARCH_SHIFT = "finest_search_rounds_run", "finest_search_shift"
+#: control_variate = true (multifidelity-importance-sampling): (limit_state) the plain
+#: importance-sampling estimate without the coarse control and its standard error, the
+#: correlation rho of the finest and coarse weighted indicators over the pairs, the
+#: coefficient alpha, the pairs N and coarse draws M the control rests on, the finest runs
+#: left out of it (their coarse twin failed), and MFMC's optimal M / N at the levels' costs
+PLAIN_PROBABILITY, PLAIN_STDERR = "plain_failure_probability", "plain_failure_stderr"
+CONTROL_CORRELATION, CONTROL_COEFFICIENT = "control_correlation", "control_coefficient"
+CONTROL_PAIRS, CONTROL_COARSE_DRAWS = "control_pairs", "control_coarse_draws"
+CONTROL_LEFT_OUT, CONTROL_OPTIMAL_RATIO = "control_left_out", "control_optimal_ratio"
+#: (limit_state): t of the control's coarse event g_c <= t (control_event = "matched": the
+#: coarse g's linearization moved to the finest level's first-order reliability index)
+CONTROL_THRESHOLD = "control_threshold"
 
 # multilevel-subset-simulation (uqflow.methods.multilevel_subset_simulation; it writes the
 # subset_* and fidelity_* names above too)

@@ -58,6 +58,9 @@ from uqflow.layout import (BIASING_COMPONENT, BIASING_MEAN, BIASING_WEIGHT, BOUN
                            FAILURE_STDERR, FAILURES, FIDELITY_COST, FIDELITY_RUNS,
                            FIDELITY_VALUE, FINEST_COST_RATIO, FINEST_SEARCH_INDEX,
                            FINEST_SEARCH_ROUNDS, FINEST_SEARCH_SHIFT, GUIDE_DEFENSIVE_WEIGHT,
+                           CONTROL_COARSE_DRAWS, CONTROL_COEFFICIENT, CONTROL_CORRELATION,
+                           CONTROL_LEFT_OUT, CONTROL_OPTIMAL_RATIO, CONTROL_PAIRS, CONTROL_THRESHOLD,
+                           PLAIN_PROBABILITY, PLAIN_STDERR,
                            GUIDE_PROBABILITY, GUIDE_REACHED, GUIDE_ROUNDS, GUIDE_TOTAL_COST,
                            LEVEL, LIMIT_STATE, LOG_LIKELIHOOD_RATIO, PARAMETER,
                            RELIABILITY_INDEX, REALIZATION,
@@ -90,6 +93,9 @@ from uqflow.report import FigureSpec, MethodReport, new_figure, number
 #: stencil) of the design point's refinement at the finest level (search = "form")
 STAGE_CROSS_ENTROPY, STAGE_ESTIMATE = "cross-entropy", "estimate"
 STAGE_FINEST_SEARCH = "finest-search"
+#: control_variate = true: a draw of the biasing density run at the coarsest level (the
+#: first of each batch's are the finest draws' twins: the same points)
+STAGE_CONTROL = "control"
 SEARCH_CROSS_ENTROPY, SEARCH_FORM = "cross-entropy", "form"
 #: children of the plan's SeedSequence: (stream, round) for each round's draws
 CROSS_ENTROPY_STREAM, ESTIMATE_STREAM = 1, 2
@@ -147,6 +153,18 @@ class MultifidelityImportanceOptions(MethodOptions):
                                      "until the c.o.v. of P[failure] is at most this")
     max_samples: int = Field(10_000, ge=2, le=MAX_REALIZATIONS, description="most "
                              "finest-level runs with target_cov")
+    control_variate: bool = Field(False, description="the coarsest level as a control "
+                                  "variate of the estimate (multifidelity Monte Carlo): each "
+                                  "batch's draws also run at level 0, with "
+                                  "coarse_draws_per_finest times as many coarse draws")
+    control_event: Literal["matched", "coarse"] = Field(
+        "matched", description="control_variate: the coarse event of the control, "
+                               "g_c <= t: matched, t moves the coarse event to the finest "
+                               "level's first-order reliability index (search = form with its "
+                               "refinement; t = 0 otherwise); coarse, t = 0")
+    coarse_draws_per_finest: int = Field(10, ge=1, le=1000, description="control_variate: "
+                                         "coarse draws M of a batch per finest draw N (M / N; "
+                                         "the first N are the finest draws' points)")
     confidence: float = Field(0.95, gt=0, lt=1, description="level of the interval")
     costs: Literal["measured"] | list[float] = Field(
         "measured", description="cost of one run per level, coarsest first: 'measured' "
@@ -168,6 +186,8 @@ class MultifidelityImportanceOptions(MethodOptions):
                             '"vmfn" fits a direction and a radius)')
         self.only_where("finest_search_rounds", self.search == SEARCH_FORM, 'search = "form"')
         self.only_where("max_samples", self.target_cov is not None, "target_cov")
+        for key in ("coarse_draws_per_finest", "control_event"):
+            self.only_where(key, self.control_variate, "control_variate = true")
         if isinstance(self.costs, list) and not all(0 < c <= MAX_COST for c in self.costs):
             raise ValueError(f"every cost must be > 0 and <= {MAX_COST:.2g} (costs are "
                              f"relative, any unit; the study's total must stay a finite "
@@ -199,6 +219,17 @@ class Guide:
     # count of draws (Kish)
     family: str = ""
     fit_effective: float = math.nan
+    # control_event = "matched": the coarse level's first-order reliability index and the
+    # length of its g's gradient at the coarse design point (NaN: none)
+    coarse_beta: float = math.nan
+    coarse_slope: float = math.nan
+
+    def control_threshold(self, event: str) -> float:
+        """t of the control's coarse event g_c <= t: with "matched", the coarse g's
+        linearization shifted to the finest's first-order index, t = (beta_c - beta_f)
+        |grad g_c| (0 without both indices)."""
+        shift = (self.coarse_beta - self.finest_beta) * self.coarse_slope
+        return float(shift) if event == "matched" and np.isfinite(shift) else 0.0
 
 
 @register_method("multifidelity-importance-sampling")
@@ -277,13 +308,30 @@ class MultifidelityImportanceSampling(PropagationMethod):
     def draw_rows(self, density, stream, round_, n, level, stage) -> xr.Dataset:
         u = np.asarray(density.sample(self.rng(stream, round_), n), dtype=float)
         u = u.reshape(n, len(self._space))
+        return self.rows_at(density, u, round_, np.full(n, level), np.full(n, stage))
+
+    def control_rows(self, density, batch: int, n: int, round_: int) -> xr.Dataset:
+        """control_variate = true: one batch's M = ``n`` coarse_draws_per_finest draws of q
+        (one stream, as a batch without the control), the first ``n`` at the finest level,
+        then all M at the coarsest (the first n of them the finest draws' twins)."""
+        m = n * self.options.coarse_draws_per_finest
+        u = np.asarray(density.sample(self.rng(ESTIMATE_STREAM, batch), m), dtype=float)
+        u = u.reshape(m, len(self._space))
+        level = np.concatenate([np.full(n, self.n_levels - 1), np.full(m, GUIDE_LEVEL)])
+        stage = np.array([STAGE_ESTIMATE] * n + [STAGE_CONTROL] * m, dtype=object)
+        return self.rows_at(density, np.vstack([u[:n], u]), round_, level, stage)
+
+    def rows_at(self, density, u, round_, level, stage) -> xr.Dataset:
+        """The design of the points ``u`` (standard normal) drawn from ``density``, each
+        row at its ``level`` and ``stage``."""
+        n = u.shape[0]
         design = make_design(self._space, to_inputs(self._space, u),
                              **{ROUND: (REALIZATION, np.full(n, round_, dtype=np.int64))})
         design = design.assign_coords({
             STANDARD_NORMAL: ((REALIZATION, PARAMETER), u,
                               {"long_name": "point in standard normal space"}),
             STENCIL_OFFSET: ((REALIZATION, PARAMETER), np.zeros_like(u)),
-            STAGE: (REALIZATION, np.full(n, stage, dtype=object))})
+            STAGE: (REALIZATION, np.asarray(stage, dtype=object))})
         if self.options.search == SEARCH_CROSS_ENTROPY:
             # the cross-entropy rounds replay their fits from these (as the single-level
             # method does); every row of the search carries one, so the rounds concatenate
@@ -291,7 +339,8 @@ class MultifidelityImportanceSampling(PropagationMethod):
                 log_likelihood_ratio(density, u), dtype=float), {
                     "long_name": "log phi(u) - log q(u) of the density the row was drawn "
                                  "from"})})
-        return self.at_level(design, level)
+        design[LEVEL] = (REALIZATION, np.asarray(level, dtype=np.int64))
+        return design
 
     @staticmethod
     def at_level(design: xr.Dataset, level: int) -> xr.Dataset:
@@ -328,6 +377,8 @@ class MultifidelityImportanceSampling(PropagationMethod):
         n = self.options.samples
         if self.options.target_cov is not None:
             n = min(n, self.options.max_samples - drawn)
+        if self.options.control_variate:
+            return self.control_rows(guide.density, batches, n, last_round + 1)
         rows = self.draw_rows(guide.density, ESTIMATE_STREAM, batches, n, self.n_levels - 1,
                               STAGE_ESTIMATE)
         rows[ROUND].values[:] = last_round + 1
@@ -382,6 +433,12 @@ class MultifidelityImportanceSampling(PropagationMethod):
             f"FORM on the coarse level did not converge ({search.stopped})"
         guide = Guide(rounds, True, None, reached=bool(search.converged),
                       coarse_probability=float(sps.norm.sf(beta)), note=note)
+        if search.point is not None:
+            slope = float(np.linalg.norm(search.point.gradient))
+            if slope > 0:
+                guide.coarse_slope = slope
+                guide.coarse_beta = float((search.point.g - search.point.gradient
+                                           @ search.point.u) / slope)
         if getattr(self, "_finest_form", None) is not None:
             centre = self.refine_at_finest(runs, centre, guide)
             if guide.finest_next is not None:
@@ -502,7 +559,15 @@ class MultifidelityImportanceSampling(PropagationMethod):
 
     # ------------------------------------------------------------------ stage 2
     def estimate(self, runs: xr.Dataset, guide: Guide):
-        """The importance-sampling estimate from the finest-level rows (None without any)."""
+        """The importance-sampling estimate from the finest-level rows (None without any);
+        with control_variate, the control-variate estimate (``control_estimate``)."""
+        plain = self.plain_estimate(runs, guide)
+        if plain is None or not self.options.control_variate:
+            return plain
+        return self.control_estimate(runs, guide, plain)
+
+    def plain_estimate(self, runs: xr.Dataset, guide: Guide):
+        """The mean of 1{g <= 0} phi / q over the finest-level rows that ran ok."""
         rows = np.flatnonzero(runs[STAGE].values == STAGE_ESTIMATE)
         if not rows.size or guide.density is None:
             return None
@@ -514,6 +579,41 @@ class MultifidelityImportanceSampling(PropagationMethod):
         log_ratio = standard_normal_log_pdf(u) - guide.density.log_pdf(u)
         return importance_estimate(np.asarray(g[judged] <= 0), log_ratio,
                                    self.options.confidence)
+
+    def control_estimate(self, runs: xr.Dataset, guide: Guide, plain) -> "ControlEstimate":
+        """The control-variate estimate from each batch's pairs (its i-th finest row and
+        its i-th coarse row, drawn at the same point) and all its coarse rows: a pair whose
+        either run failed is left out of the pairs (its finest run, if ok, counted in
+        ``left_out``), a coarse row that failed out of the M."""
+        stage, rounds = runs[STAGE].values, runs[ROUND].values
+        g = self.margins(runs)
+        u = np.asarray(runs[STANDARD_NORMAL].values, dtype=float)
+        first, rest = [], []
+        left_out = 0
+        for batch in np.unique(rounds[stage == STAGE_ESTIMATE]):
+            fine = np.flatnonzero((stage == STAGE_ESTIMATE) & (rounds == batch))
+            coarse = np.flatnonzero((stage == STAGE_CONTROL) & (rounds == batch))
+            twins = coarse[:fine.size]
+            if twins.size != fine.size or not np.array_equal(u[fine], u[twins]):
+                raise AssertionError("a batch's coarse rows do not start with its finest "
+                                     "rows' points")
+            both = np.isfinite(g[fine]) & np.isfinite(g[twins])
+            left_out += int((np.isfinite(g[fine]) & ~both).sum())
+            first += [np.column_stack([fine[both], twins[both]])]
+            rest += [coarse[fine.size:][np.isfinite(g[coarse[fine.size:]])]]
+        pairs = np.vstack(first) if first else np.zeros((0, 2), dtype=int)
+        if pairs.shape[0] < 2:
+            return plain        # analyze says the control was not used
+        coarse_rows = np.concatenate([pairs[:, 1], *rest]).astype(int)
+        log_ratio = standard_normal_log_pdf(u[coarse_rows]) - \
+            guide.density.log_pdf(u[coarse_rows])
+        threshold = guide.control_threshold(self.options.control_event)
+        found = control_variate_estimate(g[pairs[:, 0]] <= 0, g[coarse_rows] <= threshold,
+                                         log_ratio, self.options.confidence)
+        found.threshold = threshold
+        found.plain, found.left_out = plain, left_out
+        found.effective_sample_size = plain.effective_sample_size
+        return found
 
     def run_costs(self, runs: xr.Dataset) -> np.ndarray:
         """Cost of one run per level: stated, or the median wall time of the level's runs
@@ -559,14 +659,29 @@ class MultifidelityImportanceSampling(PropagationMethod):
         if finest_search_failed:
             warnings.append(f"{finest_search_failed} finest-level runs of the design point's "
                             f"refinement did not run ok")
-        coarse_failed = int(((~estimate_rows) & ~finest_search & ~ok).sum())
+        control_rows = stage == STAGE_CONTROL
+        coarse_failed = int(((~estimate_rows) & ~finest_search & ~control_rows & ~ok).sum())
+        control_failed = int((control_rows & ~ok & (runs[STATUS].values != STATUS_PENDING))
+                             .sum())
+        controlled = isinstance(found, ControlEstimate)
+        if opts.control_variate and found is not None and not controlled:
+            warnings.append("the coarse control variate is not used: fewer than 2 pairs of "
+                            "finest and coarse runs ran ok; P[failure] is the plain estimate")
+        if control_failed:
+            left = found.left_out if controlled else 0
+            warnings.append(f"{control_failed} coarse-level runs of the control variate did "
+                            f"not run ok and are left out of it ({left} finest runs ok whose "
+                            f"coarse twin failed are left out of the pairs, kept in the plain "
+                            f"estimate): the control stays unbiased if coarse solver errors "
+                            f"do not depend on the inputs")
         if coarse_failed:
             warnings.append(f"{coarse_failed} coarse-level runs of stage 1 did not run ok; "
                             f"stage 1 used the others")
         p, stderr, low, high, cov, ess, n, failures = (math.nan,) * 6 + (0, 0)
         if found is not None:
             p, stderr, low, high = found.probability, found.stderr, found.low, found.high
-            cov, ess, n = found.cov, found.effective_sample_size, int(found.n)
+            cov, ess = found.cov, found.effective_sample_size
+            n = int(found.plain.n if controlled else found.n)
             judged = np.isfinite(self.margins(runs)[estimate_rows])
             failures = int((self.margins(runs)[estimate_rows][judged] <= 0).sum())
             if failures == 0:
@@ -637,6 +752,8 @@ class MultifidelityImportanceSampling(PropagationMethod):
             FIDELITY_COST: ((LEVEL,), costs, {UNITS: "s" if opts.costs == "measured"
                                            else "stated"}),
         }
+        if opts.control_variate:
+            data.update(self.control_statistics(found, costs))
         if isinstance(guide.density, GaussianMixture):
             data[BIASING_WEIGHT] = ((BIASING_COMPONENT,), np.asarray(guide.density.weights, float))
             data[BIASING_MEAN] = ((BIASING_COMPONENT, PARAMETER),
@@ -672,6 +789,40 @@ class MultifidelityImportanceSampling(PropagationMethod):
                             "limit_state_event": getattr(state, "describe", lambda: "")(),
                             GUIDE_TOTAL_COST: spent})
         return stats
+
+    def control_statistics(self, found, costs) -> dict:
+        """control_variate = true: what the estimate rests on, and the plain estimate
+        beside it (NaN where the control was not used)."""
+        one = (LIMIT_STATE,)
+        controlled = isinstance(found, ControlEstimate)
+        plain = found.plain if controlled else found
+        rho = found.correlation if controlled else math.nan
+        with np.errstate(divide="ignore", invalid="ignore"):
+            # MFMC's optimal M / N for two models: sqrt(c_f rho^2 / (c_c (1 - rho^2)))
+            optimal = math.sqrt(costs[-1] * rho**2 / (costs[GUIDE_LEVEL] * (1.0 - rho**2))) \
+                if np.isfinite(rho) and abs(rho) < 1 and np.all(np.isfinite(costs)) \
+                else math.nan
+        return {
+            PLAIN_PROBABILITY: (one, [plain.probability if plain is not None else math.nan], {
+                "long_name": "importance-sampling estimate without the coarse control",
+                UNITS: "1"}),
+            PLAIN_STDERR: (one, [plain.stderr if plain is not None else math.nan], {
+                "long_name": "its standard error", UNITS: "1"}),
+            CONTROL_CORRELATION: (one, [rho], {
+                "long_name": "correlation of the finest and coarse weighted indicators over "
+                             "the pairs", UNITS: "1"}),
+            CONTROL_COEFFICIENT: (one, [found.coefficient if controlled else math.nan], {
+                "long_name": "control coefficient alpha = cov(Y_f, Y_c) / var(Y_c)",
+                UNITS: "1"}),
+            CONTROL_PAIRS: (one, [found.n if controlled else 0]),
+            CONTROL_COARSE_DRAWS: (one, [found.coarse_draws if controlled else 0]),
+            CONTROL_LEFT_OUT: (one, [found.left_out if controlled else 0]),
+            CONTROL_THRESHOLD: (one, [found.threshold if controlled else math.nan], {
+                "long_name": "t of the control's coarse event g <= t, in g's unit"}),
+            CONTROL_OPTIMAL_RATIO: (one, [optimal], {
+                "long_name": "MFMC's optimal coarse draws per finest draw at the levels' "
+                             "costs and this correlation", UNITS: "1"}),
+        }
 
     def output_moments(self, stats, runs, guide, estimate_rows) -> None:
         """Each output's mean, std and the mean's standard error over the inputs'
@@ -738,6 +889,7 @@ class MultifidelityImportanceSampling(PropagationMethod):
             + ("" if int(attrs.get(GUIDE_REACHED, 0)) else " (failure region NOT reached)")
             + f"; defensive weight {number(attrs.get(GUIDE_DEFENSIVE_WEIGHT, math.nan))}",
             *finest_search_words(attrs, value(FINEST_SEARCH_INDEX)),
+            *control_words(value),
             "runs per level (" + ", ".join(values) + "): " + ", ".join(map(str, runs)),
             f"plain Monte Carlo at the finest level needs "
             f"{number(value(EQUIVALENT_FINEST_RUNS))} runs for this c.o.v. (cost "
@@ -749,6 +901,94 @@ class MultifidelityImportanceSampling(PropagationMethod):
         return MethodReport(
             description=f"multifidelity importance sampling of '{name}', {total} runs",
             notes=notes, figures=[FigureSpec("stages", stages_figure, per_output=False)])
+
+
+@dataclass
+class ControlEstimate:
+    """The control-variate estimate of P[failure] (``control_variate_estimate``), with the
+    names of ``ImportanceEstimate``'s figures, and what it rests on."""
+
+    probability: float
+    stderr: float
+    low: float
+    high: float
+    cov: float
+    n: int                       # the pairs N
+    coarse_draws: int            # the coarse draws M (the pairs' included)
+    correlation: float           # rho of the finest and coarse terms over the pairs
+    coefficient: float           # alpha = cov / var of the coarse terms over the pairs
+    effective_sample_size: float = math.nan  # the plain estimate's (the finest weights')
+    plain: object = None         # the plain estimate (ImportanceEstimate)
+    left_out: int = 0            # finest runs ok whose coarse twin failed
+    threshold: float = 0.0       # t of the coarse event g_c <= t
+
+
+def control_variate_estimate(fine_failed, coarse_failed, log_ratio,
+                             confidence: float = 0.95) -> ControlEstimate:
+    """Multifidelity Monte Carlo (Peherstorfer, Willcox & Gunzburger 2016) on the weighted
+    indicators of M draws u_i of q: ``coarse_failed`` (M,) the coarse event at each, ``log_ratio``
+    (M,) log phi(u_i) - log q(u_i), ``fine_failed`` (N,) the finest event at the first N of
+    them (N <= M). With Y_f = 1{g_f <= 0} phi/q and Y_c = 1{g_c <= 0} phi/q,
+
+        P = mean_N(Y_f) - alpha (mean_N(Y_c) - mean_M(Y_c)),   alpha = cov(Y_f, Y_c) / var(Y_c)
+
+    over the N pairs (unbiased for a fixed alpha; the estimated one adds a bias of order
+    1 / N), and
+
+        var P = var(Y_f) / N + (1 / N - 1 / M) (alpha^2 var(Y_c) - 2 alpha cov(Y_f, Y_c)),
+
+    = var(Y_f) / N (1 - (1 - N / M) rho^2) at that alpha. alpha = 0 where the coarse terms do
+    not vary over the pairs (no coarse failure among them): P is then the plain mean."""
+    fine_failed = np.asarray(fine_failed, dtype=bool).ravel()
+    coarse_failed = np.asarray(coarse_failed, dtype=bool).ravel()
+    log_ratio = np.asarray(log_ratio, dtype=float).ravel()
+    n, m = fine_failed.size, coarse_failed.size
+    if not 2 <= n <= m == log_ratio.size:
+        raise ValueError(f"need 2 <= N <= M draws with a log ratio each: N = {n}, M = {m}, "
+                         f"{log_ratio.size} log ratios")
+    # scaled by the largest failing term so that exp cannot overflow; the scale cancels
+    failing = fine_failed | coarse_failed[:n]
+    failing = np.concatenate([failing, coarse_failed[n:]])
+    top = float(np.max(log_ratio[failing])) if failing.any() else 0.0
+    weight = np.exp(np.where(failing, log_ratio, top) - top)
+    y_fine = np.where(fine_failed, weight[:n], 0.0)
+    y_coarse = np.where(coarse_failed, weight, 0.0)
+    paired = y_coarse[:n]
+    var_fine, var_coarse = float(np.var(y_fine, ddof=1)), float(np.var(paired, ddof=1))
+    covariance = float(np.sum((y_fine - y_fine.mean()) * (paired - paired.mean())) / (n - 1))
+    alpha = covariance / var_coarse if var_coarse > 0 else 0.0
+    rho = covariance / math.sqrt(var_fine * var_coarse) if var_fine * var_coarse > 0 \
+        else math.nan
+    scale = math.exp(top)
+    probability = scale * (float(y_fine.mean()) - alpha * (float(paired.mean())
+                                                            - float(y_coarse.mean())))
+    variance = var_fine / n + (1.0 / n - 1.0 / m) * (alpha**2 * var_coarse
+                                                     - 2.0 * alpha * covariance)
+    stderr = scale * math.sqrt(max(variance, 0.0))
+    z = float(sps.norm.ppf(0.5 + confidence / 2))
+    cov = stderr / probability if probability > 0 else math.inf
+    return ControlEstimate(probability, stderr, max(probability - z * stderr, 0.0),
+                           min(probability + z * stderr, 1.0), cov, n, m, rho, alpha)
+
+
+def control_words(value) -> list[str]:
+    """The report's line on the coarse control variate (none where it was off)."""
+    plain = value(PLAIN_PROBABILITY)
+    if not np.isfinite(value(CONTROL_CORRELATION)) and not np.isfinite(plain):
+        return []
+    pairs = int(value(CONTROL_PAIRS))
+    if not pairs:
+        return ["coarse control variate NOT used (fewer than 2 pairs ran ok): P[failure] "
+                "is the plain estimate"]
+    left = int(value(CONTROL_LEFT_OUT))
+    return [f"coarse control variate: {pairs} finest runs paired with their coarse twins, "
+            f"{int(value(CONTROL_COARSE_DRAWS))} coarse draws in all, correlation "
+            f"{number(value(CONTROL_CORRELATION))}, alpha {number(value(CONTROL_COEFFICIENT))}"
+            f" (MFMC's optimal coarse draws per finest draw at these costs: "
+            f"{number(value(CONTROL_OPTIMAL_RATIO))}); without it P[failure] = "
+            f"{number(plain)}, stderr {number(value(PLAIN_STDERR))}"
+            + (f"; {left} finest runs left out of the pairs (coarse twin failed)" if left
+               else "")]
 
 
 def finest_search_words(attrs, beta: float) -> list[str]:
@@ -789,7 +1029,8 @@ def stages_figure(view, output=None):
     u = np.asarray(runs[STANDARD_NORMAL].values, dtype=float)[:, axes]
     finest = np.asarray(runs[STAGE].values == STAGE_ESTIMATE)
     refining = np.asarray(runs[STAGE].values == STAGE_FINEST_SEARCH)
-    coarse = ~finest & ~refining
+    # the control variate's coarse draws are q's, as stage 2's finest ones
+    coarse = ~finest & ~refining & np.asarray(runs[STAGE].values != STAGE_CONTROL)
     fig, ax = new_figure(width=5.6, height=5.0)
     ax.scatter(u[coarse, 0], u[coarse, 1], s=6, color="#9e9e9e", alpha=0.6,
                label=f"stage 1, coarser level(s) ({int(coarse.sum())} runs)")
