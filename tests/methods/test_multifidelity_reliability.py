@@ -32,7 +32,10 @@ from scipy import stats as sps
 import uqflow
 from uqflow.errors import AccuracyWarning, StudyError
 from uqflow.inputs import InputSpace, RandomInput
-from uqflow.layout import (EQUIVALENT_FINEST_COST, EQUIVALENT_FINEST_RUNS,
+from uqflow.layout import (CONTROL_COARSE_DRAWS, CONTROL_COEFFICIENT, CONTROL_CORRELATION,
+                           CONTROL_LEFT_OUT, CONTROL_PAIRS, CONTROL_THRESHOLD,
+                           PLAIN_PROBABILITY, PLAIN_STDERR, WARNINGS, FAILURE_RUNS,
+                           EQUIVALENT_FINEST_COST, EQUIVALENT_FINEST_RUNS,
                            FAILURE_COV, FAILURE_PROBABILITY,
                            FAILURE_STDERR, FIDELITY_COST, FIDELITY_RUNS, FINEST_COST_RATIO,
                            FINEST_SEARCH_INDEX, FINEST_SEARCH_ROUNDS, FINEST_SEARCH_SHIFT,
@@ -43,8 +46,10 @@ from uqflow.limit_states import LimitStates
 from uqflow.methods import get_method
 from uqflow.methods.form import STAGE, STANDARD_NORMAL
 from uqflow.methods.importance_sampling import standard_normal_log_pdf
-from uqflow.methods.multifidelity_reliability import (STAGE_ESTIMATE, STAGE_FINEST_SEARCH,
+from uqflow.methods.multifidelity_reliability import (STAGE_CONTROL, STAGE_ESTIMATE,
+                                                      STAGE_FINEST_SEARCH,
                                                       MultifidelityImportanceSampling,
+                                                      control_variate_estimate,
                                                       with_defensive)
 from uqflow.realization import empty_runs
 from uqflow.report import open_result, summary_table, write_figures
@@ -573,12 +578,112 @@ def test_weights_carried_by_a_few_draws_warn():
         stats.attrs["warnings"]
 
 
+# --------------------------------------------------------------- the coarse control variate
+
+def same(u, h):
+    """Both levels the finest's linear g: the control is the estimate's own terms (rho = 1)."""
+    return BETA - u[:, 0]
+
+
+def coarse_fails_above(u, h):
+    """biased, but the coarse level's solver fails (NaN) wherever u2 > 1."""
+    return np.where((h > 0) & (u[:, 1] > 1.0), np.nan, biased(u, h))
+
+
+CONTROL = dict(search="form", samples=400, costs=[1.0, 64.0], control_variate=True,
+               coarse_draws_per_finest=5)
+
+
+def value(stats, name):
+    return float(stats[name].values[0])
+
+
+def test_the_control_variate_estimate_is_unbiased_and_its_variance_the_mfmc_formula():
+    stats, runs = drive(configured(**CONTROL), biased, 3)
+    p, stderr = estimate(stats)
+    assert abs(p - sps.norm.sf(BETA)) <= 4 * stderr   # 4 standard errors: 1 in 16,000
+    n, m = value(stats, CONTROL_PAIRS), value(stats, CONTROL_COARSE_DRAWS)
+    assert (n, m) == (400, 2000)
+    assert (runs[STAGE].values == STAGE_CONTROL).sum() == 2000
+    rho = value(stats, CONTROL_CORRELATION)
+    # the coarse event matched to the finest first-order index 3.5 (coarse FORM: 3.0, its
+    # g's slope 1): t = (3 - 3.5) * 1, which correlates the two levels' terms
+    assert value(stats, CONTROL_THRESHOLD) == pytest.approx(-0.5, abs=1e-6)  # HL-RF's tol
+    assert rho > 0.3
+    # with alpha = cov / var the variance is the plain one times 1 - (1 - N / M) rho^2 (the
+    # pairs are all the finest runs): the same sums reordered, a few dozen roundings
+    plain = value(stats, PLAIN_STDERR)
+    assert stderr**2 == pytest.approx(plain**2 * (1 - (1 - n / m) * rho**2), rel=1e-12)
+    assert stderr < plain
+
+
+def test_the_control_variate_variance_matches_the_formula_by_hand():
+    # M = 6 draws of q with likelihood ratios 1/2, 1/4, 2, 1, 1/8, 3/2; the finest fails at
+    # the first 3 (N = 3) as marked, the coarse event as marked; by hand, exactly in fractions
+    from fractions import Fraction as F
+    ratios = [F(1, 2), F(1, 4), F(2), F(1), F(1, 8), F(3, 2)]
+    fine, coarse = [True, False, True], [True, True, False, True, False, True]
+    yf = [r if f else F(0) for r, f in zip(ratios, fine)]
+    yc = [r if c else F(0) for r, c in zip(ratios, coarse)]
+    n, m = 3, 6
+    mf, mc_n, mc_m = sum(yf) / n, sum(yc[:n]) / n, sum(yc) / m
+    var_f = sum((y - mf) ** 2 for y in yf) / (n - 1)
+    var_c = sum((y - mc_n) ** 2 for y in yc[:n]) / (n - 1)
+    cov = sum((a - mf) * (b - mc_n) for a, b in zip(yf, yc[:n])) / (n - 1)
+    alpha = cov / var_c
+    p = mf - alpha * (mc_n - mc_m)
+    var = var_f / n + (F(1, n) - F(1, m)) * (alpha**2 * var_c - 2 * alpha * cov)
+    found = control_variate_estimate(fine, coarse, np.log([float(r) for r in ratios]))
+    # exp(log r) is r within a few ulp; the sums have at most 6 terms of like size and the
+    # variance's terms do not cancel by more than a factor 10 here: 1e-12 is 1000 times that
+    assert found.probability == pytest.approx(float(p), rel=1e-12)
+    assert found.stderr**2 == pytest.approx(float(var), rel=1e-12)
+    assert found.coefficient == pytest.approx(float(alpha), rel=1e-12)
+    assert (found.n, found.coarse_draws) == (3, 6)
+
+
+def test_a_coarse_level_equal_to_the_finest_leaves_only_the_var_over_m_term():
+    method = configured(**dict(CONTROL, control_event="coarse"))
+    stats, runs = drive(method, same, 5)
+    p, stderr = estimate(stats)
+    assert value(stats, CONTROL_CORRELATION) == pytest.approx(1.0, rel=1e-12)  # same terms
+    assert value(stats, CONTROL_COEFFICIENT) == pytest.approx(1.0, rel=1e-12)
+    # alpha = 1: P is the mean of the M coarse terms, var(Y_f) / M its variance
+    rows = np.flatnonzero(runs[STAGE].values == STAGE_CONTROL)
+    u = runs[STANDARD_NORMAL].values[rows]
+    density = method.guide(runs).density
+    terms = np.where(runs["g"].values[rows] <= 0,
+                     np.exp(standard_normal_log_pdf(u) - density.log_pdf(u)), 0.0)
+    # sums of 2000 positive terms: each rounding relative eps, at most 2000 eps = 4.4e-13
+    assert p == pytest.approx(terms.mean(), rel=1e-11)
+    assert stderr == pytest.approx(value(stats, PLAIN_STDERR) / math.sqrt(5), rel=1e-11)
+
+
+def test_coarse_runs_of_the_control_that_fail_are_left_out_and_said():
+    stats, runs = drive(configured(**CONTROL), coarse_fails_above, 3)
+    control = runs[STAGE].values == STAGE_CONTROL
+    failed = control & (runs[STATUS].values == STATUS_FAILED)
+    twins = np.flatnonzero(control)[:400]
+    left = int((runs[STATUS].values[twins] == STATUS_FAILED).sum())
+    assert left > 0
+    assert value(stats, CONTROL_LEFT_OUT) == left
+    assert value(stats, CONTROL_PAIRS) == 400 - left
+    assert value(stats, CONTROL_COARSE_DRAWS) == 2000 - int(failed.sum())
+    assert f"{int(failed.sum())} coarse-level runs of the control variate did not run ok" \
+        in stats.attrs[WARNINGS]
+    p, stderr = estimate(stats)
+    assert abs(p - sps.norm.sf(BETA)) <= 4 * stderr   # 4 standard errors: 1 in 16,000
+    # the plain estimate keeps the finest runs whose twin failed
+    assert value(stats, FAILURE_RUNS) == 400
+    assert value(stats, PLAIN_PROBABILITY) != p
+
+
 # --------------------------------------------------------------- studies through the executor
 
 def toml(value) -> str:
     if isinstance(value, dict):
         return "{ " + ", ".join(f"{k} = {toml(v)}" for k, v in value.items()) + " }"
-    if isinstance(value, str):
+    if isinstance(value, (str, bool)):
         return json.dumps(value)
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(toml(v) for v in value) + "]"
@@ -649,7 +754,11 @@ def test_measured_costs_are_each_levels_median_run_time_less_compile_time(tmp_pa
 
 @pytest.mark.parametrize("search", ["cross-entropy", "form"])
 def test_a_killed_study_resumes_to_the_uninterrupted_numbers(tmp_path, search):
-    path = study_file(tmp_path, "whole", {"search": search})
+    # search = form with the coarse control variate: its batch (100 finest rows, then 300
+    # coarse ones) is killed after 40 rows
+    control = {"control_variate": True, "coarse_draws_per_finest": 3} \
+        if search == "form" else {}
+    path = study_file(tmp_path, "whole", {"search": search, **control})
     whole = run(path)
     runs_w, stats_w = comparable(whole.path)
     last = int(whole.runs[ROUND].values.max())
@@ -679,10 +788,12 @@ def test_a_killed_study_resumes_to_the_uninterrupted_numbers(tmp_path, search):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("small", [{"coarse_samples": 20, "samples": 40},
-                                   {"search": "form", "samples": 40}])
+                                   {"search": "form", "samples": 40, "control_variate": True,
+                                    "coarse_draws_per_finest": 3}])
 def test_one_and_two_workers_give_identical_results(tmp_path, small):
     # a smaller study (dask's start dominates): cross-entropy rounds of 20, or FORM's
-    # search and its refinement at the finest level; 40 finest draws
+    # search and its refinement at the finest level with the coarse control variate (120
+    # coarse draws); 40 finest draws
     paths = [run(study_file(tmp_path, f"w{w}", small, workers=w, batch=9)).path
              for w in (0, 2)]
     (runs0, stats0), (runs2, stats2) = map(comparable, paths)
@@ -745,6 +856,12 @@ figures = false
     (dict(method={"costs": [1.0]}), "method.costs", "costs has 1 values for 2 levels"),
     (dict(method={"search": "form", "coarse_samples": 100}), "method",
      "'coarse_samples' applies to search = \"cross-entropy\""),
+    (dict(method={"search": "form", "coarse_draws_per_finest": 5}), "method",
+     "'coarse_draws_per_finest' applies to control_variate = true"),
+    (dict(method={"search": "form", "control_variate": True, "coarse_draws_per_finest": 0}),
+     "method.coarse_draws_per_finest", "greater than or equal to 1"),
+    (dict(method={"search": "form", "control_variate": True, "control_event": "fine"}),
+     "method.control_event", "'matched' or 'coarse'"),
     (dict(method={"search": "form", "limit_state": "either"},
           limit_states=[{"name": "low", "output": "y", "below": 0.0},
                         {"name": "high", "output": "y", "exceeds": 9.0},
