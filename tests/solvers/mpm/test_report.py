@@ -183,38 +183,36 @@ def test_a_reference_without_a_variance_error_prints_its_variance_alone(tmp_path
     assert "n/a" not in ref_row and "0.005" in ref_row
 
 
-def test_a_result_with_mean_and_std_only_prints_the_std_squared_as_variance(tmp_path):
-    """Subset simulation stores its level-0 samples' mean and std, no variance: the table
-    prints std squared, not nan."""
-    ref = write(tmp_path / "mc.nc", method="monte-carlo", mean=1.0e9, variance=5e15,
-                stderr=0.005e9)
-    subset = write(tmp_path / "sus.nc", method="subset-simulation", mean=1.0e9,
-                   variance=6e15, with_variance=False)
-    results, outputs, _ = mpm_report.load_results(trees(ref, subset))
+def _row_beside_a_reference(tmp_path, file, only=None, **kwargs) -> str:
+    """Probe H's row of result ``file`` in the moments table beside a Monte Carlo reference
+    of variance 5e15; ``only``: the statistics it keeps."""
+    ref = write(tmp_path / "mc.nc", method="monte-carlo", variance=5e15, stderr=0.005e9)
+    other = write(tmp_path / file, **kwargs)
+    results, outputs, _ = mpm_report.load_results(trees(ref, other))
+    if only is not None:
+        results[1].stats = results[1].stats.sel(statistic=only)
     text = mpm_report.moments_tables(results, outputs)
-    row = next(l for l in text.splitlines() if l.startswith("H ") and "sus.nc" in l)
+    return next(l for l in text.splitlines() if l.startswith("H ") and file in l)
+
+
+def test_a_result_with_mean_and_std_only_prints_the_std_squared_as_variance(tmp_path):
+    """Subset simulation stores its level-0 samples' mean and std, no variance."""
+    row = _row_beside_a_reference(tmp_path, "sus.nc", method="subset-simulation",
+                                  variance=6e15, with_variance=False)
     # sqrt(6e15)**2 = 6e15 to a few ulps; 6/5 - 1 = +20 %
     assert "nan" not in row and "+20 %" in row
 
 
 def test_a_weighted_mean_without_a_variance_prints_a_dash(tmp_path):
     """Importance sampling stores its weighted mean only."""
-    ref = write(tmp_path / "mc.nc", method="monte-carlo", stderr=0.005e9)
-    weighted = write(tmp_path / "is.nc", method="importance-sampling", with_variance=False)
-    results, outputs, _ = mpm_report.load_results(trees(ref, weighted))
-    results[1].stats = results[1].stats.sel(statistic=["mean"])
-    text = mpm_report.moments_tables(results, outputs)
-    row = next(l for l in text.splitlines() if l.startswith("H ") and "is.nc" in l)
+    row = _row_beside_a_reference(tmp_path, "is.nc", only=["mean"],
+                                  method="importance-sampling")
     assert "nan" not in row and row.split()[-2:] == ["-", "-"]
 
 
 def test_a_result_without_moments_says_so_instead_of_nan(tmp_path):
     """SORM stores the outputs at its design point, no mean or variance."""
-    ref = write(tmp_path / "mc.nc", method="monte-carlo", stderr=0.005e9)
-    sorm = write(tmp_path / "sorm.nc", method="sorm", moments=False)
-    results, outputs, _ = mpm_report.load_results(trees(ref, sorm))
-    text = mpm_report.moments_tables(results, outputs)
-    row = next(l for l in text.splitlines() if l.startswith("H ") and "sorm.nc" in l)
+    row = _row_beside_a_reference(tmp_path, "sorm.nc", method="sorm", moments=False)
     assert "nan" not in row and "no moments" in row
 
 
