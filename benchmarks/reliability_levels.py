@@ -66,7 +66,8 @@ from _record import ROOT, write_section  # noqa: E402
 import uqflow  # noqa: E402
 from uqflow.errors import AccuracyWarning  # noqa: E402
 from uqflow.inputs import InputSpace, RandomInput  # noqa: E402
-from uqflow.layout import (FAILURE_COV, FAILURE_COV_UNCORRELATED,  # noqa: E402
+from uqflow.layout import (CONTROL_CORRELATION, PLAIN_PROBABILITY,  # noqa: E402
+                           PLAIN_STDERR, FAILURE_COV, FAILURE_COV_UNCORRELATED,
                            FAILURE_FAMILIES, FAILURE_INTERVAL, FAILURE_PROBABILITY,
                            INPUTS, LEVEL,
                            STATUS, STATUS_FAILED, STATUS_OK)
@@ -256,6 +257,12 @@ def drive(method, problem, seed):
                       covered_uncorrelated=bool(a_low <= EXACT <= a_high),
                       reported_without_families_factor=cov * math.sqrt((k - 1) / k)
                       if k > 1 else math.inf)
+    if CONTROL_CORRELATION in stats:
+        # the control variate's correlation of the two levels' weighted indicators, and
+        # the c.o.v. of its plain estimate from the same finest runs
+        beside = dict(correlation=float(np.ravel(stats[CONTROL_CORRELATION].values)[0]),
+                      reported_plain=float(np.ravel(stats[PLAIN_STDERR].values)[0])
+                      / float(np.ravel(stats[PLAIN_PROBABILITY].values)[0]))
     return p, cov, n_fine, cost, bool(low <= EXACT <= high), beside
 
 
