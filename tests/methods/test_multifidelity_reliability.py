@@ -33,7 +33,8 @@ import uqflow
 from uqflow.errors import AccuracyWarning, StudyError
 from uqflow.inputs import InputSpace, RandomInput
 from uqflow.layout import (CONTROL_COARSE_DRAWS, CONTROL_COEFFICIENT, CONTROL_CORRELATION,
-                           CONTROL_LEFT_OUT, CONTROL_PAIRS, CONTROL_THRESHOLD,
+                           CONTROL_LEFT_OUT, CONTROL_OPTIMAL_RATIO, CONTROL_PAIRS,
+                           CONTROL_THRESHOLD,
                            PLAIN_PROBABILITY, PLAIN_STDERR, WARNINGS, FAILURE_RUNS,
                            EQUIVALENT_FINEST_COST, EQUIVALENT_FINEST_RUNS,
                            FAILURE_COV, FAILURE_PROBABILITY,
@@ -615,6 +616,10 @@ def test_the_control_variate_estimate_is_unbiased_and_its_variance_the_mfmc_form
     plain = value(stats, PLAIN_STDERR)
     assert stderr**2 == pytest.approx(plain**2 * (1 - (1 - n / m) * rho**2), rel=1e-12)
     assert stderr < plain
+    # MFMC's optimal M / N at the stated costs 1 and 64: a square root of a ratio, 1e-12
+    # is far above its few roundings
+    assert value(stats, CONTROL_OPTIMAL_RATIO) == pytest.approx(
+        math.sqrt(64 * rho**2 / (1 - rho**2)), rel=1e-12)
 
 
 def test_the_control_variate_variance_matches_the_formula_by_hand():
@@ -648,6 +653,7 @@ def test_a_coarse_level_equal_to_the_finest_leaves_only_the_var_over_m_term():
     p, stderr = estimate(stats)
     assert value(stats, CONTROL_CORRELATION) == pytest.approx(1.0, rel=1e-12)  # same terms
     assert value(stats, CONTROL_COEFFICIENT) == pytest.approx(1.0, rel=1e-12)
+    assert value(stats, CONTROL_OPTIMAL_RATIO) == math.inf   # every coarse draw pays
     # alpha = 1: P is the mean of the M coarse terms, var(Y_f) / M its variance
     rows = np.flatnonzero(runs[STAGE].values == STAGE_CONTROL)
     u = runs[STANDARD_NORMAL].values[rows]

@@ -798,10 +798,13 @@ class MultifidelityImportanceSampling(PropagationMethod):
         plain = found.plain if controlled else found
         rho = found.correlation if controlled else math.nan
         with np.errstate(divide="ignore", invalid="ignore"):
-            # MFMC's optimal M / N for two models: sqrt(c_f rho^2 / (c_c (1 - rho^2)))
-            optimal = math.sqrt(costs[-1] * rho**2 / (costs[GUIDE_LEVEL] * (1.0 - rho**2))) \
-                if np.isfinite(rho) and abs(rho) < 1 and np.all(np.isfinite(costs)) \
-                else math.nan
+            # MFMC's optimal M / N for two models: sqrt(c_f rho^2 / (c_c (1 - rho^2))),
+            # unbounded at |rho| = 1 (to rounding: the coarse terms are the finest's)
+            optimal = math.nan
+            if np.isfinite(rho) and np.all(np.isfinite(costs)):
+                optimal = math.sqrt(costs[-1] * rho**2 / (costs[GUIDE_LEVEL]
+                                                          * (1.0 - rho**2))) \
+                    if rho**2 < 1 else math.inf
         return {
             PLAIN_PROBABILITY: (one, [plain.probability if plain is not None else math.nan], {
                 "long_name": "importance-sampling estimate without the coarse control",
