@@ -26,6 +26,12 @@ Stage 2 runs ``samples`` draws of q on the finest level only: P[failure] is the 
 error, interval, coefficient of variation and effective sample size). With ``target_cov``
 more batches of ``samples`` follow until the c.o.v. is reached or ``max_samples``.
 
+With ``control_variate`` the coarsest level is also a control variate of that mean
+(multifidelity Monte Carlo, Peherstorfer, Willcox & Gunzburger 2016): each batch's
+M = ``coarse_draws_per_finest`` N draws of q run at level 0, the first N also at the finest,
+and P = mean_N(Y_f) - alpha (mean_N(Y_c) - mean_M(Y_c)) (``control_variate_estimate``); the
+coarse event g_c <= t is moved to the finest first-order index (``control_event``).
+
 Cost: the equivalent plain Monte Carlo at the finest level for the same c.o.v. is
 (1 - p) / (c.o.v.^2 p) runs of the finest level's cost c_L, against the cost of both stages,
 sum_l n_l c_l (costs stated, or the median wall time of each level's runs less compile time,
