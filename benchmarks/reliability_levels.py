@@ -187,13 +187,12 @@ UQFLOW_WIDE = {
         MultifidelityImportanceSampling,
         dict(MFIS_CONTROL, samples=1000, control_event="coarse")),
 }
-#: --quick: toy sizes
-UQFLOW_QUICK = {
-    MFIS: (MultifidelityImportanceSampling,
-           dict(search="cross-entropy", coarse_samples=20, samples=20, costs=COSTS)),
-    MLSUS: (MultilevelSubsetSimulation,
-            dict(samples_per_level=20, level_probability=0.2, burn_in=0, costs=COSTS)),
-}
+#: --quick: every two-input row at toy sizes, so none can rot
+TOY_SIZES = dict(coarse_samples=20, samples=20, samples_per_level=20)
+UQFLOW_QUICK = {label: (cls, {**options, **{key: size for key, size in TOY_SIZES.items()
+                                            if key in options}})
+                for label, (cls, options) in UQFLOW.items()}
+UQFLOW_QUICK[MLSUS][1].update(level_probability=0.2, burn_in=0)
 #: OpenTURNS' budgets on the finest level; in the wide problem its importance sampling gets
 #: what FORM left of uqflow's finest calls (equal finest calls)
 OT_BUDGET = dict(is_samples=1000, subset_per_level=500, mc_samples=100_000)
