@@ -51,6 +51,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import shlex
 import subprocess
 import sys
 import warnings
@@ -413,15 +414,28 @@ def _commit():
                           capture_output=True, text=True).stdout.strip()
 
 
-def section(results, repetitions, commits):
+def made_by(repetitions, saved=None) -> str:
+    """How the table was made: one run, or the saved runs --report-from merged (each with
+    the command that saved it where the save records it)."""
+    if not saved:
+        return (f"Made by `python benchmarks/reliability_levels.py --repetitions "
+                f"{repetitions}`.")
+    runs = "\n".join(f"- at {part.get('commit', '?')}: " +
+                     (f"`{part['command']}`" if "command" in part else
+                      f"part {part['part']}, {part['repetitions']} repetitions")
+                     for part in saved)
+    return ("Made by these runs (the reps column says how many repetitions each row had), "
+            "merged by `--report-from` in this order, a later run's row replacing an "
+            f"earlier one's:\n\n{runs}\n")
+
+
+def section(results, repetitions, commits, saved=None):
     wide = f"linear-{WIDE_DIM}d"
     turn = math.radians(WIDE_ROTATION_DEG)
     distance = math.hypot(BETA - WIDE_COARSE_BETA * math.cos(turn),
                           WIDE_COARSE_BETA * math.sin(turn))
     return f"""Commit: {", ".join(commits)}. Issue 18's check "side by side with OpenTURNS at equal
-calls: the multifidelity variants clearly better in finest-level cost". Made by
-`python benchmarks/reliability_levels.py --repetitions {repetitions} --part two --save two.json`,
-the same with `--part wide --save wide.json`, then `--report-from two.json wide.json`.
+calls: the multifidelity variants clearly better in finest-level cost". {made_by(repetitions, saved)}
 Every problem's finest level has the exact p_f = Phi(-3.5) = {EXACT:.4e}; its coarse level
 costs 1/64 of a finest run (stated costs; total cost in finest-run units). Why each problem
 is here:
@@ -504,9 +518,11 @@ def main(argv=None):
     if args.save:
         args.save.write_text(json.dumps({
             "repetitions": repetitions, "commit": commits[0], "part": args.part,
+            "command": "python benchmarks/reliability_levels.py " + " ".join(
+                shlex.quote(arg) for arg in (argv if argv is not None else sys.argv[1:])),
             "rows": {" | ".join(key): value for key, value in results.items()}}, indent=1))
         return results
-    text = section(results, repetitions, commits)
+    text = section(results, repetitions, commits, saved if args.report_from else None)
     print(text)
     write_section("reliability-levels", "Reliability across levels", text)
     return results
