@@ -155,25 +155,23 @@ UQFLOW.update({
 #: weights, by cross-entropy, and multilevel subset simulation
 #: the finest draws of the wide problem's FORM-guided rows; OpenTURNS runs at each's calls
 WIDE_BUDGETS = (1000, 300, 2000)
+
+
+def form_guided(**options):
+    """A FORM-guided multifidelity row: 1000 finest draws unless ``options`` say otherwise."""
+    return MultifidelityImportanceSampling, {"search": "form", "samples": 1000,
+                                             "costs": COSTS, **options}
+
+
 UQFLOW_WIDE = {
-    f"{MFIS}, search = form": (MultifidelityImportanceSampling,
-                               dict(search="form", samples=1000, costs=COSTS)),
-    f"{MFIS}, search = form, 300 finest draws": (
-        MultifidelityImportanceSampling, dict(search="form", samples=300, costs=COSTS)),
-    f"{MFIS}, search = form, 2000 finest draws": (
-        MultifidelityImportanceSampling, dict(search="form", samples=2000, costs=COSTS)),
-    f"{MFIS}, search = form, finest_search_rounds = 0": (
-        MultifidelityImportanceSampling,
-        dict(search="form", samples=1000, costs=COSTS, finest_search_rounds=0)),
-    f"{MFIS}, search = form, finest_search_rounds = 0, 300 finest draws": (
-        MultifidelityImportanceSampling,
-        dict(search="form", samples=300, costs=COSTS, finest_search_rounds=0)),
-    f"{MFIS}, search = form, w = 0.3": (
-        MultifidelityImportanceSampling,
-        dict(search="form", samples=1000, costs=COSTS, defensive_weight=0.3)),
-    f"{MFIS}, search = form, w = 0.02": (
-        MultifidelityImportanceSampling,
-        dict(search="form", samples=1000, costs=COSTS, defensive_weight=0.02)),
+    f"{MFIS}, search = form": form_guided(),
+    f"{MFIS}, search = form, 300 finest draws": form_guided(samples=300),
+    f"{MFIS}, search = form, 2000 finest draws": form_guided(samples=2000),
+    f"{MFIS}, search = form, finest_search_rounds = 0": form_guided(finest_search_rounds=0),
+    f"{MFIS}, search = form, finest_search_rounds = 0, 300 finest draws": form_guided(
+        samples=300, finest_search_rounds=0),
+    f"{MFIS}, search = form, w = 0.3": form_guided(defensive_weight=0.3),
+    f"{MFIS}, search = form, w = 0.02": form_guided(defensive_weight=0.02),
     f"{MFIS}, search = cross-entropy": (MultifidelityImportanceSampling, MFIS_CROSS_ENTROPY),
     # the cross-entropy search before it became the single-level method's (improved rule,
     # von Mises-Fisher-Nakagami from 20 inputs): one Gaussian on the quantile rule's elites

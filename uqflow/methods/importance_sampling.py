@@ -619,11 +619,10 @@ RULES = ("improved", "quantile")
 FAMILIES = ("auto", "gaussian", "vmfn")
 
 
-class CrossEntropyOptions(MethodOptions):
-    limit_state: str | None = Field(None, description="the study's limit state or system to "
-                                    "analyse (default: its only one)")
-    samples: int = Field(1000, ge=10, le=MAX_REALIZATIONS, description="draws of each "
-                         "cross-entropy round, and of the final estimate")
+class CrossEntropyRoundOptions(MethodOptions):
+    """The options of cross-entropy rounds, shared by ``cross-entropy`` and the cross-entropy
+    search of ``multifidelity-importance-sampling``."""
+
     rule: Literal["improved", "quantile"] = Field(
         "improved", description="improved: smoothed intermediate targets Phi(-g/s_j) phi "
                                 "(Papaioannou et al. 2019); quantile: the classic "
@@ -640,13 +639,20 @@ class CrossEntropyOptions(MethodOptions):
     components: int | None = Field(None, ge=1, le=20, description="Gaussians of the "
                                    "gaussian family (default 4 for the improved rule, 1 for "
                                    "the quantile rule)")
-    max_rounds: int = Field(10, ge=1, le=100, description="most cross-entropy rounds before "
-                            "the final estimate")
     covariance: Literal["auto", "full", "diagonal", "identity"] = Field(
         "auto", description="covariance of each fitted Gaussian: full, its diagonal, or the "
                             "identity (the mean only); auto: full when its (effective) "
                             "points number at least 10 times its d(d + 1)/2 parameters, else "
                             "the identity")
+
+
+class CrossEntropyOptions(CrossEntropyRoundOptions):
+    limit_state: str | None = Field(None, description="the study's limit state or system to "
+                                    "analyse (default: its only one)")
+    samples: int = Field(1000, ge=10, le=MAX_REALIZATIONS, description="draws of each "
+                         "cross-entropy round, and of the final estimate")
+    max_rounds: int = Field(10, ge=1, le=100, description="most cross-entropy rounds before "
+                            "the final estimate")
     batches: int = Field(1, ge=1, le=10_000, description="rounds the final draws run in "
                          "(target_cov is checked after each)")
     confidence: float = Field(0.95, gt=0, lt=1, description="level of the normal interval "

@@ -75,16 +75,15 @@ from uqflow.layout import (BIASING_COMPONENT, BIASING_MEAN, BIASING_WEIGHT, BOUN
                            ok_mask, output_names)
 from uqflow.layout import (CE_FAMILY, CE_RULE, NAKAGAMI_M, NAKAGAMI_OMEGA, VMF_DIRECTION,
                            VMF_KAPPA)
-from uqflow.methods.base import (MAX_REALIZATIONS, MethodOptions, PropagationMethod,
-                                 finish_statistics, make_design, register_method)
+from uqflow.methods.base import (MAX_REALIZATIONS, PropagationMethod, finish_statistics,
+                                 make_design, register_method)
 from uqflow.methods.fidelity_sampling import MAX_COST
 from uqflow.methods.form import (STAGE, STAGE_SEARCH, STANDARD_NORMAL, STENCIL_OFFSET, Form,
                                  to_inputs)
 from uqflow.methods.importance_sampling import (DEGENERATE_SHARE, FEW_EFFECTIVE,
-                                                SMOOTHING_COV,
-                                                CrossEntropy, CrossEntropyState,
-                                                GaussianMixture, defensive_mixture,
-                                                effective_count,
+                                                CrossEntropy, CrossEntropyRoundOptions,
+                                                CrossEntropyState, GaussianMixture,
+                                                defensive_mixture, effective_count,
                                                 fit_gaussian_mixture, importance_estimate,
                                                 log_likelihood_ratio, standard_normal,
                                                 standard_normal_log_pdf,
@@ -111,7 +110,9 @@ GUIDE_LEVEL = 0
 MAX_KEPT_FITS = 1000
 
 
-class MultifidelityImportanceOptions(MethodOptions):
+class MultifidelityImportanceOptions(CrossEntropyRoundOptions):
+    # the cross-entropy search's rounds are the single-level cross-entropy method's: the same
+    # rules, families and names
     limit_state: str | None = Field(None, description="the study's limit state (default: "
                                     "its only one)")
     search: Literal["cross-entropy", "form"] = Field(
@@ -122,26 +123,6 @@ class MultifidelityImportanceOptions(MethodOptions):
     search_levels: Literal["coarsest", "all"] = Field(
         "coarsest", description="levels the cross-entropy rounds run at: the coarsest, or "
                                 "every level but the finest in turn, coarsest first")
-    # the cross-entropy rounds are the single-level cross-entropy method's
-    # (uqflow.methods.importance_sampling.CrossEntropy): the same rules, families and names
-    rule: Literal["improved", "quantile"] = Field(
-        "improved", description="improved: smoothed intermediate targets Phi(-g/s_j) phi "
-                                "(Papaioannou et al. 2019); quantile: the classic "
-                                "rho-quantile thresholds and elites (Rubinstein 1999)")
-    smoothing_cov: float = Field(SMOOTHING_COV, gt=0, le=10, description="improved rule: "
-                                 "target c.o.v. of the weights between successive smoothed "
-                                 "targets, and the stop's c.o.v. of 1[g <= 0] / Phi(-g/s)")
-    rho: float = Field(0.1, gt=0, le=0.5, description="quantile rule: share of a round's "
-                       "draws whose margin sets the next intermediate threshold")
-    family: Literal["auto", "gaussian", "vmfn"] = Field(
-        "auto", description="density fitted: gaussian (a mixture of `components` "
-                            "Gaussians), vmfn (von Mises-Fisher direction, Nakagami radius), "
-                            "auto: vmfn from 20 inputs on, else gaussian")
-    components: int | None = Field(None, ge=1, le=20, description="Gaussians of the "
-                                   "gaussian family (default 4 for the improved rule, 1 for "
-                                   "the quantile rule)")
-    covariance: Literal["auto", "full", "diagonal", "identity"] = Field(
-        "auto", description="covariance of each fitted Gaussian (cross-entropy's)")
     min_spread: float = Field(1.0, gt=0, le=10, description="least standard deviation of "
                               "a fitted Gaussian in any direction, in standard normal units")
     max_search_rounds: int = Field(20, ge=1, le=1000, description="most rounds of stage 1 "
