@@ -114,7 +114,7 @@ METHODS = {
                            "random_plan": True}),
     # levels and a limit state: a cross-entropy round or two of 20 coarse runs, 20 fine runs
     "multifidelity-importance-sampling": (
-        {"coarse_samples": 20, "samples": 20, "costs": [1.0, 4.0]},
+        {"coarse_samples": 20, "samples": 40, "costs": [1.0, 4.0]},
         {"levels": [4, 16], "random_plan": True,
          "limit_states": [{"name": "high", "output": "y", "exceeds": 6.0}]}),
     # levels and a limit state: 20 samples a subset in 5 chains of 4, 2 burn-in steps
