@@ -27,6 +27,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import special
 from scipy import stats as sps
 
 CLOPPER_PEARSON, WILSON, REPLICATE_T = "clopper-pearson", "wilson", "replicate-t"
@@ -125,6 +126,14 @@ def replicate_interval(estimates, confidence: float = 0.95) -> tuple[float, floa
     half = float(sps.t.ppf(0.5 + confidence / 2, count - 1)) * stderr
     return mean, stderr, ProbabilityInterval(max(mean - half, 0.0), min(mean + half, 1.0),
                                              REPLICATE_T, confidence)
+
+
+def normal_interval(p: float, stderr: float, confidence: float = 0.95) -> tuple[float, float]:
+    """p ± z stderr, z the normal quantile of ``confidence``, clipped to [0, 1]: the interval
+    of an estimate that is a mean of weighted terms (importance sampling, its control
+    variate)."""
+    z = float(special.ndtri(0.5 + confidence / 2))
+    return max(p - z * stderr, 0.0), min(p + z * stderr, 1.0)
 
 
 def reliability_index(p):

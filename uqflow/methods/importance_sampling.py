@@ -60,7 +60,7 @@ from uqflow.methods.form import (CHECK_DISTANCE, CHECK_POINT, DESIGN_POINT, DESI
 from uqflow.methods.von_mises_fisher_nakagami import (VonMisesFisherNakagami,
                                                       fit_von_mises_fisher_nakagami,
                                                       normalized_weights)
-from uqflow.probability import reliability_index
+from uqflow.probability import normal_interval, reliability_index
 from uqflow.report import MethodReport, Sensitivity, number
 
 #: the least eigenvalue ``cross_entropy_fit`` leaves in a fitted covariance (standard normal
@@ -470,12 +470,11 @@ def importance_estimate(failed, log_ratio, confidence: float = 0.95) -> Importan
     probability = math.exp(top) * mean_scaled
     spread = float(scaled.std(ddof=1)) if n > 1 else math.nan
     stderr = math.exp(top) * spread / math.sqrt(n)
-    z = float(special.ndtri(0.5 + confidence / 2))
     ess = float(scaled.sum() ** 2 / np.sum(scaled**2))
     reason = "" if n > 1 else "one draw: its spread cannot be estimated"
-    return ImportanceEstimate(probability, stderr, max(probability - z * stderr, 0.0),
-                              min(probability + z * stderr, 1.0), stderr / probability,
-                              ess, n, reason)
+    return ImportanceEstimate(probability, stderr, *normal_interval(probability, stderr,
+                                                                    confidence),
+                              stderr / probability, ess, n, reason)
 
 
 def log_likelihood_ratio(density, u) -> np.ndarray:

@@ -90,7 +90,7 @@ from uqflow.methods.importance_sampling import (DEGENERATE_SHARE, FEW_EFFECTIVE,
                                                 standard_normal_start)
 from uqflow.methods.von_mises_fisher_nakagami import (VonMisesFisherNakagami,
                                                       fit_von_mises_fisher_nakagami)
-from uqflow.probability import reliability_index
+from uqflow.probability import normal_interval, reliability_index
 from uqflow.report import FigureSpec, MethodReport, new_figure, number
 
 #: what a row is besides FORM's search rows: a cross-entropy draw at the coarse level, a
@@ -955,10 +955,10 @@ def control_variate_estimate(fine_failed, coarse_failed, log_ratio,
     variance = var_fine / n + (1.0 / n - 1.0 / m) * (alpha**2 * var_coarse
                                                      - 2.0 * alpha * covariance)
     stderr = scale * math.sqrt(max(variance, 0.0))
-    z = float(sps.norm.ppf(0.5 + confidence / 2))
     cov = stderr / probability if probability > 0 else math.inf
-    return ControlEstimate(probability, stderr, max(probability - z * stderr, 0.0),
-                           min(probability + z * stderr, 1.0), cov, n, m, rho, alpha)
+    return ControlEstimate(probability, stderr, *normal_interval(probability, stderr,
+                                                                 confidence),
+                           cov, n, m, rho, alpha)
 
 
 def control_words(value) -> list[str]:
