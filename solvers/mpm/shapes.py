@@ -56,9 +56,15 @@ def _kernel(kind, r, lp):
 
 
 @njit(cache=True, inline="always")
+def stencil_base(xi):
+    """The first node of the 3-node stencil of position ``xi`` (cell units), every kind."""
+    return int(math.floor(xi - 0.5))
+
+
+@njit(cache=True, inline="always")
 def shape1d(kind, xi, lp):
     """(base, w0, w1, w2, d0, d1, d2) of position ``xi`` (cell units from node 0)."""
-    base = int(math.floor(xi - 0.5))
+    base = stencil_base(xi)
     r = xi - base
     if kind == QUADRATIC:
         # r in [0.5, 1.5): the three pieces are known, no branch per node (the hot path)

@@ -44,7 +44,7 @@ from numba import njit, prange
 from solvers.mpm.materials.state import (C, PLASTIC_WORK, Q, RHO, SXX, SXY, SYY, E, N_STATE,
                                           bulk_guards_pass, bulk_viscosity, finite_args,
                                           row_finite)
-from solvers.mpm.shapes import shape1d
+from solvers.mpm.shapes import shape1d, stencil_base
 
 # core error codes (the materials' codes are 1..5, see materials/state.py)
 ERR_LEFT_GRID = 101        # the particle's stencil leaves the padded grid
@@ -375,9 +375,10 @@ def g2p_gradient(xp, yp, kind, lp, ox, oy, inv_dx, gvx, gvy, xn, yn, Lg, err):
         Lg[p, 3] = lyy
         xp[p] = xn[p]
         yp[p] = yn[p]
-        bx2, _a, _b, _c, _d, _e, _f = shape1d(kind, (xn[p] - ox) * inv_dx, lp)
-        by2, _a, _b, _c, _d, _e, _f = shape1d(kind, (yn[p] - oy) * inv_dx, lp)
-        if not _on_grid(bx2, by2, nnx, nny):
+        # only the new stencil's first node is needed: the weights' code (three kinds,
+        # inlined) would multiply this kernel's compile time for nothing
+        if not _on_grid(stencil_base((xn[p] - ox) * inv_dx),
+                        stencil_base((yn[p] - oy) * inv_dx), nnx, nny):
             err[p] = ERR_LEFT_GRID
             nbad += 1
     return nbad
