@@ -1,0 +1,66 @@
+"""The MPM scaling benchmarks at toy sizes, so they cannot rot (no speed is asserted): the
+exact particle counts of the scaling part, its memory figure in a fresh process, and the
+dask study in its --quick mode."""
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[3]
+
+
+def load(name):
+    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture
+def throughput(monkeypatch):
+    import numba
+
+    # the benchmark sets NUMBA_NUM_THREADS for its own process when imported: restored after
+    monkeypatch.setenv("NUMBA_NUM_THREADS", str(numba.config.NUMBA_NUM_THREADS))
+    return load("mpm_throughput")
+
+
+def test_scaling_counts_are_exactly_reachable(throughput, capsys):
+    assert [throughput.cells_per_side(n) for n in throughput.COUNTS] == [50, 100, 200, 400, 500]
+    # 10,001 is no 4 s²; 2,116 = 4 x 23² has too few cells for the plate; 40,004 is off by 4
+    for count in (10_001, 2_116, 40_004):
+        with pytest.raises(SystemExit) as stop:
+            throughput.main(["--scaling-counts", "10000", str(count), "--no-write"])
+        assert stop.value.code == 2
+        error = capsys.readouterr().err.strip().splitlines()[-1]
+        assert "--scaling-counts" in error and f"{count} particles" in error
+
+
+def test_scaling_point_counts_at_least_the_run_arrays(throughput):
+    point = throughput.scaling_in_child(10_000, 2, 1)
+    assert "error" not in point, point.get("error")
+    assert (point["particles"], point["cells_per_side"], point["threads"]) == (10_000, 50, 1)
+    assert point["peak_reset"]
+    assert set(point["first_call"]) == {"first_call_s", "numba_compile_s"}
+    # The run writes every array it holds, so their pages are resident: the peak growth
+    # cannot be below their bytes (it was, at 64 %, while the warm-up's freed heap was
+    # reused unseen before malloc_trim).
+    assert point["bytes_per_particle"] >= point["held_array_bytes_per_particle"] > 0
+
+
+def test_dask_study_runs_in_quick_mode(monkeypatch):
+    module = load("mpm_dask_study")
+    monkeypatch.setattr(module, "write_section", lambda *a: pytest.fail("quick mode wrote"))
+    result = module.main(["--quick"])
+    in_process, on_dask = result["in_process"], result["dask"]
+    assert result["particles"] == 4 * 100 * 50     # 2 m x 1 m at dx = 5 mm / 0.25, 2 x 2
+    assert (in_process["concurrency"], on_dask["concurrency"]) == (1, 2)
+    for variant in (in_process, on_dask):
+        assert variant["ok"] == variant["realizations"] == 4
+        # c workers, one realization at a time each, cannot run longer than c x the study
+        assert variant["sum_run_wall_s"] <= variant["concurrency"] * variant["study_wall_s"]
+        assert 0 <= variant["sum_run_compile_s"] <= variant["sum_run_wall_s"]
+    assert result["identical_outputs"]                 # uqflow's results ignore the workers
+    text = module.section(result)
+    assert f"{on_dask['overhead_per_realization_s']:.2f} |" in text
