@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from solvers.mpm import step as K
 from solvers.mpm.materials import state as ST
 from solvers.mpm.scene import ENERGY_OUTPUTS
 
@@ -142,7 +141,7 @@ class ProbeRecorder:
     def record(self, k, run):
         for n, v in self.probe_series_values(run.S, run.vx, run.vy, run.x, run.y).items():
             self.data[n][k] = v
-        ke, ie, pw, mx, my = K.energies(run.vx, run.vy, run.mass, run.vol0, run.S)
+        ke, ie, pw, mx, my = run.kernels.energies(run.vx, run.vy, run.mass, run.vol0, run.S)
         self.energy["momentum_x"][k] = mx
         self.energy["momentum_y"][k] = my
         self.energy["kinetic_energy"][k] = ke

@@ -69,7 +69,7 @@ class MPMSolver(Solver):
                              f"point", key="scene.detonation")
         self.mat_index = [np.flatnonzero(self.parts.material == k).astype(np.int64)
                           for k in range(len(self.labels))]
-        self.loops = [K.loop_for(cfg.materials[lab].module) for lab in self.labels]
+        self.modules = [cfg.materials[lab].module for lab in self.labels]
         self.fixx, self.fixy = cfg.grid.masks()
         self.times = cfg.times
         self._template = self._make_template()
@@ -311,6 +311,9 @@ class _Run:
         else:
             self.nthreads = 1 if n < SERIAL_BELOW else min(numba.get_num_threads(), avail)
         self.buf = K.grid_buffers(self.nthreads, g.nnx, g.nny)
+        self.kernels = K.kernels(parallel=self.nthreads > 1)
+        self.loops = [K.loop_for(module, parallel=self.nthreads > 1)
+                      for module in solver.modules]
         self.fixx, self.fixy = solver.fixx, solver.fixy
         self.kind = KINDS[cfg.shape]
         self.lp = 0.5 / cfg.ppc
@@ -325,7 +328,7 @@ class _Run:
         self.dt_used_max = 0.0
         self.wall = 0.0
         self.vmax = None          # max (c + |v|) for the next CFL step, set by ``_step``
-        for k, (upd, ini) in enumerate(solver.loops):
+        for k, (_update, ini) in enumerate(self.loops):
             if ini(prms[k], self.S, solver.mat_index[k], self.err):
                 self._raise_first("initial state")
         self.recorder = ProbeRecorder(cfg, solver.probe_members, solver.times.size)
@@ -427,7 +430,7 @@ class _Run:
                 vmax = self.max_speed()
                 if not math.isfinite(vmax):
                     self.err[:] = 0
-                    K.check_state(self.S, self.err)
+                    self.kernels.check_state(self.S, self.err)
                     self.err[~(np.isfinite(self.vx) & np.isfinite(self.vy))] = \
                         K.ERR_CORE_NONFINITE
                     if not self.err.any():
@@ -473,6 +476,7 @@ class _Run:
         g = self.g
         ox, oy = g.ox, g.oy
         lap = lap or _no_lap
+        K = self.kernels
         K.p2g(self.x, self.y, self.vx, self.vy, self.mass, self.S, self.kind, self.lp, ox, oy,
               self.inv_dx, c.gravity[0], c.gravity[1], self.buf, self.gm, self.gpx, self.gpy,
               self.gfx, self.gfy)
@@ -496,7 +500,7 @@ class _Run:
             self._raise_first("velocity gradient")
         lap("g2p_gradient")
         vmax = 0.0
-        for k, (upd, _ini) in enumerate(self.solver.loops):
+        for k, (upd, _ini) in enumerate(self.loops):
             nbad, vmat = upd(self.prms[k], self.S, self.solver.mat_index[k], self.Lg, c.q1,
                              c.q2, g.dx, dt, self.t, self.x, self.y, self.vx, self.vy,
                              self.err)
@@ -510,7 +514,7 @@ class _Run:
         """max (c + |v|) over the particles: from the material loops of the last step, or
         computed (first step)."""
         if self.vmax is None:
-            self.vmax = K.max_speed(self.vx, self.vy, self.S)
+            self.vmax = self.kernels.max_speed(self.vx, self.vy, self.S)
         return self.vmax
 
     def summary(self):

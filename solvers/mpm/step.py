@@ -30,6 +30,10 @@ thread and each thread scatters into its own grid buffer (``buf[t]``, node-major
 parallel loop over grid columns sums the buffers. Gathers and material updates are race-free
 per particle.
 
+Runs on one thread call the serial twins of the parallel kernels (``SERIAL``, ``kernels``):
+the same functions compiled without parfors, which costs a one-thread run nothing and
+shortens the first run's compile (issue 19).
+
 Every kernel that indexes the grid first checks the particle's stencil is on the grid and
 skips (and flags) it otherwise, so a bad particle can never write out of bounds.
 """
@@ -37,6 +41,7 @@ skips (and flags) it otherwise, so a bad particle can never write out of bounds.
 from __future__ import annotations
 
 import math
+import types
 
 import numpy as np
 from numba import njit, prange
@@ -606,17 +611,53 @@ def _init_any(init, prm, S, idx, err):
     return nbad
 
 
-def loop_for(module):
+def loop_for(module, parallel=True):
     """(update_loop, init_loop) for a material module: the cached loops of the library's
-    modules, else the generic (uncached) ones bound to the module's kernels."""
+    modules, else the generic (uncached) ones bound to the module's kernels; ``parallel``
+    False: the update loop's serial twin (``kernels``)."""
     if module in _LOOPS:
-        return _LOOPS[module]
+        update, init = _LOOPS[module]
+        return (update if parallel else _SERIAL_LOOPS[module]), init
     upd, ini = module.update, module.init
+    loop = _loop_any if parallel else _loop_any_serial
 
     def update_loop(prm, S, idx, Lg, q1, q2, length, dt, time, xp, yp, vx, vy, err):
-        return _loop_any(upd, prm, S, idx, Lg, q1, q2, length, dt, time, xp, yp, vx, vy, err)
+        return loop(upd, prm, S, idx, Lg, q1, q2, length, dt, time, xp, yp, vx, vy, err)
 
     def init_loop(prm, S, idx, err):
         return _init_any(ini, prm, S, idx, err)
 
     return update_loop, init_loop
+
+
+# ------------------------------------------------------------------------------------------
+# Serial twins: the kernels for runs on one thread
+# ------------------------------------------------------------------------------------------
+def _serial_twin(kernel, cache=True):
+    """``kernel``'s Python function compiled without parfors. A run on one thread (the scenes'
+    default, and every run below SERIAL_BELOW particles) gains nothing from parfors and pays
+    for it at compile time: parfors' analysis and a gufunc per ``prange`` loop make the
+    parallel kernels of the quickstart compile in 27 s against 17.5 s serial (issue 19).
+    Numba keys its cache on the function's qualified name and bytecode, not on ``parallel``,
+    so the twin is the same code under its own name: neither loads the other's machine code.
+    """
+    f = kernel.py_func
+    twin = types.FunctionType(f.__code__, f.__globals__, f.__name__, f.__defaults__,
+                              f.__closure__)
+    twin.__qualname__ = f"{f.__qualname__}_serial"
+    twin.__doc__ = f.__doc__
+    return njit(cache=cache)(twin)
+
+
+_PARALLEL_KERNELS = (max_speed, p2g, grid_solve, g2p_velocity_remap, g2p_gradient, check_state,
+                     energies)
+PARALLEL = types.SimpleNamespace(**{k.py_func.__name__: k for k in _PARALLEL_KERNELS})
+SERIAL = types.SimpleNamespace(**{k.py_func.__name__: _serial_twin(k)
+                                  for k in _PARALLEL_KERNELS})
+_SERIAL_LOOPS = {module: _serial_twin(update) for module, (update, _init) in _LOOPS.items()}
+_loop_any_serial = _serial_twin(_loop_any, cache=False)
+
+
+def kernels(parallel: bool):
+    """The grid and particle kernels of a run: the parfors ones, or their serial twins."""
+    return PARALLEL if parallel else SERIAL

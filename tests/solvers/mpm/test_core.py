@@ -377,6 +377,22 @@ def test_threads_agree():
         np.testing.assert_allclose(r1[v].values, r2[v].values, rtol=1e-9, atol=1e-12)
 
 
+def test_serial_twins_give_the_parallel_kernels_bits_on_one_thread(monkeypatch):
+    # the same arithmetic in the same order (one thread: one scatter buffer, reductions from
+    # 0), so bit for bit: a twin that drifted from its kernel would show here
+    sc = tomllib.loads((SCENES / "mpm_contact_thin_small.toml").read_text())
+    sc.update(end_time=4e-6, resolution=0.5, threads=1)
+    serial = MPMSolver.from_scene(sc).run({})
+    assert serial.attrs["threads"] == 1
+    loop_for = K.loop_for
+    monkeypatch.setattr(K, "kernels", lambda parallel: K.PARALLEL)
+    monkeypatch.setattr(K, "loop_for", lambda module, parallel: loop_for(module, True))
+    parallel = MPMSolver.from_scene(sc).run({})
+    assert serial.time_steps.item() > 10
+    for name in serial.data_vars:
+        np.testing.assert_array_equal(serial[name].values, parallel[name].values, err_msg=name)
+
+
 # ------------------------------------------------------------------------------------------
 # the seed's scene, small: TNT + steel + water
 # ------------------------------------------------------------------------------------------

@@ -36,11 +36,23 @@ def test_step_depends_on_every_material_module_and_nothing_else_of_the_package()
 
 
 def test_the_mpm_kernels_are_stamped_with_their_dependencies():
-    for kernel in (step.p2g, step.loop_for(johnson_cook)[0], johnson_cook.advance):
+    for kernel in (step.p2g, step.loop_for(johnson_cook)[0], johnson_cook.advance,
+                   step.SERIAL.p2g, step.loop_for(johnson_cook, parallel=False)[0]):
         locator = kernel._cache._impl.locator
         assert isinstance(locator, kernel_cache.DependencyLocator)
         assert locator.get_source_stamp()[1] == kernel_cache.dependency_digest(
             kernel.py_func.__code__.co_filename)
+
+
+def test_serial_twins_keep_their_own_cache_entries():
+    # numba keys a cache index on the function's name, not on `parallel`: a twin sharing
+    # its kernel's index would load the parfors machine code (or the kernel the serial one)
+    pairs = [(getattr(step.PARALLEL, name), getattr(step.SERIAL, name))
+             for name in vars(step.PARALLEL)]
+    pairs.append((step.loop_for(johnson_cook)[0], step.loop_for(johnson_cook, False)[0]))
+    for parallel, serial in pairs:
+        assert parallel.targetoptions.get("parallel") and not serial.targetoptions.get("parallel")
+        assert serial._cache._cache_file._index_name != parallel._cache._cache_file._index_name
 
 
 def _value(folder):
