@@ -19,8 +19,9 @@ process (this one for (a), each worker for (b)) still loads the cached kernels a
 realization: that time is inside that realization's ``wall_time`` (its ``compile_time`` is
 numba's compile seconds, 0 when everything came from the cache).
 
-Reported per variant: the study's wall time (``run_study`` from call to return: cluster start
-and close, batches, checkpoints, analysis, the result file), the sum over realizations of
+Reported per variant: the study's wall time (``load_study`` and ``run_study``, as ``uqflow
+run`` does: the solver built, the cluster started and closed, each worker's own solver
+built, batches, checkpoints, analysis, the result file), the sum over realizations of
 the runs dataset's ``wall_time`` and of ``compile_time`` (a part of ``wall_time``), the
 concurrency c (1 in-process, min(workers, N) on dask), and the per-realization overhead
 
@@ -141,8 +142,11 @@ def write_study(folder: Path, realizations: int, quick: bool) -> Path:
 
 
 def timed_study(path: Path, workers: int, output: Path) -> tuple[dict, object]:
-    study = load_study(path)
+    """The study loaded (its solver built: seeding the particles) and run, as ``uqflow run``
+    does; on dask each worker builds the solver again, inside the study's wall time."""
     t0 = time.perf_counter()
+    study = load_study(path)
+    load = time.perf_counter() - t0
     outcome = run_study(study, workers=workers, force=True, show_progress=False, output=output)
     wall = time.perf_counter() - t0
     runs = outcome.runs
@@ -153,7 +157,7 @@ def timed_study(path: Path, workers: int, output: Path) -> tuple[dict, object]:
     summary = {
         "workers": workers, "realizations": n, "concurrency": concurrency,
         "ok": int(np.sum(runs[STATUS].values == STATUS_OK)),
-        "study_wall_s": wall,
+        "study_wall_s": wall, "study_load_s": load,
         "run_wall_times_s": [round(float(t), 3) for t in wall_times],
         "run_compile_times_s": [round(float(t), 3) for t in compile_times],
         "sum_run_wall_s": float(wall_times.sum()),
@@ -249,13 +253,15 @@ def section(r: dict) -> str:
                 f"{v['sum_run_compile_s']:.2f} | {v['overhead_per_realization_s']:.2f} |")
 
     d, w = r["dask"], r["warm_up_first_call"]
+    changes = ", ".join(f"{k} = {v:g}" for k, v in r["scene_changes"].items())
+    scene = (f"with {changes} ({r['particles']:,} particles" if changes else
+             f"as it is (seed size, {r['particles']:,} particles, 100 µs") + ", `threads` = 1)"
     startup = "" if r["cluster_startup_s"] is None else (
         f"A local cluster of {r['workers']} workers alone (started and closed with a client, "
         f"median of 3) takes {r['cluster_startup_s']:.1f} s; without it the overhead on dask is "
         f"{d['overhead_per_realization_without_startup_s']:.2f} s per realization.")
     return f"""
-{r['realizations']} realizations of `studies/scenes/{r['scene']}` as it is (seed size,
-{r['particles']:,} particles, 100 µs, `threads` = 1), Monte Carlo on `{r['input']}`
+{r['realizations']} realizations of `studies/scenes/{r['scene']}` {scene}, Monte Carlo on `{r['input']}`
 (normal, mean {r['mean'] / 1e6:.0f} MPa, C.V. {r['cv']}), outputs {', '.join(r['outputs'])},
 no figures; through `uqflow.run_study` in-process (`workers = 0`) and on a local dask cluster
 of {r['workers']} single-threaded workers (NUMBA_NUM_THREADS =
@@ -271,10 +277,12 @@ realization's wall time. Load average (1 min) {r['load_1min']['start']:.2f} at t
 {row('in-process', r['in_process'])}
 {row(f"dask, {r['workers']} workers", d)}
 
-Overhead per realization = (study wall − Σ wall_time / c) / N: the time the study spends
-outside its realizations (planning, dask's scheduling and transfers, checkpoints, analysis,
-the result file, and on dask the cluster's start and close), per realization, with the c
-workers taken as equally busy. {startup} Study wall in-process / on dask:
+Study wall: `load_study` and `run_study`, as `uqflow run` does (loading, the solver's
+particles seeded: {r['in_process']['study_load_s']:.1f} s in-process). Overhead per realization = (study wall − Σ wall_time / c) / N:
+the time the study spends outside its realizations (loading, planning, dask's scheduling and
+transfers, each worker's imports and solver, checkpoints, analysis, the result file, and on
+dask the cluster's start and close), per realization, with the c workers taken as equally
+busy. {startup} Study wall in-process / on dask:
 **{r['speedup']:.2f}**. Run wall times in-process
 {', '.join(f'{t:.1f}' for t in r['in_process']['run_wall_times_s'])} s, on dask
 {', '.join(f'{t:.1f}' for t in d['run_wall_times_s'])} s (two realizations at a time share the
