@@ -59,7 +59,7 @@ from _record import ROOT, write_section  # noqa: E402
 from _studies import toml_value, write_scene_variant  # noqa: E402
 
 from uqflow.execute import run_study  # noqa: E402
-from uqflow.layout import COMPILE_TIME, STATUS, STATUS_OK, WALL_TIME  # noqa: E402
+from uqflow.layout import COMPILE_TIME, REALIZATION, STATUS, STATUS_OK, WALL_TIME  # noqa: E402
 from uqflow.study import load_study  # noqa: E402
 
 SCENE = "mpm_contact_thin.toml"
@@ -150,7 +150,7 @@ def timed_study(path: Path, workers: int, output: Path) -> tuple[dict, object]:
     outcome = run_study(study, workers=workers, force=True, show_progress=False, output=output)
     wall = time.perf_counter() - t0
     runs = outcome.runs
-    n = int(runs.sizes["realization"])
+    n = int(runs.sizes[REALIZATION])
     wall_times = np.asarray(runs[WALL_TIME].values, float)
     compile_times = np.asarray(runs[COMPILE_TIME].values, float)
     concurrency = 1 if workers == 0 else min(workers, n)
