@@ -36,14 +36,15 @@ from uqflow.layout import (COMPLETE, CONVENTIONS, CREATED, ELAPSED_TIME, FAILED_
                            SOLVER, SOLVER_DESCRIPTION, SOLVER_RUNS, STATUS, STATUS_FAILED,
                            STATUS_PENDING, STOPPED_EARLY, STUDY_FILE, STUDY_HASH, STUDY_NAME,
                            STUDY_OVERRIDES, STUDY_READ_FILES, STUDY_TEXT, STUDY_TEXT_HASH,
-                           STUDY_TEXT_OMITTED, TITLE, WARNINGS, WORKERS,
-                           is_sensitivity_variable)
+                           STUDY_TEXT_OMITTED, TITLE, WARM_UP_COMPILE_TIME, WARM_UP_PROCESSES,
+                           WARM_UP_TIME, WARNINGS, WORKERS, is_sensitivity_variable)
 from uqflow.levels import AlignedSolver, level_array, same_level_runs
 from uqflow.realization import (add_field_value_variables, batch_arguments, empty_runs,
                                 realization_prefix, run_batch, store_batch)
 from uqflow.store import (check_unlocked, check_writable, now, read_runs, result_lock, versions,
                           write_result)
 from uqflow.study import SET_OPTION, Study, scheduler_address_problem
+from uqflow.warm_up import warm_up_in_process, warm_up_on_dask
 
 #: how long a client waits for a dask scheduler before saying it cannot reach it
 CONNECT_TIMEOUT_S = 30.0
@@ -439,6 +440,8 @@ def run_study(study: Study, *, workers: int | None = None, scheduler: str | None
                                         enabled=show_progress)
             execution = _Execution(study, runs, design, attrs, checkpoint, bar)
             stop_reason = "enough" if execution.stopper.advance() else None
+            if stop_reason is None and pending.size:
+                attrs.update(_warm_up(study, client))
             try:
                 while stop_reason is None:
                     if pending.size:
@@ -485,6 +488,19 @@ def run_study(study: Study, *, workers: int | None = None, scheduler: str | None
             write_result(path, runs, statistics, attrs)
         warnings = [w for w in statistics.attrs.get(WARNINGS, "").split("\n") if w]
         return Outcome(path, runs, statistics, attrs, resumed, warnings)
+
+
+def _warm_up(study: Study, client) -> dict:
+    """Compile the solver's code before the first run, its shares side by side
+    (uqflow/warm_up.py); the root attributes recording what that cost."""
+    if client is None:
+        cost = warm_up_in_process(study.solver, study.solver_class, study.scene)
+    else:
+        cost = warm_up_on_dask(client, _worker_solver, study.solver_class, study.scene)
+    if not cost["processes"]:
+        return {}
+    return {WARM_UP_TIME: cost["seconds"], WARM_UP_COMPILE_TIME: cost["compile_seconds"],
+            WARM_UP_PROCESSES: cost["processes"]}
 
 
 def _run_in_process(execution: _Execution, pending: np.ndarray) -> str | None:

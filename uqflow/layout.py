@@ -233,6 +233,10 @@ STUDY_HASH, STUDY_TEXT_HASH = "study_sha256", "study_text_sha256"
 STUDY_READ_FILES = "study_read_files"
 SOLVER_DESCRIPTION, METHOD_OPTIONS, SEED = "solver_description", "method_options", "seed"
 PLANNED_REALIZATIONS, WORKERS = "planned_realizations", "workers"
+#: compiling the solver's code before the first run (uqflow/warm_up.py): wall seconds, numba's
+#: compile seconds summed over the processes, and how many processes shared the work
+WARM_UP_TIME, WARM_UP_COMPILE_TIME = "warm_up_time", "warm_up_compile_time"
+WARM_UP_PROCESSES = "warm_up_processes"
 CREATED, FINISHED, RESUMED = "created", "finished", "resumed"
 #: SHA-256 of the stored runs, verified before a resume trusts them (``uqflow.store``)
 RUNS_HASH = "runs_sha256"

@@ -107,6 +107,19 @@ class Solver(abc.ABC):
         raise NotImplementedError(f"solver '{self.name}' has no local sensitivities "
                                   f"(local_sensitivities() is empty)")
 
+    def compile_shares(self) -> int:
+        """How many independent shares of compiled code (numba) this solver's runs still need
+        compiled on this machine: 0 when there is nothing to compile or all of it is in the
+        on-disk cache (the default). The study compiles the shares side by side before the
+        first run, in as many processes as there are cores or dask workers
+        (uqflow/warm_up.py, docs/architecture.md "Compiling before the first run")."""
+        return 0
+
+    def warm_up(self, part: int, parts: int) -> None:
+        """Compile (or load from the cache) share ``part`` of ``parts`` of what
+        ``compile_shares`` counts, without running a realization; the other processes then
+        load it from the shared cache. Called only when ``compile_shares()`` is positive."""
+
     @classmethod
     def report(cls, trees: list, folder, figures: bool = True, **options) -> tuple[str, list]:
         """What results of this solver add to ``uqflow report`` and ``uqflow run``: text

@@ -128,4 +128,17 @@ class DependencyLocator(caching._CacheLocator):
         return None
 
 
+def is_cached(dispatcher) -> bool:
+    """Whether numba's on-disk cache holds fresh machine code of ``dispatcher`` for this CPU
+    (any signature): the index is read as numba reads it (stale stamp: empty), and a key
+    names the CPU it was compiled for. An unreadable cache counts as cached: the check only
+    decides whether to compile ahead of the first run, never what runs."""
+    try:
+        overloads = dispatcher._cache._cache_file._load_index()
+        magic = dispatcher.targetctx.codegen().magic_tuple()
+        return any(key[1] == magic for key in overloads)
+    except Exception:   # noqa: BLE001 - numba's private cache API changed: assume cached
+        return True
+
+
 register(Path(__file__).resolve().parent, "solvers.mpm")

@@ -12,6 +12,7 @@ import numpy as np
 import xarray as xr
 
 from solvers.mpm import step as K
+from solvers.mpm.kernel_cache import is_cached
 from solvers.mpm.materials import state as ST
 from solvers.mpm.materials.johnson_cook import CONVENTIONS_PARAMETER
 from solvers.mpm.materials.parameters import units as parameter_units
@@ -233,6 +234,38 @@ class MPMSolver(Solver):
             raise SolverError(f"parameters listed twice in wrt: {wrt}")
         return self._execute(params, wrt, outputs)
 
+    def compile_shares(self) -> int:
+        """0 when every kernel a run of this scene calls is in numba's on-disk cache for this
+        CPU, else the number of shares ``warm_up`` splits their compilation into: the grid
+        kernels, and each material's loops."""
+        parallel = run_threads(self.cfg, self.parts.x.size) > 1
+        kernels = K.kernels(parallel)
+        # what every run calls (check_state runs only after a failure: it may never compile)
+        grid = (kernels.p2g, kernels.grid_solve, kernels.g2p_velocity_remap,
+                kernels.g2p_gradient, kernels.max_speed, kernels.energies)
+        loops = [f for module in self.modules for f in K.loop_for(module, parallel)]
+        if all(is_cached(f) for f in (*grid, *loops)):
+            return 0
+        return 1 + len(self.modules)
+
+    def warm_up(self, part: int = 0, parts: int = 1) -> None:
+        """Compile (or load from numba's cache) share ``part`` of ``parts`` of the kernels a
+        run of this scene calls, by calling them on a fresh run at the nominal parameters:
+        share 0 holds the grid kernels, the materials' loops are dealt to shares 1, 2, ...
+        (to share 0 as well when ``parts`` is 1). Processes sharing the cache folder, each
+        warming its own share side by side, then load the others' code instead of
+        compiling it (``uqflow.warm_up``)."""
+        run = _Run(self, self._parameters({}))
+        speed = float(np.max(run.S[:, ST.C] + np.hypot(run.vx, run.vy)))
+        dt = self.cfg.cfl * self.cfg.grid.dx / speed if speed > 0.0 else self.cfg.end_time
+        if part == 0:
+            run.recorder.record(0, run)
+            run.max_speed()
+            run._grid_phase(dt, _no_lap)
+        others = max(parts - 1, 1)
+        mine = [k for k in range(len(run.loops)) if parts == 1 or 1 + k % others == part]
+        run._material_phase(dt, _no_lap, mine)
+
     def _execute(self, params, wrt=None, outputs=()):
         prms = self._parameters(dict(params or {}))
         run = _Run(self, prms)
@@ -277,6 +310,15 @@ def _no_lap(name):
     pass
 
 
+def run_threads(cfg, n):
+    """numba threads of a run of ``n`` particles: the scene's ``threads``, or (0) all of
+    them from SERIAL_BELOW particles on."""
+    avail = numba.config.NUMBA_NUM_THREADS
+    if cfg.threads:
+        return min(cfg.threads, avail)
+    return 1 if n < SERIAL_BELOW else min(numba.get_num_threads(), avail)
+
+
 class _Run:
     """The arrays of one realization and the time loop."""
 
@@ -305,11 +347,7 @@ class _Run:
         shp = (g.nnx, g.nny)
         self.gm, self.gpx, self.gpy, self.gfx, self.gfy = (np.zeros(shp) for _ in range(5))
         self.gvx, self.gvy, self.gdx, self.gdy = (np.zeros(shp) for _ in range(4))
-        avail = numba.config.NUMBA_NUM_THREADS
-        if cfg.threads:
-            self.nthreads = min(cfg.threads, avail)
-        else:
-            self.nthreads = 1 if n < SERIAL_BELOW else min(numba.get_num_threads(), avail)
+        self.nthreads = run_threads(cfg, n)
         self.buf = K.grid_buffers(self.nthreads, g.nnx, g.nny)
         self.kernels = K.kernels(parallel=self.nthreads > 1)
         self.loops = [K.loop_for(module, parallel=self.nthreads > 1)
@@ -472,10 +510,15 @@ class _Run:
     def _step(self, dt, lap=None):
         """One MUSL step (step.py). ``lap(name)``, when given, is called after each kernel
         with the kernel's name (the benchmark's per-kernel profile)."""
+        lap = lap or _no_lap
+        self._grid_phase(dt, lap)
+        self._material_phase(dt, lap, range(len(self.loops)))
+
+    def _grid_phase(self, dt, lap):
+        """P2G, the grid solves and G2P: the step up to the velocity gradient."""
         c = self.cfg
         g = self.g
         ox, oy = g.ox, g.oy
-        lap = lap or _no_lap
         K = self.kernels
         K.p2g(self.x, self.y, self.vx, self.vy, self.mass, self.S, self.kind, self.lp, ox, oy,
               self.inv_dx, c.gravity[0], c.gravity[1], self.buf, self.gm, self.gpx, self.gpy,
@@ -499,8 +542,15 @@ class _Run:
                           self.gvy, self.xn, self.yn, self.Lg, self.err):
             self._raise_first("velocity gradient")
         lap("g2p_gradient")
+
+    def _material_phase(self, dt, lap, materials):
+        """The update loops of ``materials`` (indices of ``self.loops``); the largest
+        c + |v| they find is the next CFL step's speed."""
+        c = self.cfg
+        g = self.g
         vmax = 0.0
-        for k, (upd, _ini) in enumerate(self.loops):
+        for k in materials:
+            upd = self.loops[k][0]
             nbad, vmat = upd(self.prms[k], self.S, self.solver.mat_index[k], self.Lg, c.q1,
                              c.q2, g.dx, dt, self.t, self.x, self.y, self.vx, self.vy,
                              self.err)

@@ -21,7 +21,8 @@ from uqflow.layout import (COMPILE_TIME, COMPLETE, ELAPSED_TIME, FAILED_RUNS, FI
                            PARAMETER, PARAMETER_UNITS, REALIZATION, SOLVER_COMPILE_TIME,
                            SOLVER_RUNS, SOLVER_WALL_TIME, STATISTIC_MEAN, STATISTIC_STD,
                            STATISTIC_VARIANCE, STATUS, STATUS_FAILED, STATUS_OK, STATUS_PENDING,
-                           STOPPED_EARLY, STUDY_NAME, WALL_TIME, WARNINGS)
+                           STOPPED_EARLY, STUDY_NAME, WALL_TIME, WARM_UP_COMPILE_TIME,
+                           WARM_UP_PROCESSES, WARM_UP_TIME, WARNINGS)
 from uqflow.report.contributions import MethodReport, Sensitivity
 from uqflow.report.tables import focus_point as _focus
 from uqflow.report.tables import Table
@@ -115,7 +116,7 @@ def summary_blocks(tree: xr.DataTree) -> list:
     lines += sensitivity_tables(view)
     lines.append("")
     lines.append(_cost_line(stats, attrs, method, contribution))
-    lines += _compile_lines(stats, runs)
+    lines += _compile_lines(stats, runs, attrs)
     failure = _first_failure(runs)
     if failure:
         lines.append(failure)
@@ -211,11 +212,18 @@ def _variance_column(stats: xr.Dataset, outs: list[str]):
     return (VARIANCE_STDERR_HEADER if has_error else VARIANCE_HEADER), cell
 
 
-def _compile_lines(stats: xr.Dataset, runs: xr.Dataset | None) -> list[str]:
+def _compile_lines(stats: xr.Dataset, runs: xr.Dataset | None, attrs: dict) -> list[str]:
     """numba's compile time apart from the runs' own: the first runs in each process compile
-    the solver's kernels, so the summed wall time over-states what one more run costs."""
+    the solver's kernels, so the summed wall time over-states what one more run costs; a
+    warm-up before the runs (uqflow/warm_up.py) compiled them instead."""
+    warm = []
+    if attrs.get(WARM_UP_PROCESSES):
+        count = int(attrs[WARM_UP_PROCESSES])
+        warm = [f"warm-up before the runs: {_seconds(attrs.get(WARM_UP_TIME))} on {count} "
+                f"process{'es' if count > 1 else ''} (numba compile "
+                f"{_seconds(attrs.get(WARM_UP_COMPILE_TIME))} in all)"]
     if SOLVER_COMPILE_TIME not in stats.attrs and (runs is None or COMPILE_TIME not in runs):
-        return []
+        return warm
     compiling = stats.attrs.get(SOLVER_COMPILE_TIME)
     line = (f"compile time (numba, part of the solver wall time above): "
             f"{_seconds(compiling)}")
@@ -227,7 +235,7 @@ def _compile_lines(stats: xr.Dataset, runs: xr.Dataset | None) -> list[str]:
         if own.size:
             line += (f"; per run without it: median {_seconds(np.median(own))} over "
                      f"{own.size} ok run{'s' if own.size > 1 else ''}")
-    return [line]
+    return [line] + warm
 
 
 def _field_rows(stats: xr.Dataset, runs: xr.Dataset | None) -> list[list[str]]:
