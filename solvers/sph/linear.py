@@ -1,9 +1,13 @@
 """Linear solves of the SPH systems and their condition (docs/sph.md § 5).
 
-Direct: SuperLU with a COLAMD fill-reducing ordering (the reduced and penalty systems are
-not symmetric under the default integration, so no Cholesky). Iterative: GMRES with an
+Direct: SuperLU. The stiffness, reduced and penalty systems are not symmetric under the
+default integration (its corrected test gradients differ from the trial ones: ||A - A^T|| is
+a few per cent of ||A||), so no Cholesky. Given the unknowns' points, the fill-reducing
+ordering is a geometric nested dissection of the pattern of A + A^T, factorised with diagonal
+pivots preferred; without points, SuperLU's own orderings. Iterative: GMRES with an
 incomplete-LU preconditioner. A singular system — an unconstrained rigid mode — is detected
-from SuperLU's pivots and refused with the DOF where it shows, never solved silently.
+by inverse iteration on the factors and refused with the DOF where it shows, never solved
+silently.
 """
 
 from __future__ import annotations
@@ -19,10 +23,23 @@ SOLVERS = ("auto", "direct", "iterative")
 #: "auto" factorises up to this many unknowns and iterates beyond (benchmarks/sph_scaling.py:
 #: SuperLU stayed the faster of the two on every size measured, up to 40,000 particles)
 AUTO_ITERATIVE_ABOVE = 200_000
-#: a pivot below this fraction of the largest: singular to working precision (a free rigid
-#: mode leaves a pivot at rounding level, ~1e-16 of the largest)
-MIN_PIVOT_RATIO = 1e-13
+#: smallest singular value below this fraction of the largest entry: singular to working
+#: precision (a free rigid mode leaves one at rounding level, ~1e-16 of the largest)
+MIN_SINGULAR_RATIO = 1e-13
+#: inverse-iteration steps of the singularity check: a free rigid mode's singular value is
+#: ~1e12 times below the next, so the second step has converged onto it
+INVERSE_STEPS = 2
+#: the singularity check's starting vector is drawn from this seed: one answer on every run
+CHECK_SEED = 20210
 ITERATIVE_RTOL = 1e-12
+#: nested dissection stops splitting a set of at most this many unknowns (its own order is
+#: kept): below it the separators cost more bookkeeping than they save fill
+DISSECTION_LEAF = 64
+#: with the nested-dissection order, a diagonal pivot is kept unless below this fraction of
+#: its column's largest entry: 0.1 made the penalty systems pivot off the diagonal (their
+#: w L^T L couplings match the diagonal) and doubled their fill at 40,709 particles; 0.01
+#: keeps the order (the same fill as MS2's) and bounds each step's growth by 101
+DIAGONAL_PIVOT_THRESHOLD = 0.01
 
 
 class LinearSolveError(ArithmeticError):
@@ -35,13 +52,15 @@ class SolveInfo:
     iterations: int
     relative_residual: float
     seconds: float
-    min_pivot_ratio: float = np.nan
+    singular_ratio: float = np.nan
 
 
 class Factor:
-    """A factorised (direct) or preconditioned (iterative) system, solved for many b."""
+    """A factorised (direct) or preconditioned (iterative) system, solved for many b.
+    ``points`` (n, 2): where each unknown lives; the direct solver orders by nested dissection
+    of them (docs/sph.md § 5)."""
 
-    def __init__(self, A, solver: str = "auto", nearly_symmetric: bool = False):
+    def __init__(self, A, solver: str = "auto", nearly_symmetric: bool = False, points=None):
         if solver not in SOLVERS:
             raise ValueError(f"unknown linear solver {solver!r} (known: {', '.join(SOLVERS)})")
         self.A = sp.csc_matrix(A)
@@ -49,13 +68,20 @@ class Factor:
         self.method = solver if solver != "auto" else ("direct" if n <= AUTO_ITERATIVE_ABOVE
                                                        else "iterative")
         t0 = time.perf_counter()
-        self.pivot_ratio = np.nan
+        self.singular_ratio = np.nan
         if self.method == "direct":
-            self.lu, self.pivot_ratio = _factorise(self.A, nearly_symmetric)
+            self.lu, self.singular_ratio = _factorise(self.A, nearly_symmetric, points)
         else:
             ilu = spla.spilu(self.A, drop_tol=1e-5, fill_factor=20)
             self.preconditioner = spla.LinearOperator(self.A.shape, ilu.solve)
         self.build_seconds = time.perf_counter() - t0
+
+    @property
+    def factor_nnz(self) -> int | None:
+        """Entries of SuperLU's L + U (None for the iterative solver)."""
+        if self.method != "direct":
+            return None
+        return int(getattr(self.lu, "lu", self.lu).nnz)
 
     def solve(self, b):
         """x with A x = b, and a SolveInfo (its time excludes the factorisation,
@@ -72,32 +98,110 @@ class Factor:
                                    f"{int(np.flatnonzero(~np.isfinite(x))[0])})")
         residual = float(np.linalg.norm(self.A @ x - b)) / (float(np.linalg.norm(b)) or 1.0)
         return x, SolveInfo(self.method, iterations, residual, time.perf_counter() - t0,
-                            self.pivot_ratio)
+                            self.singular_ratio)
 
 
-def solve(A, b, solver: str = "auto", nearly_symmetric: bool = False):
+def solve(A, b, solver: str = "auto", nearly_symmetric: bool = False, points=None):
     """x with A x = b, and a SolveInfo. ``nearly_symmetric``: order for A + A^T and prefer
     diagonal pivots (the master–slave reduced systems: 4x faster factorisations than COLAMD
-    on Example 1; the penalty systems factor faster with COLAMD — docs/sph.md § 5)."""
-    return Factor(A, solver, nearly_symmetric).solve(b)
+    on Example 1); ``points``: nested dissection of them instead (docs/sph.md § 5)."""
+    return Factor(A, solver, nearly_symmetric, points).solve(b)
 
 
-def _factorise(A, nearly_symmetric=False):
-    options = ({"permc_spec": "MMD_AT_PLUS_A", "diag_pivot_thresh": 0.1,
-                "options": {"SymmetricMode": True}} if nearly_symmetric
-               else {"permc_spec": "COLAMD"})
+class _Permuted:
+    """SuperLU factors of P A P^T, solving A x = b."""
+
+    def __init__(self, lu, perm):
+        self.lu, self.perm = lu, perm
+
+    def solve(self, b):
+        x = np.empty_like(b, dtype=float)
+        x[self.perm] = self.lu.solve(np.asarray(b, dtype=float)[self.perm])
+        return x
+
+
+def _factorise(A, nearly_symmetric=False, points=None):
+    if points is not None:
+        perm = nested_dissection(A, points)
+        target = A[perm][:, perm].tocsc()
+        options = {"permc_spec": "NATURAL", "diag_pivot_thresh": DIAGONAL_PIVOT_THRESHOLD,
+                   "options": {"SymmetricMode": True}}
+    else:
+        perm, target = None, A
+        options = ({"permc_spec": "MMD_AT_PLUS_A", "diag_pivot_thresh": 0.1,
+                    "options": {"SymmetricMode": True}} if nearly_symmetric
+                   else {"permc_spec": "COLAMD"})
     try:
-        lu = spla.splu(A, **options)
+        lu = spla.splu(target, **options)
     except RuntimeError as e:          # SuperLU: "Factor is exactly singular"
         raise LinearSolveError(f"the system of {A.shape[0]} unknowns is singular ({e})") from None
-    pivots = np.abs(lu.U.diagonal())
-    ratio = float(pivots.min() / pivots.max()) if pivots.size else 1.0
-    if not ratio > MIN_PIVOT_RATIO:
-        where = int(lu.perm_c[np.argmin(pivots)])
+    factor = lu if perm is None else _Permuted(lu, perm)
+    ratio, where = smallest_singular_ratio(A, factor)
+    if not ratio > MIN_SINGULAR_RATIO:
         raise LinearSolveError(f"the system of {A.shape[0]} unknowns is singular to working "
-                               f"precision: pivot ratio {ratio:.2g} at unknown {where} (a free "
+                               f"precision: smallest singular value at most {ratio:.2g} of its "
+                               f"largest entry, its vector largest at unknown {where} (a free "
                                f"rigid mode?)")
-    return lu, ratio
+    return factor, ratio
+
+
+def smallest_singular_ratio(A, factor) -> tuple[float, int]:
+    """An upper bound on sigma_min(A) / max |A_ij| from inverse iteration on the factors, and
+    the unknown where the iterate is largest. ||A^-1 z|| <= 1 / sigma_min for every unit z,
+    so ||y_k|| / ||y_k+1|| bounds sigma_min from above: a small ratio proves near-singularity,
+    and a free rigid mode (sigma_min ~1e12 below the next) is reached in two steps. Two
+    solves: far cheaper than extracting SuperLU's U to read its pivots."""
+    n = A.shape[0]
+    scale = float(abs(A).max()) if A.nnz else 0.0
+    if n == 0 or scale == 0.0:
+        return (1.0 if n == 0 else 0.0), 0
+    y = np.random.default_rng(CHECK_SEED).standard_normal(n)
+    sigma = np.inf
+    with np.errstate(over="ignore", invalid="ignore"):
+        for _ in range(INVERSE_STEPS):
+            norm = float(np.linalg.norm(y))
+            y = factor.solve(y / norm)
+            grown = float(np.linalg.norm(y))
+            if not np.isfinite(grown) or grown == 0.0:
+                return 0.0, int(np.argmax(~np.isfinite(y)))
+            sigma = min(sigma, 1.0 / grown)
+    return sigma / scale, int(np.argmax(np.abs(y)))
+
+
+def nested_dissection(A, points, leaf: int = DISSECTION_LEAF) -> np.ndarray:
+    """A fill-reducing elimination order of A (George's nested dissection, split by the
+    unknowns' coordinates): each set is cut at the median of its longer extent, the unknowns
+    of the lower half coupled (in A + A^T) to the upper half form the separator, and the order
+    is lower interior, upper half, separator, recursively. The separator is read from the
+    matrix, so the order is valid for any coupling; the points only choose the cuts."""
+    A = sp.csr_matrix(A)
+    graph = (abs(A) + abs(A).T).tocsr()
+    points = np.asarray(points, dtype=float).reshape(A.shape[0], -1)
+    upper_flag = np.zeros(A.shape[0])
+    order = []
+
+    def dissect(idx):
+        if idx.size <= leaf:
+            order.append(idx)
+            return
+        p = points[idx]
+        axis = int(np.argmax(p.max(axis=0) - p.min(axis=0)))
+        lower = p[:, axis] < np.median(p[:, axis])
+        if not lower.any():
+            lower = p[:, axis] <= np.median(p[:, axis])
+        if lower.all() or not lower.any():          # all at one point: nothing to cut
+            order.append(idx)
+            return
+        low, high = idx[lower], idx[~lower]
+        upper_flag[high] = 1.0
+        touches = (graph[low] @ upper_flag) > 0.0
+        upper_flag[high] = 0.0
+        dissect(low[~touches])
+        dissect(high)
+        order.append(low[touches])
+
+    dissect(np.arange(A.shape[0]))
+    return np.concatenate(order) if order else np.zeros(0, dtype=np.int64)
 
 
 def _gmres(A, b, M):

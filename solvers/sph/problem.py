@@ -74,7 +74,8 @@ class ElasticProblem:
                  eigenstrain_zz=None, method: str = "master-slave", integration: str = "vci",
                  penalty: float = 1e4, cutoff_threshold: float = 1e-12,
                  cutoff_radius: float | None = None, min_support: int = 5,
-                 linear_solver: str = "auto", stabilisation: float = 0.0):
+                 linear_solver: str = "auto", stabilisation: float = 0.0,
+                 dissection: bool = True):
         if method not in METHODS:
             raise ValueError(f"unknown constraint method {method!r} (known: {', '.join(METHODS)})")
         if integration not in INTEGRATIONS:
@@ -84,6 +85,9 @@ class ElasticProblem:
         self._system = None               # (pattern key, factorised system) of the last solve
         self.disc, self.method, self.integration = disc, method, integration
         self.penalty, self.linear_solver = float(penalty), linear_solver
+        #: order the direct factorisation by nested dissection of the particles (False:
+        #: SuperLU's own orders, kept for benchmarks/sph_scaling.py's comparison)
+        self.dissection = bool(dissection)
         self.cutoff_threshold, self.cutoff_radius = float(cutoff_threshold), cutoff_radius
         lay = disc.layout
         n = disc.n
@@ -115,10 +119,12 @@ class ElasticProblem:
         self.boundary_rows = slave_rows[:nb]
         self.pair_matrix_rows = slave_rows[nb:]
         self.pair_inclusion_rows = disc.phi[self.pairs[:, 1]]
-        # the interpolation operator of reported displacements: slaves by their own rows
-        self.report_rows = disc.phi.tolil()
-        self.report_rows[slaves] = slave_rows
-        self.report_rows = self.report_rows.tocsr()
+        # the interpolation operator of reported displacements: slaves by their own rows (a
+        # particle listed twice takes its last row), picked from [phi; slave_rows]
+        last = slaves.size - 1 - np.unique(slaves[::-1], return_index=True)[1]
+        pick = np.arange(n)
+        pick[slaves[last]] = n + last
+        self.report_rows = sp.vstack([disc.phi, slave_rows]).tocsr()[pick]
 
         # boundary quadrature: outer edge, then each side of every interface (outward normals)
         pair_normal = np.asarray(lay.pair_normal, dtype=float).reshape(-1, 2)
@@ -232,19 +238,22 @@ class ElasticProblem:
                             slaves=np.searchsorted(keep, c.slaves), points=c.points,
                             label=c.label)
         out = {"keep": keep, "removed": removed, "K": K, "f": f}
+        dof_points = np.repeat(d.x, 2, axis=0)[keep]
         t0 = time.perf_counter()
         if self.method == "penalty":
             A, _, w = penalty_system(K, f, c, self.penalty)
             out.update(w=w, transformation=time.perf_counter() - t0)
-            out.update(factor=Factor(A, self.linear_solver))
+            out.update(factor=Factor(A, self.linear_solver,
+                                     points=dof_points if self.dissection else None))
             return out
         threshold = self.cutoff_threshold if self.method == "master-slave-cutoff" else 0.0
         radius = self.cutoff_radius if self.method == "master-slave-cutoff" else None
-        dof_points = np.repeat(d.x, 2, axis=0)[keep]
         ms = master_slave(K, f, c, dof_points, threshold=threshold, pattern_radius=radius)
         out["transformation"] = time.perf_counter() - t0
         rows = c.rows.tocsc()[:, c.slaves].tocsc()
-        out.update(ms=ms, factor=Factor(ms.K_hat, self.linear_solver, nearly_symmetric=True),
+        out.update(ms=ms, factor=Factor(ms.K_hat, self.linear_solver, nearly_symmetric=True,
+                                        points=dof_points[ms.masters] if self.dissection
+                                        else None),
                    scatter=sp.csr_matrix((np.ones(c.slaves.size),
                                           (c.slaves, np.arange(c.slaves.size))),
                                          shape=(keep.size, c.slaves.size)),

@@ -1,0 +1,183 @@
+"""The linear solves of the SPH systems (solvers/sph/linear.py; docs/sph.md § 5): which systems
+are symmetric, the nested-dissection order against SuperLU's own, and the singularity check."""
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from solvers.sph.exact import eshelby_displacement
+from solvers.sph.layouts import Box, Ellipse, regular_layout
+from solvers.sph.linear import (Factor, LinearSolveError, MIN_SINGULAR_RATIO,
+                                nested_dissection, smallest_singular_ratio, solve)
+from solvers.sph.problem import ElasticProblem
+from solvers.sph.stiffness import Discretisation
+
+EPS = np.finfo(float).eps
+METHODS = (("master-slave", {}), ("master-slave-cutoff", {"cutoff_threshold": 1e-8}),
+           ("master-slave-local", {}), ("penalty", {"penalty": 1e4}))
+
+
+def plate(side=12):
+    """benchmarks/sph_scaling.py's plate: a central inclusion, the exact edge displacement."""
+    lay = regular_layout(Box(-side / 2, -side / 2, side / 2, side / 2), 1.0,
+                         [Ellipse(0.0, 0.0, side / 4, side / 4)])
+    disc = Discretisation(lay, 2.0)
+    inside = lay.phase > 0
+    eigen = np.zeros((lay.n, 3))
+    eigen[inside, :2] = 0.01
+    edge = eshelby_displacement(lay.x[lay.boundary], side / 4, eigenstrain=0.01,
+                                E_inclusion=1000.0, nu_inclusion=0.28, E_matrix=900.0,
+                                nu_matrix=0.33)
+    materials = dict(E=np.where(inside, 1000.0, 900.0), nu=np.where(inside, 0.28, 0.33),
+                     eigenstrain=eigen)
+    return disc, materials, edge
+
+
+def asymmetry(A):
+    A = sp.csr_matrix(A)
+    return sp.linalg.norm(A - A.T) / sp.linalg.norm(A)
+
+
+@pytest.fixture(scope="module")
+def small_plate():
+    return plate()
+
+
+@pytest.mark.parametrize("method,extra", METHODS)
+def test_the_systems_are_symmetric_under_nodal_integration_only(small_plate, method, extra):
+    disc, materials, edge = small_plate
+    found = {}
+    for integration in ("vci", "nodal"):
+        p = ElasticProblem(disc, **materials, method=method, integration=integration, **extra)
+        p.solve(edge)
+        found[integration] = (asymmetry(p.K), asymmetry(p._system[1]["factor"].A))
+    # nodal: K = B^T (V D) B, so K_ij and K_ji are the same sum in another order, and
+    # P^T K P and K + w L^T L keep that: rounding of sums of ~100 terms, each ~eps relative
+    assert max(found["nodal"]) < 100 * EPS
+    # vci: the corrected test gradients differ from the trial ones: a few per cent of ||K||;
+    # the penalty's w L^T L (symmetric) dominates its norm, which leaves 1e-4 or more
+    assert found["vci"][0] > 1e-2
+    assert found["vci"][1] > (1e-4 if method == "penalty" else 1e-2)
+
+
+def grid_laplacian(m):
+    one = sp.diags([-np.ones(m - 1), 2.0 * np.ones(m), -np.ones(m - 1)], [-1, 0, 1])
+    A = (sp.kron(one, sp.identity(m)) + sp.kron(sp.identity(m), one)).tocsr()
+    x, y = np.meshgrid(np.arange(m, dtype=float), np.arange(m, dtype=float), indexing="ij")
+    return A, np.c_[x.ravel(), y.ravel()]
+
+
+def test_nested_dissection_is_a_permutation_whose_separators_cut_the_grid():
+    A, points = grid_laplacian(40)
+    perm = nested_dissection(A, points)
+    assert np.array_equal(np.sort(perm), np.arange(A.shape[0]))
+    # the last unknowns are the top separator: the grid line next to the median cut
+    # (columns 0-19 below it, 20-39 above), one whole line of 40 points
+    top = points[perm[-40:]]
+    assert np.all(top[:, 0] == 19.0)
+
+
+def factor_fill(A, perm):
+    import scipy.sparse.linalg as spla
+    lu = spla.splu(A[perm][:, perm].tocsc(), permc_spec="NATURAL")
+    return lu.L.nnz + lu.U.nnz
+
+
+def test_nested_dissection_fills_less_than_the_band_and_gains_with_size():
+    # George's bounds on an m x m grid: O(m^2 log m) fill under nested dissection, O(m^3) in
+    # the band (natural) order, so the ratio falls like log m / m
+    ratios = []
+    for m in (20, 40):
+        A, points = grid_laplacian(m)
+        ratios.append(factor_fill(A, nested_dissection(A, points))
+                      / factor_fill(A, np.arange(m * m)))
+    assert ratios[1] < ratios[0] < 1.0
+
+
+def test_nested_dissection_of_coincident_points_keeps_their_order():
+    A, _ = grid_laplacian(10)
+    assert np.array_equal(nested_dissection(A, np.zeros((100, 2))), np.arange(100))
+
+
+def right_hand_side(problem, edge):
+    system = problem._system[1]
+    if "ms" in system:
+        return system["ms"].f_hat
+    c, _ = problem.constraints(edge, np.ones(problem.pairs.shape[0], dtype=bool))
+    return system["f"] + system["w"] * (c.rows.T @ c.rhs)
+
+
+@pytest.mark.parametrize("method,extra", METHODS)
+def test_the_dissected_factor_gives_the_displacements_of_superlus_own_order(
+        small_plate, method, extra):
+    disc, materials, edge = small_plate
+    new = ElasticProblem(disc, **materials, method=method, **extra)
+    u_new = new.solve(edge).u
+    # the order before nested dissection: SuperLU's MMD on A^T + A (master-slave) or COLAMD
+    old = ElasticProblem(disc, **materials, method=method, dissection=False, **extra)
+    u_old = old.solve(edge).u
+
+    A = new._system[1]["factor"].A
+    assert (A != old._system[1]["factor"].A).nnz == 0          # the same system, two orders
+    b = right_hand_side(new, edge)
+    n = A.shape[0]
+    gamma = n * EPS / (1 - n * EPS)
+    k = int(np.diff(sp.csr_matrix(A).indptr).max())
+    bounds, solutions = [], []
+    for problem in (new, old):
+        factor = problem._system[1]["factor"]
+        x = factor.solve(b)[0]
+        # LU's backward error: (A + dA) x = b with |dA| <= gamma_n |L||U| (Higham, Thm 9.4),
+        # so ||b - A x||_1 <= gamma_n || |L||U| ||_1 ||x||_1, plus the residual's own
+        # evaluation, k terms a row: k eps ||A||_1 ||x||_1
+        lu = getattr(factor.lu, "lu", factor.lu)
+        growth = float((abs(lu.L).sum(axis=0) @ abs(lu.U)).max())
+        bound = (gamma * growth + k * EPS * abs(A).sum(axis=0).max()) * np.abs(x).sum()
+        assert np.abs(b - A @ x).sum() <= bound
+        bounds.append(bound)
+        solutions.append(x)
+    # x_new - x_old = A^-1 (r_old - r_new)
+    inverse_norm = np.abs(np.linalg.inv(A.toarray())).sum(axis=0).max()
+    difference = inverse_norm * sum(bounds)
+    assert np.abs(solutions[0] - solutions[1]).sum() <= difference
+    # the parameters: u = P x + u_q (master-slave) or x (penalty): at most ||P||_1 times that
+    P = new._system[1]["ms"].P if method != "penalty" else sp.identity(n)
+    assert np.abs(u_new - u_old).sum() <= abs(P).sum(axis=0).max() * difference * (1 + 1e-12)
+
+def free_grid(m, shift=0.0):
+    """A grid Laplacian with free edges (its constant vector has no energy) plus shift I."""
+    A, points = grid_laplacian(m)
+    A = A - sp.diags(np.asarray(A.sum(axis=1)).ravel()) + shift * sp.identity(m * m)
+    return A.tocsr(), points
+
+
+def test_the_singularity_check_bounds_the_smallest_singular_value_from_above():
+    A, points = free_grid(12, shift=0.05)
+    A = (A + sp.diags(0.3 * np.ones(143), 1)).tocsc()                 # not symmetric
+    sigma = np.linalg.svd(A.toarray(), compute_uv=False)
+    ratio, _ = smallest_singular_ratio(A, Factor(A, "direct", points=points).lu)
+    exact = sigma[-1] / abs(A).max()
+    # ||A^-1 z|| <= 1/sigma_min for unit z; the computed solves carry ~cond eps relative error
+    assert ratio >= exact * (1 - 100 * (sigma[0] / sigma[-1]) * EPS)
+
+
+def test_an_exactly_free_mode_is_refused_on_the_dissected_path():
+    A, points = free_grid(12)
+    with pytest.raises(LinearSolveError, match="singular"):
+        solve(A, np.ones(144), "direct", points=points)
+
+
+def test_a_mode_at_rounding_level_is_refused_naming_where_it_shows():
+    A, points = free_grid(12, 1e-15)            # sigma_min 1e-15 of the largest entry (4)
+    with pytest.raises(LinearSolveError, match="singular to working precision.*at unknown"):
+        solve(A, np.ones(144), "direct", points=points)
+
+
+def test_a_well_posed_system_reports_its_singular_ratio():
+    A, points = free_grid(12, 1e-3)
+    x, info = solve(A, np.ones(144), "direct", points=points)
+    # A = L + 1e-3 I with L's null vector the constant: x = 1000 everywhere, to cond eps
+    cond = 8.0 / 1e-3
+    assert np.abs(x - 1000.0).max() <= 100 * cond * EPS * 1000.0
+    # sigma_min = 1e-3, largest entry 4: the check's bound is at least that, far above 1e-13
+    assert MIN_SINGULAR_RATIO < 1e-3 / 4 * (1 - 1e-6) <= info.singular_ratio
