@@ -190,10 +190,54 @@ def master_slave(K, f, c: Constraints, dof_points=None, *, threshold: float = 0.
     P = (identity + scatter @ T).tocsr()
     u_q = scatter @ q
     K = sp.csr_matrix(K)
-    K_hat = (P.T @ K @ P).tocsr()
+    K_hat = reduced_stiffness(K, P, T, c.slaves, masters, slave_clusters(
+        c.rows.tocsc()[:, c.slaves].tocsr())[1])
     f_hat = P.T @ (np.asarray(f, dtype=float) - K @ u_q)
     return MasterSlave(masters, c.slaves, T, q, P, u_q, K_hat, f_hat, n_clusters, largest,
                        time.perf_counter() - t0)
+
+
+#: a slave cluster whose rows of T fill at least this fraction of the masters they use has
+#: its part of P^T K P formed as one dense product: a sparse product's cost per multiply is
+#: many times BLAS's, so it only pays where most of the block is zero
+DENSE_CLUSTER_FILL = 0.5
+
+
+def reduced_stiffness(K, P, T, slaves, masters, cluster) -> sp.csr_matrix:
+    """K^ = P^T K P = (K P)_m + T^T (K P)_s. Under plain MS a cluster's rows of T are dense
+    over every master near it (Phi_ss^-1 of a chain of slaves decays but has no zeros), and
+    the sparse product T^T (K P)_s costs ~ the square of that row length per slave: such a
+    cluster's term is one dense product instead, its exact zeros dropped."""
+    KP = (K @ P).tocsr()
+    KP_s = KP[slaves]
+    total = KP[masters].tocoo()
+    rows, cols, vals = [total.row], [total.col], [total.data]
+    sparse_rows = []
+    order = np.argsort(cluster, kind="stable")
+    bounds = np.searchsorted(cluster[order], np.arange(cluster.max(initial=-1) + 2))
+    for k in range(bounds.size - 1):
+        members = order[bounds[k]:bounds[k + 1]]
+        Tk = T[members]
+        used_t = np.unique(Tk.indices)
+        if members.size < 2 or Tk.nnz < DENSE_CLUSTER_FILL * members.size * used_t.size:
+            sparse_rows.append(members)
+            continue
+        Xk = KP_s[members]
+        used_x = np.unique(Xk.indices)
+        block = Tk[:, used_t].toarray().T @ Xk[:, used_x].toarray()
+        r, col = np.nonzero(block)
+        rows.append(used_t[r])
+        cols.append(used_x[col])
+        vals.append(block[r, col])
+    if sparse_rows:
+        rest = np.concatenate(sparse_rows)
+        part = (T[rest].T @ KP_s[rest]).tocoo()
+        rows.append(part.row)
+        cols.append(part.col)
+        vals.append(part.data)
+    n = masters.size
+    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                         shape=(n, n))
 
 
 def penalty_system(K, f, c: Constraints, relative_weight: float):
