@@ -11,6 +11,7 @@ import platform
 import re
 import shlex
 import sys
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -47,3 +48,23 @@ def write_section(name: str, title: str, body: str) -> None:
     text = pattern.sub(lambda _: block, text) if pattern.search(text) else \
         text.rstrip() + "\n\n" + block + "\n"
     BENCHMARKS_MD.write_text(text)
+
+
+def log(*parts) -> None:
+    """Progress on stderr (stdout carries a benchmark's JSON)."""
+    print(*parts, file=sys.stderr, flush=True)
+
+
+def load1() -> float:
+    """The 1-minute load average, as recorded beside a benchmark's figures."""
+    return round(os.getloadavg()[0], 2)
+
+
+def wait_for_load(max_load: float, wait_s: float) -> float:
+    """Wait (up to ``wait_s``) for the load average to drop below ``max_load``: the machine
+    is shared. Returns the seconds waited."""
+    t0 = time.time()
+    while load1() >= max_load and time.time() - t0 < wait_s:
+        log(f"load {load1():.2f} >= {max_load}: waiting ...")
+        time.sleep(15)
+    return time.time() - t0

@@ -55,7 +55,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _record import ROOT, write_section  # noqa: E402
+from _record import ROOT, load1, log, wait_for_load, write_section  # noqa: E402
 from _studies import toml_value, write_scene_variant  # noqa: E402
 
 from uqflow.execute import run_study  # noqa: E402
@@ -105,20 +105,10 @@ print(json.dumps({{"wall_s": time.perf_counter() - t0, "numba_compile_s": compil
 """
 
 
-def log(*a):
-    print(*a, file=sys.stderr, flush=True)
 
 
-def load1() -> float:
-    return round(os.getloadavg()[0], 2)
 
 
-def wait_for_load(max_load: float, wait_s: float) -> float:
-    t0 = time.time()
-    while load1() >= max_load and time.time() - t0 < wait_s:
-        log(f"load {load1():.2f} >= {max_load}: waiting ...")
-        time.sleep(15)
-    return time.time() - t0
 
 
 def warm_cache(folder: Path) -> dict:

@@ -94,7 +94,7 @@ sys.path.insert(0, str(ROOT))
 
 import numba  # noqa: E402
 
-from benchmarks._record import FIGURES, write_section  # noqa: E402
+from benchmarks._record import FIGURES, load1, log, wait_for_load, write_section  # noqa: E402
 from solvers.mpm import MPMSolver  # noqa: E402
 from solvers.mpm.solver import _Run  # noqa: E402
 from uqflow.realization import compile_clock  # noqa: E402
@@ -112,12 +112,8 @@ WARM_UP_SIDE = 30
 MEMORY_STEPS = 3
 
 
-def log(*a):
-    print(*a, file=sys.stderr, flush=True)
 
 
-def load1() -> float:
-    return round(os.getloadavg()[0], 2)
 
 
 # -- scene ----------------------------------------------------------------------------------
@@ -484,12 +480,6 @@ def loglog_slope(counts, step_times) -> float | None:
     return float(np.polyfit(np.log(counts), np.log(step_times), 1)[0])
 
 
-def wait_for_load(max_load: float, wait_s: float) -> float:
-    t0 = time.time()
-    while load1() >= max_load and time.time() - t0 < wait_s:
-        log(f"load {load1():.2f} >= {max_load}: waiting ...")
-        time.sleep(15)
-    return time.time() - t0
 
 
 def main(argv=None) -> int:

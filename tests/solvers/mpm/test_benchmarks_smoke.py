@@ -2,28 +2,16 @@
 exact particle counts of the scaling part, its memory figure in a fresh process, and the
 dask study in its --quick mode."""
 
-import importlib.util
-from pathlib import Path
-
 import pytest
-
-ROOT = Path(__file__).resolve().parents[3]
-
-
-def load(name):
-    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 @pytest.fixture
-def throughput(monkeypatch):
+def throughput(monkeypatch, benchmark_module):
     import numba
 
     # the benchmark sets NUMBA_NUM_THREADS for its own process when imported: restored after
     monkeypatch.setenv("NUMBA_NUM_THREADS", str(numba.config.NUMBA_NUM_THREADS))
-    return load("mpm_throughput")
+    return benchmark_module("mpm_throughput")
 
 
 def test_scaling_counts_are_exactly_reachable(throughput, capsys):
@@ -49,8 +37,8 @@ def test_scaling_point_counts_at_least_the_run_arrays(throughput):
     assert point["bytes_per_particle"] >= point["held_array_bytes_per_particle"] > 0
 
 
-def test_dask_study_runs_in_quick_mode(monkeypatch):
-    module = load("mpm_dask_study")
+def test_dask_study_runs_in_quick_mode(monkeypatch, benchmark_module):
+    module = benchmark_module("mpm_dask_study")
     monkeypatch.setattr(module, "write_section", lambda *a: pytest.fail("quick mode wrote"))
     result = module.main(["--quick"])
     in_process, on_dask = result["in_process"], result["dask"]
