@@ -2,9 +2,9 @@
 
 Direct: SuperLU. The stiffness, reduced and penalty systems are not symmetric under the
 default integration (its corrected test gradients differ from the trial ones: ||A - A^T|| is
-a few per cent of ||A||), so no Cholesky. Given the unknowns' points, the fill-reducing
-ordering is a geometric nested dissection of the pattern of A + A^T, factorised with diagonal
-pivots preferred; without points, SuperLU's own orderings. Iterative: GMRES with an
+a few per cent of ||A||), so no Cholesky. Given the unknowns' points and local couplings, the
+fill-reducing ordering is a geometric nested dissection of the pattern of A + A^T, factorised
+with diagonal pivots preferred; otherwise SuperLU's own orderings. Iterative: GMRES with an
 incomplete-LU preconditioner. A singular system — an unconstrained rigid mode — is detected
 by inverse iteration on the factors and refused with the DOF where it shows, never solved
 silently.
@@ -35,6 +35,11 @@ ITERATIVE_RTOL = 1e-12
 #: nested dissection stops splitting a set of at most this many unknowns (its own order is
 #: kept): below it the separators cost more bookkeeping than they save fill
 DISSECTION_LEAF = 64
+#: nested dissection only where every unknown couples to at most this many times the median
+#: count: plain MS's and MS1's dense slave clusters couple thousands of masters (37x and 16x the
+#: median at 10,353 particles), and cutting through those cliques filled 50 % and 40 % more than
+#: SuperLU's MMD, which orders a clique whole (MS2's and the penalty's ratio: 2.4 and 1.3)
+NONLOCAL_DEGREE_RATIO = 4.0
 #: with the nested-dissection order, a diagonal pivot is kept unless below this fraction of
 #: its column's largest entry: 0.1 made the penalty systems pivot off the diagonal (their
 #: w L^T L couplings match the diagonal) and doubled their fill at 40,709 particles; 0.01
@@ -58,7 +63,7 @@ class SolveInfo:
 class Factor:
     """A factorised (direct) or preconditioned (iterative) system, solved for many b.
     ``points`` (n, 2): where each unknown lives; the direct solver orders by nested dissection
-    of them (docs/sph.md § 5)."""
+    of them if the couplings are local, else by SuperLU's MMD on A^T + A (docs/sph.md § 5)."""
 
     def __init__(self, A, solver: str = "auto", nearly_symmetric: bool = False, points=None):
         if solver not in SOLVERS:
@@ -69,7 +74,12 @@ class Factor:
                                                        else "iterative")
         t0 = time.perf_counter()
         self.singular_ratio = np.nan
+        self.ordering = None
         if self.method == "direct":
+            if points is not None and not local_couplings(self.A):
+                points, nearly_symmetric = None, True
+            self.ordering = ("nested dissection" if points is not None else
+                             "MMD" if nearly_symmetric else "COLAMD")
             self.lu, self.singular_ratio = _factorise(self.A, nearly_symmetric, points)
         else:
             ilu = spla.spilu(self.A, drop_tol=1e-5, fill_factor=20)
@@ -166,6 +176,14 @@ def smallest_singular_ratio(A, factor) -> tuple[float, int]:
                 return 0.0, int(np.argmax(~np.isfinite(y)))
             sigma = min(sigma, 1.0 / grown)
     return sigma / scale, int(np.argmax(np.abs(y)))
+
+
+def local_couplings(A) -> bool:
+    """Whether no unknown of A + A^T couples to more than NONLOCAL_DEGREE_RATIO times the
+    median count: the systems nested dissection orders well."""
+    A = sp.csr_matrix(A)
+    degree = np.diff((abs(A) + abs(A).T).tocsr().indptr)
+    return degree.size == 0 or degree.max() <= NONLOCAL_DEGREE_RATIO * np.median(degree)
 
 
 def nested_dissection(A, points, leaf: int = DISSECTION_LEAF) -> np.ndarray:

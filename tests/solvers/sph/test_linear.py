@@ -99,6 +99,18 @@ def test_nested_dissection_of_coincident_points_keeps_their_order():
     assert np.array_equal(nested_dissection(A, np.zeros((100, 2))), np.arange(100))
 
 
+def lu_residual_bound(factor, A, x):
+    """LU's backward error: (A + dA) x = b with |dA| <= gamma_n |L||U| (Higham, Thm 9.4), so
+    ||b - A x||_1 <= gamma_n || |L||U| ||_1 ||x||_1, plus the residual's own evaluation, k
+    terms a row: k eps ||A||_1 ||x||_1."""
+    n = A.shape[0]
+    gamma = n * EPS / (1 - n * EPS)
+    k = int(np.diff(sp.csr_matrix(A).indptr).max())
+    lu = getattr(factor.lu, "lu", factor.lu)
+    growth = float((abs(lu.L).sum(axis=0) @ abs(lu.U)).max())
+    return (gamma * growth + k * EPS * abs(A).sum(axis=0).max()) * np.abs(x).sum()
+
+
 def right_hand_side(problem, edge):
     system = problem._system[1]
     if "ms" in system:
@@ -121,18 +133,11 @@ def test_the_dissected_factor_gives_the_displacements_of_superlus_own_order(
     assert (A != old._system[1]["factor"].A).nnz == 0          # the same system, two orders
     b = right_hand_side(new, edge)
     n = A.shape[0]
-    gamma = n * EPS / (1 - n * EPS)
-    k = int(np.diff(sp.csr_matrix(A).indptr).max())
     bounds, solutions = [], []
     for problem in (new, old):
         factor = problem._system[1]["factor"]
         x = factor.solve(b)[0]
-        # LU's backward error: (A + dA) x = b with |dA| <= gamma_n |L||U| (Higham, Thm 9.4),
-        # so ||b - A x||_1 <= gamma_n || |L||U| ||_1 ||x||_1, plus the residual's own
-        # evaluation, k terms a row: k eps ||A||_1 ||x||_1
-        lu = getattr(factor.lu, "lu", factor.lu)
-        growth = float((abs(lu.L).sum(axis=0) @ abs(lu.U)).max())
-        bound = (gamma * growth + k * EPS * abs(A).sum(axis=0).max()) * np.abs(x).sum()
+        bound = lu_residual_bound(factor, A, x)
         assert np.abs(b - A @ x).sum() <= bound
         bounds.append(bound)
         solutions.append(x)
@@ -181,3 +186,17 @@ def test_a_well_posed_system_reports_its_singular_ratio():
     assert np.abs(x - 1000.0).max() <= 100 * cond * EPS * 1000.0
     # sigma_min = 1e-3, largest entry 4: the check's bound is at least that, far above 1e-13
     assert MIN_SINGULAR_RATIO < 1e-3 / 4 * (1 - 1e-6) <= info.singular_ratio
+
+
+def test_nonlocal_couplings_are_ordered_by_superlus_mmd_not_dissected():
+    A, points = grid_laplacian(20)
+    assert Factor(A, "direct", points=points).ordering == "nested dissection"
+    # one unknown coupled to every other, as plain MS couples the masters near a cluster
+    clique = sp.lil_matrix(A.shape)
+    clique[0, :] = clique[:, 0] = 0.01
+    coupled = (A + clique.tocsr()).tocsr()
+    factor = Factor(coupled, "direct", points=points)
+    assert factor.ordering == "MMD"
+    b = np.arange(A.shape[0], dtype=float)
+    x = factor.solve(b)[0]
+    assert np.abs(b - coupled @ x).sum() <= lu_residual_bound(factor, coupled, x)
