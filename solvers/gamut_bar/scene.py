@@ -4,7 +4,7 @@
 validates a scene table and returns the solver's configuration and the nominal material
 (``(cfg, props)``, SI). A key of the wrong type or outside its bounds is a one-line
 ``SceneError`` naming ``scene.<key>`` (pydantic's error turned into one line by
-``uqflow.study.validation_error``, the study file's own adapter); what depends on several keys
+``uqflow.validation.validation_error``, the study file's own adapter); what depends on several keys
 (the material's consistency, the bond count, the cyclic load steps) is checked after, and
 names the key to change. The reference for users is docs/gamut_bar.md, "Scene".
 """
@@ -20,7 +20,7 @@ from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, ValidationE
 
 from solvers.gamut_bar.materials import MATERIALS, material_problem, overflow_problem, ro_stress
 from uqflow.errors import SceneError
-from uqflow.study import validation_error
+from uqflow.validation import validation_error
 
 #: material properties a scene may override (SI); R overrides eq. 18's modulus of softness
 PROPERTIES = ("E", "sigma_y", "sigma_f", "eps_f", "n_ro", "K_ro", "rho", "nu", "R", "area",

@@ -22,7 +22,7 @@ from solvers.mpm.grid import SIDE_KINDS, Grid
 from solvers.mpm.shapes import KINDS
 from uqflow.errors import SceneError
 from uqflow.scene_checks import is_number
-from uqflow.study import validation_error
+from uqflow.validation import validation_error
 
 # "seed": the conventions under which seed 000's tables are reproduced (docs/mpm.md,
 # "Conventions"); the kernels read the rate and heating ones, the probes the von Mises one
@@ -158,7 +158,7 @@ class Config:
 # The scene as declarations: one pydantic model per table (docs/mpm_scenes.md). A field's
 # type says what it takes; its validator gives the reason of the one-line error; the
 # models' own checks compare keys with each other. ``parse`` turns a validation error into
-# the SceneError ``scene.<key>: <reason>`` with ``uqflow.study.validation_error``, the
+# the SceneError ``scene.<key>: <reason>`` with ``uqflow.validation.validation_error``, the
 # study file's machinery.
 # ------------------------------------------------------------------------------------------
 

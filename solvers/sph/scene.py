@@ -22,7 +22,7 @@ from solvers.sph.problem import INTEGRATIONS, METHODS
 from solvers.sph.stiffness import STATES
 from uqflow.errors import SceneError
 from uqflow.scene_checks import is_number, scene_error
-from uqflow.study import validation_error
+from uqflow.validation import validation_error
 
 LAYOUTS = ("regular", "polar", "random")
 LOADINGS = ("tension", "eigenstrain")
@@ -257,7 +257,7 @@ def parse(scene: Mapping) -> Config:
 
 def _validated(scene) -> SceneSpec:
     """``scene`` checked key by key; pydantic's first complaint as a one-line SceneError (the
-    study loader's message and key, through uqflow.study.validation_error)."""
+    study loader's message and key, through uqflow.validation.validation_error)."""
     if not isinstance(scene, Mapping):
         raise SceneError(f"must be a table, got {scene!r}", key="scene")
     data = dict(scene)
