@@ -49,21 +49,33 @@ def warm_up_in_process(solver, solver_class, scene) -> dict:
         task, parts = None, 1       # not picklable: everything compiles here
     helpers = [_start_share(task, part) for part in range(1, parts)]
     try:
-        compiled = warm_solver(solver, 0, parts)
+        compiled = [warm_solver(solver, 0, parts)]
     finally:
         # a share that failed elsewhere compiles here at its first call: later, same code
-        finished = sum(p.wait() == 0 for p in helpers)
-    return {"seconds": time.perf_counter() - start, "compile_seconds": compiled or 0.0,
-            "processes": (compiled is not None) + finished}
+        compiled += [_share_result(p) for p in helpers]
+    done = [seconds for seconds in compiled if seconds is not None]
+    return {"seconds": time.perf_counter() - start, "compile_seconds": float(sum(done)),
+            "processes": len(done)}
 
 
 def _start_share(task: bytes, part: int) -> subprocess.Popen:
     process = subprocess.Popen([sys.executable, "-m", "uqflow.warm_up", str(part)],
-                               stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                               stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                stderr=subprocess.DEVNULL)
     process.stdin.write(task)
     process.stdin.close()
     return process
+
+
+def _share_result(process: subprocess.Popen) -> float | None:
+    """The compile seconds a share's subprocess printed, None when it failed."""
+    printed = process.stdout.read()
+    if process.wait() != 0:
+        return None
+    try:
+        return float(printed.split()[-1])     # the last word: a solver may print too
+    except (IndexError, ValueError):
+        return None
 
 
 def warm_solver(solver, part: int, parts: int) -> float | None:
@@ -106,8 +118,11 @@ def warm_up_on_dask(client, build, solver_class, scene) -> dict:
 
 def _main() -> int:
     solver_class, scene, parts = pickle.loads(sys.stdin.buffer.read())
-    return 0 if warm_solver(solver_class.from_scene(scene), int(sys.argv[1]), parts) \
-        is not None else 1
+    seconds = warm_solver(solver_class.from_scene(scene), int(sys.argv[1]), parts)
+    if seconds is None:
+        return 1
+    print(seconds)
+    return 0
 
 
 if __name__ == "__main__":
