@@ -2,12 +2,12 @@
 
 Direct: SuperLU. The stiffness, reduced and penalty systems are not symmetric under the
 default integration (its corrected test gradients differ from the trial ones: ||A - A^T|| is
-a few per cent of ||A||), so no Cholesky. Given the unknowns' points and local couplings, the
-fill-reducing ordering is a geometric nested dissection of the pattern of A + A^T, factorised
-with diagonal pivots preferred; otherwise SuperLU's own orderings. Iterative: GMRES with an
-incomplete-LU preconditioner. A singular system — an unconstrained rigid mode — is detected
-by inverse iteration on the factors and refused with the DOF where it shows, never solved
-silently.
+a few per cent of ||A||), so no Cholesky. Given the unknowns' points, many unknowns and local
+couplings, the fill-reducing ordering is a geometric nested dissection of the pattern of
+A + A^T; otherwise SuperLU's own orderings; diagonal pivots are preferred. Iterative: GMRES
+with an incomplete-LU preconditioner. A singular system — an unconstrained rigid mode — is
+detected by inverse iteration on the factors and refused with the DOF where it shows, never
+solved silently.
 """
 
 from __future__ import annotations
@@ -40,10 +40,14 @@ DISSECTION_LEAF = 64
 #: median at 10,353 particles), and cutting through those cliques filled 50 % and 40 % more than
 #: SuperLU's MMD, which orders a clique whole (MS2's and the penalty's ratio: 2.4 and 1.3)
 NONLOCAL_DEGREE_RATIO = 4.0
-#: with the nested-dissection order, a diagonal pivot is kept unless below this fraction of
-#: its column's largest entry: 0.1 made the penalty systems pivot off the diagonal (their
-#: w L^T L couplings match the diagonal) and doubled their fill at 40,709 particles; 0.01
-#: keeps the order (the same fill as MS2's) and bounds each step's growth by 101
+#: nested dissection only above this many unknowns: on benchmarks/sph_scaling.py's plate it
+#: filled MS2's factors 12 % more than SuperLU's MMD at 19,586 unknowns and 40,178, and 13 %
+#: less at 79,194 (its n log n against MMD's faster growth on 2-D meshes)
+DISSECTION_ABOVE = 60_000
+#: in the nested-dissection and MMD orders a diagonal pivot is kept unless below this fraction
+#: of its column's largest entry: 0.1 made the penalty systems pivot off the diagonal (their
+#: w L^T L couplings match the diagonal) and doubled their fill at 40,709 particles (MMD:
+#: quadrupled at 10,353); 0.01 keeps the order (MS2's fill) and bounds each step's growth by 101
 DIAGONAL_PIVOT_THRESHOLD = 0.01
 
 
@@ -63,7 +67,8 @@ class SolveInfo:
 class Factor:
     """A factorised (direct) or preconditioned (iterative) system, solved for many b.
     ``points`` (n, 2): where each unknown lives; the direct solver orders by nested dissection
-    of them if the couplings are local, else by SuperLU's MMD on A^T + A (docs/sph.md § 5)."""
+    of them if there are more than DISSECTION_ABOVE and the couplings are local, else by
+    SuperLU's MMD on A^T + A (docs/sph.md § 5)."""
 
     def __init__(self, A, solver: str = "auto", nearly_symmetric: bool = False, points=None):
         if solver not in SOLVERS:
@@ -76,7 +81,7 @@ class Factor:
         self.singular_ratio = np.nan
         self.ordering = None
         if self.method == "direct":
-            if points is not None and not local_couplings(self.A):
+            if points is not None and (n <= DISSECTION_ABOVE or not local_couplings(self.A)):
                 points, nearly_symmetric = None, True
             self.ordering = ("nested dissection" if points is not None else
                              "MMD" if nearly_symmetric else "COLAMD")
@@ -138,7 +143,8 @@ def _factorise(A, nearly_symmetric=False, points=None):
                    "options": {"SymmetricMode": True}}
     else:
         perm, target = None, A
-        options = ({"permc_spec": "MMD_AT_PLUS_A", "diag_pivot_thresh": 0.1,
+        options = ({"permc_spec": "MMD_AT_PLUS_A",
+                    "diag_pivot_thresh": DIAGONAL_PIVOT_THRESHOLD,
                     "options": {"SymmetricMode": True}} if nearly_symmetric
                    else {"permc_spec": "COLAMD"})
     try:

@@ -7,6 +7,7 @@ import scipy.sparse as sp
 
 from solvers.sph.exact import eshelby_displacement
 from solvers.sph.layouts import Box, Ellipse, regular_layout
+from solvers.sph import linear
 from solvers.sph.linear import (Factor, LinearSolveError, MIN_SINGULAR_RATIO,
                                 nested_dissection, smallest_singular_ratio, solve)
 from solvers.sph.problem import ElasticProblem
@@ -41,6 +42,12 @@ def asymmetry(A):
 @pytest.fixture(scope="module")
 def small_plate():
     return plate()
+
+
+@pytest.fixture
+def dissect_small(monkeypatch):
+    """Nested dissection at test sizes (the solver keeps it for large systems)."""
+    monkeypatch.setattr(linear, "DISSECTION_ABOVE", 0)
 
 
 @pytest.mark.parametrize("method,extra", METHODS)
@@ -121,7 +128,7 @@ def right_hand_side(problem, edge):
 
 @pytest.mark.parametrize("method,extra", METHODS)
 def test_the_dissected_factor_gives_the_displacements_of_superlus_own_order(
-        small_plate, method, extra):
+        small_plate, dissect_small, method, extra):
     disc, materials, edge = small_plate
     new = ElasticProblem(disc, **materials, method=method, **extra)
     u_new = new.solve(edge).u
@@ -156,7 +163,7 @@ def free_grid(m, shift=0.0):
     return A.tocsr(), points
 
 
-def test_the_singularity_check_bounds_the_smallest_singular_value_from_above():
+def test_the_singularity_check_bounds_the_smallest_singular_value_from_above(dissect_small):
     A, points = free_grid(12, shift=0.05)
     A = (A + sp.diags(0.3 * np.ones(143), 1)).tocsc()                 # not symmetric
     sigma = np.linalg.svd(A.toarray(), compute_uv=False)
@@ -166,19 +173,19 @@ def test_the_singularity_check_bounds_the_smallest_singular_value_from_above():
     assert ratio >= exact * (1 - 100 * (sigma[0] / sigma[-1]) * EPS)
 
 
-def test_an_exactly_free_mode_is_refused_on_the_dissected_path():
+def test_an_exactly_free_mode_is_refused_on_the_dissected_path(dissect_small):
     A, points = free_grid(12)
     with pytest.raises(LinearSolveError, match="singular"):
         solve(A, np.ones(144), "direct", points=points)
 
 
-def test_a_mode_at_rounding_level_is_refused_naming_where_it_shows():
+def test_a_mode_at_rounding_level_is_refused_naming_where_it_shows(dissect_small):
     A, points = free_grid(12, 1e-15)            # sigma_min 1e-15 of the largest entry (4)
     with pytest.raises(LinearSolveError, match="singular to working precision.*at unknown"):
         solve(A, np.ones(144), "direct", points=points)
 
 
-def test_a_well_posed_system_reports_its_singular_ratio():
+def test_a_well_posed_system_reports_its_singular_ratio(dissect_small):
     A, points = free_grid(12, 1e-3)
     x, info = solve(A, np.ones(144), "direct", points=points)
     # A = L + 1e-3 I with L's null vector the constant: x = 1000 everywhere, to cond eps
@@ -188,8 +195,10 @@ def test_a_well_posed_system_reports_its_singular_ratio():
     assert MIN_SINGULAR_RATIO < 1e-3 / 4 * (1 - 1e-6) <= info.singular_ratio
 
 
-def test_nonlocal_couplings_are_ordered_by_superlus_mmd_not_dissected():
+def test_small_or_nonlocal_systems_are_ordered_by_superlus_mmd_not_dissected(monkeypatch):
     A, points = grid_laplacian(20)
+    assert Factor(A, "direct", points=points).ordering == "MMD"          # 400 unknowns
+    monkeypatch.setattr(linear, "DISSECTION_ABOVE", 100)
     assert Factor(A, "direct", points=points).ordering == "nested dissection"
     # one unknown coupled to every other, as plain MS couples the masters near a cluster
     clique = sp.lil_matrix(A.shape)
