@@ -28,7 +28,7 @@ GIMP = 2
 KINDS = {"quadratic": QUADRATIC, "linear": LINEAR, "gimp": GIMP}
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _kernel(kind, r, lp):
     """Weight and d(weight)/d(xi) of a node at signed distance r = xi - node (cell units)."""
     a = abs(r)
@@ -70,7 +70,16 @@ def shape1d(kind, xi, lp):
         # r in [0.5, 1.5): the three pieces are known, no branch per node (the hot path)
         a, b, c = 1.5 - r, r - 1.0, r - 0.5
         return base, 0.5 * a * a, 0.75 - b * b, 0.5 * c * c, -a, -2.0 * b, c
+    w0, w1, w2, d0, d1, d2 = _weights_linear_or_gimp(kind, r, lp)
+    return base, w0, w1, w2, d0, d1, d2
+
+
+@njit(cache=True)
+def _weights_linear_or_gimp(kind, r, lp):
+    """The three weights and derivatives of the comparison kinds, called, not inlined:
+    pasted into every stencil, their branches tripled the stencil's compile time, which
+    every run pays for; the quadratic hot path never comes here (issue 19)."""
     w0, d0 = _kernel(kind, r, lp)
     w1, d1 = _kernel(kind, r - 1.0, lp)
     w2, d2 = _kernel(kind, r - 2.0, lp)
-    return base, w0, w1, w2, d0, d1, d2
+    return w0, w1, w2, d0, d1, d2
