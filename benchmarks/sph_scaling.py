@@ -1,13 +1,19 @@
-"""SPH: time of each phase (neighbour search, assembly, transformation, solve) against particle
-count, for the four constraint methods and both linear solvers, and the condition estimates.
+"""SPH: time of each phase (neighbour search, assembly, transformation, solve) and peak memory
+against particle count, for the four constraint methods and three linear solvers.
 
 A square plate (spacing 1) with a central circular inclusion of a quarter of its side, the
 seed's Example 1 materials and eigenstrain, the exact displacement on the whole edge: every
 edge particle is a slave, the worst case for plain master-slave. Median of ``--repeats`` runs
-per cell; plain MS is not run beyond the size where one run took more than ``--cap`` seconds.
+per cell; a method and solver are not run at a size where their last median, grown as the
+side cubed (a direct solve's n^1.5), would exceed ``--cap`` seconds. Solvers: "direct" (the
+default: SuperLU in a nested-dissection order of the particles, or in MMD), "superlu-order"
+(SuperLU in its own orders, the direct solver before) and "iterative" (GMRES with an
+incomplete LU). Peak memory: the largest resident size sampled during the run above the size
+before it (psutil; blank without it). ``--big SIDE`` adds one MS2 direct run of a plate of
+that side (450: 202,500 particles).
 
     python benchmarks/sph_scaling.py            # writes BENCHMARKS.md section "sph-scaling"
-    python benchmarks/sph_scaling.py --quick    # a tiny run (tests/solvers/sph/test_benchmarks_smoke.py)
+    python benchmarks/sph_scaling.py --quick    # a tiny run
 """
 
 from __future__ import annotations
@@ -16,6 +22,7 @@ import argparse
 import os
 import statistics
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -31,9 +38,52 @@ from solvers.sph.stiffness import Discretisation  # noqa: E402
 
 METHODS = (("master-slave", {}), ("master-slave-cutoff", {"cutoff_threshold": 1e-8}),
            ("master-slave-local", {}), ("penalty", {"penalty": 1e4}))
+SOLVERS = ("direct", "superlu-order", "iterative")
+
+
+class PeakMemory:
+    """The largest resident set size above the starting one, sampled every ``every`` s."""
+
+    def __init__(self, every=0.02):
+        try:
+            import psutil
+        except ImportError:
+            psutil = None
+        self.process = psutil.Process() if psutil else None
+        self.every, self.peak = every, None
+
+    def __enter__(self):
+        if self.process is None:
+            return self
+        self.start = self.peak = self.process.memory_info().rss
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._sample, daemon=True)
+        self.thread.start()
+        return self
+
+    def _sample(self):
+        while not self.stop.wait(self.every):
+            self.peak = max(self.peak, self.process.memory_info().rss)
+
+    def __exit__(self, *exc):
+        if self.process is not None:
+            self.stop.set()
+            self.thread.join()
+            self.peak = max(self.peak, self.process.memory_info().rss) - self.start
+
+    @property
+    def mib(self):
+        return None if self.peak is None else self.peak / 2 ** 20
 
 
 def one_run(side, method, extra, solver):
+    with PeakMemory() as memory:
+        n, times, t_layout = _solve(side, method, extra, solver)
+    times["peak_mib"] = memory.mib
+    return n, times, t_layout
+
+
+def _solve(side, method, extra, solver):
     t0 = time.perf_counter()
     lay = regular_layout(Box(-side / 2, -side / 2, side / 2, side / 2), 1.0,
                          [Ellipse(0.0, 0.0, side / 4, side / 4)])
@@ -44,12 +94,15 @@ def one_run(side, method, extra, solver):
     eigen[inside, :2] = 0.01
     problem = ElasticProblem(disc, np.where(inside, 1000.0, 900.0),
                              np.where(inside, 0.28, 0.33), eigenstrain=eigen, method=method,
-                             linear_solver=solver, **extra)
+                             linear_solver="iterative" if solver == "iterative" else "direct",
+                             dissection=solver != "superlu-order", **extra)
     edge = eshelby_displacement(lay.x[lay.boundary], side / 4, eigenstrain=0.01,
                                 E_inclusion=1000.0, nu_inclusion=0.28, E_matrix=900.0,
                                 nu_matrix=0.33)
     sol = problem.solve(edge)
-    times = dict(problem.setup_timings)
+    factor = problem._system[1]["factor"]
+    times = dict(problem.setup_timings, system_nnz=factor.A.nnz, factor_nnz=factor.factor_nnz,
+                 dissected=float(factor.ordering == "nested dissection"))
     for k, v in sol.timings.items():
         times[k] = times.get(k, 0.0) + v
     times["total"] = sum(times[k] for k in ("neighbours", "assembly", "transformation", "solve"))
@@ -60,37 +113,69 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sides", type=int, nargs="*", default=[30, 60, 100, 140, 200])
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--cap", type=float, default=60.0)
+    ap.add_argument("--cap", type=float, default=30.0)
+    ap.add_argument("--big", type=int, default=None, help="side of one extra MS2 direct run")
+    ap.add_argument("--conditions", default="", help="what else ran on the machine")
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args(argv)
     if args.quick:
         args.sides, args.repeats = [12], 1
-    rows, stopped = [], set()
-    for side in args.sides:
-        for method, extra in METHODS:
-            for solver in ("direct", "iterative"):
-                if (method, solver) in stopped:
-                    continue
-                runs = [one_run(side, method, extra, solver) for _ in range(args.repeats)]
-                n = runs[0][0]
-                med = {k: statistics.median(r[1][k] for r in runs) for k in runs[0][1]}
-                rows.append((n, method, solver, med))
-                print(n, method, solver, {k: round(v, 3) for k, v in med.items()}, flush=True)
-                if med["total"] > args.cap:
-                    stopped.add((method, solver))
+    cells = [(side, method, extra, solver, args.repeats) for side in args.sides
+             for method, extra in METHODS for solver in SOLVERS]
+    if args.big:
+        cells.append((args.big, "master-slave-local", {}, "direct", 1))
+    rows, stopped, undissected, last = [], set(), set(), {}
+    for side, method, extra, solver, repeats in cells:
+        big = side == args.big and repeats == 1
+        if not big and (method, solver) in stopped:
+            continue
+        if not big and (method, solver) in last:
+            # a direct solve's cost grows as n^1.5 on 2-D layouts: side^3
+            before, seconds = last[method, solver]
+            if seconds * (side / before) ** 3 > args.cap:
+                stopped.add((method, solver))
+                continue
+        if solver == "superlu-order" and (side, method) in undissected:
+            continue                    # "direct" already used SuperLU's order
+        runs = [one_run(side, method, extra, solver) for _ in range(repeats)]
+        n = runs[0][0]
+        med = {k: statistics.median(r[1][k] for r in runs) for k in runs[0][1]
+               if runs[0][1][k] is not None}
+        rows.append((n, method, solver, med, repeats))
+        last[method, solver] = (side, med["total"])
+        print(n, method, solver, {k: round(v, 3) for k, v in med.items()}, flush=True)
+        if solver == "direct" and not med["dissected"]:
+            undissected.add((side, method))
+            last[method, "superlu-order"] = (side, med["total"])     # the same solve
     if args.quick:
         return rows
     load = os.getloadavg()[0]
-    body = ("Phases of one solve (s, median of %d runs; 1-minute load average %.2f at the end). "
-            "Plain MS stops being run past the size where a run exceeded %g s.\n\n"
-            "| particles | method | solver | neighbours | assembly | transformation | solve | total |\n"
-            "|---|---|---|---|---|---|---|---|\n" % (args.repeats, load, args.cap))
-    for n, method, solver, t in rows:
-        body += (f"| {n:,} | {method} | {solver} | {t['neighbours']:.3f} | {t['assembly']:.2f} "
-                 f"| {t['transformation']:.2f} | {t['solve']:.2f} | {t['total']:.2f} |\n")
+    body = (f"{'Conditions: ' + args.conditions + chr(10) + chr(10) if args.conditions else ''}"
+            "Phases of one solve (s, median of %d runs unless the row says; 1-minute load "
+            "average %.2f at the end) and the run's peak resident memory above its start "
+            "(MiB), the entries of the system solved and of its LU factors. A method and "
+            "solver are not run at a size where their last median, grown as the side cubed "
+            "(a direct solve's n^1.5), would exceed %g s. Solvers: direct = the default: "
+            "SuperLU in a nested-dissection order of the particles (ND) above 60,000 unknowns "
+            "where the couplings are local, else in MMD on A^T + A (no superlu-order row "
+            "then); superlu-order = SuperLU in its own orders (MMD on A^T + A for the "
+            "master-slave systems, COLAMD for the penalty: the direct solver before); "
+            "iterative = GMRES with an incomplete LU.\n\n"
+            "| particles | method | solver | neighbours | assembly | transformation | solve "
+            "| total | peak MiB | nnz system | nnz L+U |\n"
+            "|---|---|---|---|---|---|---|---|---|---|---|\n" % (args.repeats, load, args.cap))
+    for n, method, solver, t, repeats in rows:
+        runs = "" if repeats == args.repeats else f" ({repeats} run)"
+        peak = f"{t['peak_mib']:,.0f}" if "peak_mib" in t else ""
+        fill = f"{t['factor_nnz'] / 1e6:.1f}M" if "factor_nnz" in t else ""
+        if solver == "direct":
+            solver = "direct (ND)" if t["dissected"] else "direct (MMD)"
+        body += (f"| {n:,}{runs} | {method} | {solver} | {t['neighbours']:.3f} "
+                 f"| {t['assembly']:.2f} | {t['transformation']:.2f} | {t['solve']:.2f} "
+                 f"| {t['total']:.2f} | {peak} | {t['system_nnz'] / 1e6:.1f}M | {fill} |\n")
     skipped = ", ".join(f"{m} ({s})" for m, s in sorted(stopped))
     if skipped:
-        body += f"\nStopped at the cap: {skipped}.\n"
+        body += f"\nStopped by the cap: {skipped}.\n"
     write_section("sph-scaling", "SPH: time of each phase against particle count", body)
     return rows
 
