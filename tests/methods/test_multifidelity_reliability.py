@@ -500,7 +500,8 @@ def test_the_refinements_stencil_runs_count_in_the_finest_cost():
     # quotient (condition number 1), no libm or BLAS call: a few roundings of eps/2 on any
     # CPU, far inside 1e-12
     ratio = float(stats[EQUIVALENT_FINEST_COST].values[0]) / (coarse + 10.0 * finest)
-    # bound: the few roundings above, 1e-12 relative
+    # bound: a product and a quotient of stored floats, a few eps/2 roundings, no libm, BLAS
+    # or numpy reduction, the same on any CPU: 1e-12 relative
     assert float(stats[FINEST_COST_RATIO].values[0]) == pytest.approx(ratio, rel=1e-12, abs=0)
 
 
@@ -624,7 +625,8 @@ def test_the_control_variate_estimate_is_unbiased_and_its_variance_the_mfmc_form
     # MFMC's optimal M / N at the stated costs 1 and 64: a square root of a ratio of the
     # stored rho's own functions (sqrt is correctly rounded everywhere), condition < 2
     optimal = math.sqrt(64 * rho**2 / (1 - rho**2))
-    # bound: a few roundings of eps times that condition: 1e-13
+    # bound: a few eps roundings times condition < 2, sqrt correctly rounded on every libm,
+    # no BLAS or numpy reduction: 1e-13
     assert value(stats, CONTROL_OPTIMAL_RATIO) == pytest.approx(optimal, rel=1e-13, abs=0)
 
 
@@ -649,9 +651,11 @@ def test_the_control_variate_variance_matches_the_formula_by_hand():
     # size and the variance's terms do not cancel by more than a factor 10 here
     # bound: a few ulp times 6 terms, times 10 for the cancellation: 1e-13; 1e-12
     assert found.probability == pytest.approx(float(p), rel=1e-12, abs=0)
-    # bound: as above, 1e-12
+    # bound: numpy's exp within a few ulp on any CPU, sums of 6 like terms in any order, a
+    # cancellation of at most 10 in the variance: 1e-13; 1e-12
     assert found.stderr**2 == pytest.approx(float(var), rel=1e-12, abs=0)
-    # bound: as above, 1e-12
+    # bound: the covariance over the variance, each as the line above (a few ulp of exp, 6
+    # terms, cancellation <= 10), in any summation order: 1e-13; 1e-12
     assert found.coefficient == pytest.approx(float(alpha), rel=1e-12, abs=0)
     assert (found.n, found.coarse_draws) == (3, 6)
 
@@ -663,7 +667,8 @@ def test_a_coarse_level_equal_to_the_finest_leaves_only_the_var_over_m_term():
     # the two levels' terms are the same numbers: cov / sqrt(var var) and cov / var are 1
     # bound: up to N = 400-term sums' rounding in two groupings, 400 eps = 9e-14: 1e-12
     assert value(stats, CONTROL_CORRELATION) == pytest.approx(1.0, rel=1e-12, abs=0)
-    # bound: as above, 1e-12
+    # bound: cov / var of the same 400 numbers summed in two groupings (numpy's SIMD or
+    # not), 400 eps = 9e-14 each: 1e-12
     assert value(stats, CONTROL_COEFFICIENT) == pytest.approx(1.0, rel=1e-12, abs=0)
     assert value(stats, CONTROL_OPTIMAL_RATIO) == math.inf   # every coarse draw pays
     # alpha = 1: P is the mean of the M coarse terms, var(Y_f) / M its variance
@@ -676,7 +681,8 @@ def test_a_coarse_level_equal_to_the_finest_leaves_only_the_var_over_m_term():
     # each rounding relative eps in any order, at most 2000 eps = 4.4e-13
     # bound: 4.4e-13 plus a few ulp: 1e-11
     assert p == pytest.approx(terms.mean(), rel=1e-11, abs=0)
-    # bound: the same sums and one square root: 1e-11
+    # bound: sums of 2000 positive terms in any order (4.4e-13), exp to a few ulp on any
+    # libm or numpy SIMD path, one correctly rounded sqrt: 1e-11
     assert stderr == pytest.approx(value(stats, PLAIN_STDERR) / math.sqrt(5), rel=1e-11, abs=0)
 
 

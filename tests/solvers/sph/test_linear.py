@@ -154,6 +154,8 @@ def test_the_dissected_factor_gives_the_displacements_of_superlus_own_order(
     assert np.abs(solutions[0] - solutions[1]).sum() <= difference
     # the parameters: u = P x + u_q (master-slave) or x (penalty): at most ||P||_1 times that
     P = new._system[1]["ms"].P if method != "penalty" else sp.identity(n)
+    # bound: the 1e-12 only absorbs the roundings of the bound's own two sums (a few eps
+    # in any order, any BLAS/numpy): the bound itself is the backward-error estimate above
     assert np.abs(u_new - u_old).sum() <= abs(P).sum(axis=0).max() * difference * (1 + 1e-12)
 
 def free_grid(m, shift=0.0):
