@@ -55,13 +55,13 @@ def _kernel(kind, r, lp):
     return 0.0, 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def stencil_base(xi):
     """The first node of the 3-node stencil of position ``xi`` (cell units), every kind."""
     return int(math.floor(xi - 0.5))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def shape1d(kind, xi, lp):
     """(base, w0, w1, w2, d0, d1, d2) of position ``xi`` (cell units from node 0)."""
     base = stencil_base(xi)

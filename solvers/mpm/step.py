@@ -34,6 +34,11 @@ Runs on one thread call the serial twins of the parallel kernels (``SERIAL``, ``
 the same functions compiled without parfors, which costs a one-thread run nothing and
 shortens the first run's compile (issue 19).
 
+The small helpers here, in ``shapes.py`` and ``materials/`` (and each material's ``advance``)
+are ``forceinline``: LLVM inlines them into the loops, where their loads and guards join the
+loop's. numba's ``inline="always"`` (inlining at numba's IR level) and plain calls both ran the
+step slower (docs/mpm.md, "Performance"; issue 19).
+
 Every kernel that indexes the grid first checks the particle's stencil is on the grid and
 skips (and flags) it otherwise, so a bad particle can never write out of bounds.
 """
@@ -70,12 +75,12 @@ def max_speed(vx, vy, S):
     return m
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _on_grid(bx, by, nnx, nny):
     return bx >= 0 and by >= 0 and bx + 2 < nnx and by + 2 < nny
 
 
-@njit(cache=True)
+@njit(cache=True, forceinline=True)
 def _stencil(kind, x, y, ox, oy, inv_dx, lp):
     """(bx, by, wx, wy, dwx, dwy) of a particle at (x, y): the lower-left node of its 3×3
     stencil, the 1-D weights and their derivatives in physical units (1/m)."""
@@ -197,7 +202,7 @@ def _unfold(a, k, side, bnode, sign):
                 a[i, g] = sign * a[i, m]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _mirror_signs(kind, side):
     """Signs of (v_x, v_y) of a ghost node relative to its mirror: a fixed wall is the odd
     image (both components flip); a roller/symmetry plane flips the normal component only."""
@@ -441,7 +446,7 @@ from solvers.mpm.materials import jwl as _jwl                  # noqa: E402
 from solvers.mpm.materials import water as _water              # noqa: E402
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _prepare(S, i, Lg, q1, q2, length, dt, time, xp, yp):
     """Write the bulk viscosity of row i's step (column Q, before the material update) and
     tell whether the row may skip the per-row guards of ``update``: finite arguments and
@@ -451,12 +456,13 @@ def _prepare(S, i, Lg, q1, q2, length, dt, time, xp, yp):
             and finite_args(Lg[i, 0], Lg[i, 1], Lg[i, 2], Lg[i, 3], dt, time, xp[i], yp[i]))
 
 
-@njit(cache=True, inline="always")
-def _settle(S, i, code, vx, vy, err):
+@njit(cache=True, forceinline=True)
+def _settle(S, i, code, vx, vy, err, check_row=True):
     """(failed, c + |v|) of row i after its update: the code, or the core's state check (a
-    non-finite row is ERR_CORE_NONFINITE), flagged in ``err``; the particle's signal speed
-    for the next CFL step."""
-    if code == 0 and not row_finite(S, i):
+    non-finite row is ERR_CORE_NONFINITE; skipped, ``check_row`` False, for a material whose
+    ``advance`` checks every value it writes), flagged in ``err``; the particle's signal
+    speed for the next CFL step."""
+    if check_row and code == 0 and not row_finite(S, i):
         code = ERR_CORE_NONFINITE
     if code != 0:
         err[i] = code
@@ -530,7 +536,7 @@ def _loop_water(prm, S, idx, Lg, q1, q2, length, dt, time, xp, yp, vx, vy, err):
             e = _water.advance(prm, S, i, L[0], L[1], L[2], L[3], dt, time, xp[i], yp[i])
         else:
             e = _water.update(prm, S, i, L[0], L[1], L[2], L[3], dt, time, xp[i], yp[i])
-        bad, speed = _settle(S, i, e, vx, vy, err)
+        bad, speed = _settle(S, i, e, vx, vy, err, not _water.ADVANCE_CHECKS_ITS_WRITES)
         nbad += bad
         vmax = max(vmax, speed)
     return nbad, vmax

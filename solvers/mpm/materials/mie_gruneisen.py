@@ -34,14 +34,14 @@ def eos_parameters(C, S1, S2, S3, gamma0, a):
             ParameterSpec("eos.a", a, "", "first-order volume correction a of γ"))
 
 
-@njit(cache=True, fastmath=False)
+@njit(cache=True, fastmath=False, forceinline=True)
 def mg_denominator(S1, S2, S3, mu):
     """den(μ) = 1 − (S1−1)μ − S2 μ²/(μ+1) − S3 μ³/(μ+1)² of the compression branch."""
     mp1 = mu + 1.0
     return 1.0 - (S1 - 1.0) * mu - S2 * mu * mu / mp1 - S3 * mu * mu * mu / (mp1 * mp1)
 
 
-@njit(cache=True, fastmath=False)
+@njit(cache=True, fastmath=False, forceinline=True)
 def mg_coefficients(rho0, C, S1, S2, S3, gamma0, a, rho):
     """(f, g, df/dμ, code) with p* = f + g E at density ρ (code ERR_MG_DENOMINATOR when the
     compression denominator is ≤ MG_DEN_MIN, i.e. near or past the pole of the Hugoniot)."""
@@ -72,7 +72,7 @@ def mie_gruneisen_pressure(rho0, C, S1, S2, S3, gamma0, a, rho, E):
     return f + g * E, code
 
 
-@njit(cache=True, fastmath=False)
+@njit(cache=True, fastmath=False, forceinline=True)
 def mg_bulk_sound_speed_sq(rho0, C, a, g, dfdmu, rho, E, p):
     """Isentropic bulk sound speed squared, c² = dp/dρ|_s:
 

@@ -157,7 +157,7 @@ def finite_values(a, k0, k1):
     return ok
 
 
-@njit(cache=True, fastmath=False)
+@njit(cache=True, fastmath=False, forceinline=True)
 def row_finite(S, i):
     """True when the state row i is finite."""
     ok = True
@@ -185,7 +185,7 @@ def bulk_guards_pass(prm, nprm, S, dt, time):
             and dt > 0.0 and dt * 0.0 == 0.0 and time * 0.0 == 0.0)
 
 
-@njit(cache=True, fastmath=False)
+@njit(cache=True, fastmath=False, forceinline=True)
 def finite_args(Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
     """True when every scalar argument of ``update`` is finite."""
     return (Lxx * 0.0 + Lxy * 0.0 + Lyx * 0.0 + Lyy * 0.0 + dt * 0.0 + time * 0.0
@@ -247,7 +247,7 @@ def deviator_of(S, i):
     return S[i, SXX] - m, S[i, SYY] - m, S[i, SXY], S[i, SZZ] - m
 
 
-@njit(cache=True, fastmath=False)
+@njit(cache=True, fastmath=False, forceinline=True)
 def density_update(rho, trD, dt):
     """ρ_{n+1} = ρ_n exp(−tr(D) Δt) (continuity, exact for constant D over the step).
 
@@ -256,7 +256,7 @@ def density_update(rho, trD, dt):
     return rho * math.exp(-trD * dt)
 
 
-@njit(cache=True, fastmath=False)
+@njit(cache=True, fastmath=False, forceinline=True)
 def bulk_viscosity(rho, length, c, div_v, Q1, Q2):
     """Artificial bulk viscosity q = ρ l (Q1 l ε̇v² − Q2 c ε̇v) for ε̇v = div v < 0, else 0
     (docs/design/mpm.md: Q1 = 1.5, Q2 = 0.06). Provided for the core; kernels only read Q."""
@@ -265,7 +265,7 @@ def bulk_viscosity(rho, length, c, div_v, Q1, Q2):
     return rho * length * (Q1 * length * div_v * div_v - Q2 * c * div_v)
 
 
-@njit(cache=True, fastmath=False)
+@njit(cache=True, fastmath=False, forceinline=True)
 def energy_update_linear_eos(E_n, p_n, q, dv, w_dev, f, g):
     """Energy-consistent (trapezoidal, implicit in E) update for an EOS linear in E.
 

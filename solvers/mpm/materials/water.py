@@ -21,6 +21,9 @@ from .state import (C as COL_C, E, ERR_DENSITY, ERR_NONFINITE, ERR_OTHER, OK, P,
 
 NAME = "mie_gruneisen_fluid"
 HAS_STRENGTH = False
+#: ``advance`` writes no non-finite value: it returns ERR_NONFINITE instead, the core's Q
+#: included, so the water loop skips the core's whole-row state check (step.py, issue 19)
+ADVANCE_CHECKS_ITS_WRITES = True
 
 PARAMETER_SPECS = (
     *eos_parameters(C=1480.0, S1=2.56, S2=-1.986, S3=0.2268, gamma0=0.4934, a=1.3937),
@@ -65,12 +68,13 @@ def update(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
     return advance(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y)
 
 
-@njit(cache=True, fastmath=False)
+@njit(cache=True, fastmath=False, forceinline=True)
 def advance(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
     """Continuity, energy-consistent MG pressure with cut-off, σ = −(p + q) I.
 
     Unguarded: for callers that have made ``check_update``'s checks cheaper in bulk (the
-    solver's loops, step.py)."""
+    solver's loops, step.py). Every value it writes is checked finite first, q among them
+    (``ADVANCE_CHECKS_ITS_WRITES``)."""
     rho0, q, rho_n = prm[I_RHO0], S[i, Q], S[i, RHO]
     rho1 = density_update(rho_n, Lxx + Lyy, dt)
     if not (rho1 > 0.0 and rho1 < math.inf):          # J = ρ_n/ρ_{n+1} > 0
@@ -88,7 +92,7 @@ def advance(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
         p1 = pcav
         E1 = S[i, E] - (0.5 * (S[i, P] + p1) + q) * dv
     c = math.sqrt(mg_bulk_sound_speed_sq(rho0, prm[I_C], prm[I_A], g, dfdmu, rho1, E1, p1))
-    if not (E1 + p1 + c + rho1) * 0.0 == 0.0:
+    if not (E1 + p1 + c + rho1 + q) * 0.0 == 0.0:
         return ERR_NONFINITE
     pq = p1 + q
     S[i, SXX], S[i, SYY], S[i, SXY], S[i, SZZ] = -pq, -pq, 0.0, -pq

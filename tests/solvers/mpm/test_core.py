@@ -393,6 +393,32 @@ def test_serial_twins_give_the_parallel_kernels_bits_on_one_thread(monkeypatch):
         np.testing.assert_array_equal(serial[name].values, parallel[name].values, err_msg=name)
 
 
+@pytest.mark.parametrize("parallel", [True, False], ids=["parfors", "serial twin"])
+@pytest.mark.parametrize("name", ["water", "steel_4340", "tnt", "elastic"])
+def test_every_material_loop_flags_an_overflowing_bulk_viscosity(name, parallel):
+    # finite arguments, but q = ρ l (Q1 l ε̇v² − Q2 c ε̇v) overflows for an absurd length:
+    # the water loop trusts its advance to refuse the non-finite q (no row check), the
+    # others find it in the row check; either way the particle is flagged, never stepped on
+    from solvers.mpm.materials import library
+    module, defaults = library.MATERIALS[name]
+    prm = module.pack(defaults)
+    S = ST.new_state(1)
+    assert module.init(prm, S, 0) == ST.OK
+    before = S.copy()
+    idx = np.zeros(1, dtype=np.int64)
+    Lg = np.array([[-1e3, 0.0, 0.0, -1e3]])
+    xy, v, err = np.zeros(1), np.zeros(1), np.zeros(1, dtype=np.int32)
+    loop, _init = K.loop_for(module, parallel)
+    nbad, _ = loop(prm, S, idx, Lg, 1.5, 0.06, 1e200, 1e-9, 0.0, xy, xy, v, v, err)
+    assert nbad == 1 and err[0] in (ST.ERR_NONFINITE, K.ERR_CORE_NONFINITE)
+    assert S[0, ST.Q] == np.inf
+    if module.__dict__.get("ADVANCE_CHECKS_ITS_WRITES"):
+        # its advance refused the step: every column but the core's Q as it was
+        keep = np.arange(ST.N_STATE) != ST.Q
+        assert err[0] == ST.ERR_NONFINITE
+        np.testing.assert_array_equal(S[0, keep], before[0, keep])
+
+
 # ------------------------------------------------------------------------------------------
 # the seed's scene, small: TNT + steel + water
 # ------------------------------------------------------------------------------------------
