@@ -38,7 +38,15 @@ from solvers.sph.stiffness import Discretisation  # noqa: E402
 
 METHODS = (("master-slave", {}), ("master-slave-cutoff", {"cutoff_threshold": 1e-8}),
            ("master-slave-local", {}), ("penalty", {"penalty": 1e4}))
-SOLVERS = ("direct", "superlu-order", "iterative")
+SOLVERS = ("direct", "superlu-order", "iterative", "pardiso")
+
+
+def pardiso_available() -> bool:
+    try:
+        import pypardiso  # noqa: F401
+    except ImportError:
+        return False
+    return True
 
 
 class PeakMemory:
@@ -94,7 +102,8 @@ def _solve(side, method, extra, solver):
     eigen[inside, :2] = 0.01
     problem = ElasticProblem(disc, np.where(inside, 1000.0, 900.0),
                              np.where(inside, 0.28, 0.33), eigenstrain=eigen, method=method,
-                             linear_solver="iterative" if solver == "iterative" else "direct",
+                             linear_solver=solver if solver in ("iterative", "pardiso")
+                             else "direct",
                              dissection=solver != "superlu-order", **extra)
     edge = eshelby_displacement(lay.x[lay.boundary], side / 4, eigenstrain=0.01,
                                 E_inclusion=1000.0, nu_inclusion=0.28, E_matrix=900.0,
@@ -109,21 +118,30 @@ def _solve(side, method, extra, solver):
     return lay.n, times, t_layout
 
 
+def mkl_threads() -> str:
+    """MKL's thread count as PARDISO will use it (MKL_NUM_THREADS, else every core)."""
+    return os.environ.get("MKL_NUM_THREADS", str(os.cpu_count()))
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sides", type=int, nargs="*", default=[30, 60, 100, 140, 200])
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--cap", type=float, default=30.0)
-    ap.add_argument("--big", type=int, default=None, help="side of one extra MS2 direct run")
+    ap.add_argument("--big", type=int, default=None, help="side of one extra MS2 run per "
+                    "--big-solvers")
+    ap.add_argument("--big-solvers", nargs="+", default=["direct"], choices=SOLVERS)
     ap.add_argument("--conditions", default="", help="what else ran on the machine")
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args(argv)
     if args.quick:
         args.sides, args.repeats = [12], 1
+    solvers = [s for s in SOLVERS if s != "pardiso" or pardiso_available()]
     cells = [(side, method, extra, solver, args.repeats) for side in args.sides
-             for method, extra in METHODS for solver in SOLVERS]
+             for method, extra in METHODS for solver in solvers]
     if args.big:
-        cells.append((args.big, "master-slave-local", {}, "direct", 1))
+        cells += [(args.big, "master-slave-local", {}, solver, 1)
+                  for solver in args.big_solvers if solver in solvers]
     rows, stopped, undissected, last = [], set(), set(), {}
     for side, method, extra, solver, repeats in cells:
         big = side == args.big and repeats == 1
@@ -160,10 +178,13 @@ def main(argv=None):
             "where the couplings are local, else in MMD on A^T + A (no superlu-order row "
             "then); superlu-order = SuperLU in its own orders (MMD on A^T + A for the "
             "master-slave systems, COLAMD for the penalty: the direct solver before); "
-            "iterative = GMRES with an incomplete LU.\n\n"
+            "iterative = GMRES with an incomplete LU; pardiso = Intel MKL PARDISO (the "
+            "optional extra uqflow[pardiso]: METIS order, %s MKL threads)%s.\n\n"
             "| particles | method | solver | neighbours | assembly | transformation | solve "
             "| total | peak MiB | nnz system | nnz L+U |\n"
-            "|---|---|---|---|---|---|---|---|---|---|---|\n" % (args.repeats, load, args.cap))
+            "|---|---|---|---|---|---|---|---|---|---|---|\n"
+            % (args.repeats, load, args.cap, mkl_threads(),
+               "" if "pardiso" in solvers else " (not installed: no pardiso rows)"))
     for n, method, solver, t, repeats in rows:
         runs = "" if repeats == args.repeats else f" ({repeats} run)"
         peak = f"{t['peak_mib']:,.0f}" if "peak_mib" in t else ""

@@ -1,6 +1,10 @@
 """Linear solves of the SPH systems and their condition (docs/sph.md § 5).
 
-Direct: SuperLU. The stiffness, reduced and penalty systems are not symmetric under the
+Direct: SuperLU; or, asked for by name (``"pardiso"``, the optional extra
+``uqflow[pardiso]``), Intel MKL's PARDISO through pypardiso: a multithreaded supernodal LU
+in METIS's nested-dissection order, 2-3 × faster than SuperLU on the large composites
+(§ 11). It is never chosen for the user: a study's numbers must not depend on which extras
+happen to be installed. The stiffness, reduced and penalty systems are not symmetric under the
 default integration (its corrected test gradients differ from the trial ones: ||A - A^T|| is
 a few per cent of ||A||), so no Cholesky. Given the unknowns' points, many unknowns and local
 couplings, the fill-reducing ordering is a geometric nested dissection of the pattern of
@@ -12,17 +16,22 @@ solved silently.
 
 from __future__ import annotations
 
+import os
 import time
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-SOLVERS = ("auto", "direct", "iterative")
-#: "auto" factorises up to this many unknowns and iterates beyond (benchmarks/sph_scaling.py:
-#: SuperLU stayed the faster of the two on every size measured, up to 40,000 particles)
-AUTO_ITERATIVE_ABOVE = 200_000
+SOLVERS = ("auto", "direct", "iterative", "pardiso")
+#: "auto" factorises up to this many unknowns and iterates beyond, where the factors would
+#: outgrow the memory of a 24 GiB machine: SuperLU was the faster at every size measured
+#: (benchmarks/sph_scaling.py), and its 408,226-unknown factorisation peaked at 11.8 GiB
+#: (780 million entries, growing as n log n)
+AUTO_ITERATIVE_ABOVE = 500_000
+PARDISO_INSTALL = "pip install 'uqflow[pardiso]'"
 #: smallest singular value below this fraction of the largest entry: singular to working
 #: precision (a free rigid mode leaves one at rounding level, ~1e-16 of the largest)
 MIN_SINGULAR_RATIO = 1e-13
@@ -80,7 +89,10 @@ class Factor:
         t0 = time.perf_counter()
         self.singular_ratio = np.nan
         self.ordering = None
-        if self.method == "direct":
+        if self.method == "pardiso":
+            self.ordering = "METIS (PARDISO)"
+            self.lu, self.singular_ratio = _checked(self.A, _PardisoFactor(self.A))
+        elif self.method == "direct":
             if points is not None and (n <= DISSECTION_ABOVE or not local_couplings(self.A)):
                 points, nearly_symmetric = None, True
             self.ordering = ("nested dissection" if points is not None else
@@ -93,8 +105,8 @@ class Factor:
 
     @property
     def factor_nnz(self) -> int | None:
-        """Entries of SuperLU's L + U (None for the iterative solver)."""
-        if self.method != "direct":
+        """Entries of the factors L + U (None for the iterative solver)."""
+        if self.method == "iterative":
             return None
         return int(getattr(self.lu, "lu", self.lu).nnz)
 
@@ -103,7 +115,7 @@ class Factor:
         ``build_seconds``)."""
         b = np.asarray(b, dtype=float)
         t0 = time.perf_counter()
-        if self.method == "direct":
+        if self.method != "iterative":
             x, iterations = self.lu.solve(b), 0
         else:
             x, iterations = _gmres(self.A, b, self.preconditioner)
@@ -151,7 +163,12 @@ def _factorise(A, nearly_symmetric=False, points=None):
         lu = spla.splu(target, **options)
     except RuntimeError as e:          # SuperLU: "Factor is exactly singular"
         raise LinearSolveError(f"the system of {A.shape[0]} unknowns is singular ({e})") from None
-    factor = lu if perm is None else _Permuted(lu, perm)
+    return _checked(A, lu if perm is None else _Permuted(lu, perm))
+
+
+def _checked(A, factor):
+    """(factor, its singular ratio), or LinearSolveError for a system singular to working
+    precision (``smallest_singular_ratio``)."""
     ratio, where = smallest_singular_ratio(A, factor)
     if not ratio > MIN_SINGULAR_RATIO:
         raise LinearSolveError(f"the system of {A.shape[0]} unknowns is singular to working "
@@ -159,6 +176,47 @@ def _factorise(A, nearly_symmetric=False, points=None):
                                f"largest entry, its vector largest at unknown {where} (a free "
                                f"rigid mode?)")
     return factor, ratio
+
+
+def _pardiso_solver(pypardiso):
+    """A PARDISO handle for a real unsymmetric matrix (mtype 11). When the loader does not
+    know MKL's runtime library (pip's MKL), pypardiso finds it by a recursive search of the
+    environment, 0.2 s a handle, unless PYPARDISO_MKL_RT (its documented setting) names it:
+    the path the first search found is set there for the handles after it."""
+    solver = pypardiso.PyPardisoSolver(mtype=11)
+    os.environ.setdefault("PYPARDISO_MKL_RT", solver.libmkl._name)
+    return solver
+
+
+class _PardisoFactor:
+    """PARDISO's LU of A (MKL, unsymmetric: METIS order, scaling and matching, its default
+    iparm), solving A x = b. A tiny pivot is perturbed, not refused, so singularity is left
+    to ``_checked``'s inverse iteration, as for SuperLU. The factors live in MKL's memory
+    until this object is collected."""
+
+    def __init__(self, A):
+        try:
+            import pypardiso
+        except ImportError:
+            raise LinearSolveError(f"linear_solver 'pardiso' needs pypardiso and MKL "
+                                   f"({PARDISO_INSTALL})") from None
+        self.A = sp.csr_matrix(A)
+        self.A.sort_indices()
+        if self.A.shape[0] and not np.diff(self.A.indptr).all():
+            raise LinearSolveError(f"the system of {A.shape[0]} unknowns is singular (empty "
+                                   f"row {int(np.flatnonzero(np.diff(self.A.indptr) == 0)[0])})")
+        self._pardiso = _pardiso_solver(pypardiso)
+        try:
+            self._pardiso.factorize(self.A)
+        except pypardiso.pardiso_wrapper.PyPardisoError as e:
+            raise LinearSolveError(f"PARDISO could not factorise the system of "
+                                   f"{A.shape[0]} unknowns ({e})") from None
+        # iparm(18): entries of L + U, reported by the factorisation
+        self.nnz = int(self._pardiso.get_iparm(18))
+        self._finalizer = weakref.finalize(self, self._pardiso.free_memory, True)
+
+    def solve(self, b):
+        return self._pardiso.solve(self.A, np.asarray(b, dtype=float))
 
 
 def smallest_singular_ratio(A, factor) -> tuple[float, int]:

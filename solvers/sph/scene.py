@@ -28,7 +28,7 @@ LAYOUTS = ("regular", "polar", "random")
 LOADINGS = ("tension", "eigenstrain")
 EIGENSTRAIN_MODES = ("in_plane", "dilatation_3d")
 EDGES = ("exact", "fixed")
-LINEAR_SOLVERS = ("auto", "direct", "iterative")
+LINEAR_SOLVERS = ("auto", "direct", "iterative", "pardiso")
 #: particles of one layout: the stiffness keeps ~160 nonzeros per particle pair of DOFs
 #: (about 13 M entries, ~0.3 GB with indices, at 40,000 particles — the largest size measured
 #: in benchmarks/sph_scaling.py); 10^5 keeps a run within a few GB

@@ -1,6 +1,8 @@
 """The linear solves of the SPH systems (solvers/sph/linear.py; docs/sph.md § 5): which systems
 are symmetric, the nested-dissection order against SuperLU's own, and the singularity check."""
 
+import sys
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -211,3 +213,66 @@ def test_small_or_nonlocal_systems_are_ordered_by_superlus_mmd_not_dissected(mon
     b = np.arange(A.shape[0], dtype=float)
     x = factor.solve(b)[0]
     assert np.abs(b - coupled @ x).sum() <= lu_residual_bound(factor, coupled, x)
+
+
+# -- PARDISO (the optional extra uqflow[pardiso]) ----------------------------------------------
+
+def test_pardiso_without_the_extra_says_how_to_install_it(monkeypatch):
+    # None in sys.modules makes `import pypardiso` raise ImportError, installed or not
+    monkeypatch.setitem(sys.modules, "pypardiso", None)
+    A, _ = free_grid(4, shift=1.0)
+    with pytest.raises(LinearSolveError, match=r"pip install 'uqflow\[pardiso\]'"):
+        Factor(A, "pardiso")
+
+
+def test_auto_never_chooses_pardiso():
+    # a study's numbers must not depend on which extras are installed
+    A, _ = free_grid(4, shift=1.0)
+    assert Factor(A, "auto").method == "direct"
+
+
+@pytest.mark.parametrize("method,extra", METHODS)
+def test_pardiso_gives_superlus_displacements_within_their_backward_errors(
+        small_plate, method, extra):
+    pytest.importorskip("pypardiso")
+    disc, materials, edge = small_plate
+    fast = ElasticProblem(disc, **materials, method=method, linear_solver="pardiso", **extra)
+    u_fast = fast.solve(edge).u
+    ref = ElasticProblem(disc, **materials, method=method, linear_solver="direct", **extra)
+    u_ref = ref.solve(edge).u
+    A = ref._system[1]["factor"].A
+    assert fast._system[1]["factor"].ordering == "METIS (PARDISO)"
+    assert (abs(fast._system[1]["factor"].A - A)).nnz == 0          # the same system
+    b = right_hand_side(ref, edge)
+    x_fast = fast._system[1]["factor"].solve(b)[0]
+    x_ref = ref._system[1]["factor"].solve(b)[0]
+    # PARDISO is held to the backward error SuperLU's own factors guarantee (its L and U are
+    # not readable): a wrong order, pivot or system would leave a far larger residual
+    residuals = [np.abs(b - A @ x).sum() for x in (x_fast, x_ref)]
+    assert residuals[0] <= lu_residual_bound(ref._system[1]["factor"], A, x_fast)
+    # the computed residuals are the true ones up to their evaluation, k eps ||A|| ||x|| each
+    k = int(np.diff(sp.csr_matrix(A).indptr).max())
+    evaluation = sum(k * EPS * abs(A).sum(axis=0).max() * np.abs(x).sum()
+                     for x in (x_fast, x_ref))
+    inverse_norm = np.abs(np.linalg.inv(A.toarray())).sum(axis=0).max()
+    difference = inverse_norm * (sum(residuals) + evaluation)
+    assert np.abs(x_fast - x_ref).sum() <= difference
+    P = ref._system[1]["ms"].P if method != "penalty" else sp.identity(A.shape[0])
+    # bound: the 1e-12 only absorbs the roundings of the bound's own sums (a few eps in any
+    # order, any BLAS/numpy): the bound itself is the residual-based estimate above
+    assert np.abs(u_fast - u_ref).sum() <= abs(P).sum(axis=0).max() * difference * (1 + 1e-12)
+
+
+def test_pardiso_refuses_singular_systems_naming_where_they_show():
+    # PARDISO perturbs a tiny pivot instead of stopping: the inverse-iteration check finds it
+    pytest.importorskip("pypardiso")
+    A, _ = free_grid(12)
+    with pytest.raises(LinearSolveError, match="singular"):
+        solve(A, np.ones(144), "pardiso")
+    A, _ = free_grid(12, 1e-15)
+    with pytest.raises(LinearSolveError, match="singular to working precision.*at unknown"):
+        solve(A, np.ones(144), "pardiso")
+    A, _ = free_grid(12, 1e-3)
+    x, info = solve(A, np.ones(144), "pardiso")
+    # A = L + 1e-3 I, L's null vector the constant: x = 1000 everywhere, to cond eps
+    assert info.method == "pardiso" and np.abs(x - 1000.0).max() <= 100 * 8e3 * EPS * 1000.0
