@@ -34,10 +34,13 @@ Runs on one thread call the serial twins of the parallel kernels (``SERIAL``, ``
 the same functions compiled without parfors, which costs a one-thread run nothing and
 shortens the first run's compile (issue 19).
 
-The small helpers here, in ``shapes.py`` and ``materials/`` (and each material's ``advance``)
-are ``forceinline``: LLVM inlines them into the loops, where their loads and guards join the
-loop's. numba's ``inline="always"`` (inlining at numba's IR level) and plain calls both ran the
-step slower (docs/mpm.md, "Performance"; issue 19).
+The small helpers here, in ``shapes.py`` and ``materials/`` are ``forceinline``: LLVM inlines
+them into the loops, where their loads and guards join the loop's (numba's IR-level
+``inline="always"`` and plain calls both ran the step slower). Each material's ``advance``,
+which takes the state and parameter arrays, is inlined at numba's IR level instead: a call
+that takes an array makes numba count references around it (atomic, opaque to LLVM), at
+every particle; the serial twins of the loops go without reference counting altogether
+(``_serial_twin(nrt=False)``). docs/mpm.md, "Performance"; issue 19.
 
 Every kernel that indexes the grid first checks the particle's stencil is on the grid and
 skips (and flags) it otherwise, so a bad particle can never write out of bounds.
@@ -639,7 +642,7 @@ def loop_for(module, parallel=True):
 # ------------------------------------------------------------------------------------------
 # Serial twins: the kernels for runs on one thread
 # ------------------------------------------------------------------------------------------
-def _serial_twin(kernel, cache=True):
+def _serial_twin(kernel, cache=True, nrt=True):
     """``kernel``'s Python function compiled without parfors. A run on one thread (the scenes'
     default, and every run below SERIAL_BELOW particles) gains nothing from parfors and pays
     for it at compile time: parfors' analysis and a gufunc per ``prange`` loop make the
@@ -652,7 +655,7 @@ def _serial_twin(kernel, cache=True):
                               f.__closure__)
     twin.__qualname__ = f"{f.__qualname__}_serial"
     twin.__doc__ = f.__doc__
-    return njit(cache=cache)(twin)
+    return njit(cache=cache, _nrt=nrt)(twin)
 
 
 _PARALLEL_KERNELS = (max_speed, p2g, grid_solve, g2p_velocity_remap, g2p_gradient, check_state,
@@ -660,7 +663,11 @@ _PARALLEL_KERNELS = (max_speed, p2g, grid_solve, g2p_velocity_remap, g2p_gradien
 PARALLEL = types.SimpleNamespace(**{k.py_func.__name__: k for k in _PARALLEL_KERNELS})
 SERIAL = types.SimpleNamespace(**{k.py_func.__name__: _serial_twin(k)
                                   for k in _PARALLEL_KERNELS})
-_SERIAL_LOOPS = {module: _serial_twin(update) for module, (update, _init) in _LOOPS.items()}
+# without numba's reference counting: the loops allocate nothing, and the counts numba adds
+# around each call that takes an array (atomic, opaque to LLVM) cost the water loop a fifth of
+# its time; the parfors kernels need it for their reductions, and prune those counts anyway
+_SERIAL_LOOPS = {module: _serial_twin(update, nrt=False)
+                 for module, (update, _init) in _LOOPS.items()}
 _loop_any_serial = _serial_twin(_loop_any, cache=False)
 
 

@@ -68,7 +68,7 @@ def update(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
     return advance(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y)
 
 
-@njit(cache=True, fastmath=False, forceinline=True)
+@njit(cache=True, fastmath=False, inline="always")
 def advance(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
     """Continuity, energy-consistent MG pressure with cut-off, σ = −(p + q) I.
 
