@@ -36,11 +36,15 @@ shortens the first run's compile (issue 19).
 
 The small helpers here, in ``shapes.py`` and ``materials/`` are ``forceinline``: LLVM inlines
 them into the loops, where their loads and guards join the loop's (numba's IR-level
-``inline="always"`` and plain calls both ran the step slower). Each material's ``advance``,
-which takes the state and parameter arrays, is inlined at numba's IR level instead: a call
-that takes an array makes numba count references around it (atomic, opaque to LLVM), at
-every particle; the serial twins of the loops go without reference counting altogether
-(``_serial_twin(nrt=False)``). docs/mpm.md, "Performance"; issue 19.
+``inline="always"`` and plain calls both ran the step slower). A call that takes an array
+(a material's ``advance(prm, S, ...)``) makes numba count references around it, atomic and
+opaque to LLVM, at every particle: the serial twins of the loops go without reference
+counting altogether (``_serial_twin(nrt=False)``), and the water's ``advance``, the bulk of
+every seed scene, is inlined at numba's IR level, so no call is left in its parfors loop.
+The other materials' ``advance`` stay ``forceinline``: inlining them at numba's IR level
+made the material loops compile about a third longer, for loops over a few per cent of the
+particles. docs/mpm.md,
+"Performance"; issue 19.
 
 Every kernel that indexes the grid first checks the particle's stencil is on the grid and
 skips (and flags) it otherwise, so a bad particle can never write out of bounds.

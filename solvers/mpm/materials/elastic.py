@@ -76,7 +76,7 @@ def update(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
     return advance(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y)
 
 
-@njit(cache=True, fastmath=False, inline="always")
+@njit(cache=True, fastmath=False, forceinline=True)
 def advance(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
     """Jaumann-rate hypoelastic update of particle i; returns a code.
 

@@ -318,7 +318,7 @@ def update(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
     return advance(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y)
 
 
-@njit(cache=True, fastmath=False, inline="always")
+@njit(cache=True, fastmath=False, forceinline=True)
 def advance(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
     """Advance particle i over dt (see module doc; docs/mpm_materials.md §3). Returns a code.
 

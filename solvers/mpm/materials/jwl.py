@@ -132,7 +132,7 @@ def update(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
     return advance(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y)
 
 
-@njit(cache=True, fastmath=False, inline="always")
+@njit(cache=True, fastmath=False, forceinline=True)
 def advance(prm, S, i, Lxx, Lxy, Lyx, Lyy, dt, time, x, y):
     """Burn fraction at time + dt, continuity, p = F p_JWL with the trapezoidal energy update.
 
