@@ -19,6 +19,7 @@ that side (450: 202,500 particles).
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import os
 import statistics
 import sys
@@ -42,11 +43,7 @@ SOLVERS = ("direct", "superlu-order", "iterative", "pardiso")
 
 
 def pardiso_available() -> bool:
-    try:
-        import pypardiso  # noqa: F401
-    except ImportError:
-        return False
-    return True
+    return importlib.util.find_spec("pypardiso") is not None
 
 
 class PeakMemory:

@@ -43,8 +43,7 @@ counting altogether (``_serial_twin(nrt=False)``), and the water's ``advance``, 
 every seed scene, is inlined at numba's IR level, so no call is left in its parfors loop.
 The other materials' ``advance`` stay ``forceinline``: inlining them at numba's IR level
 made the material loops compile about a third longer, for loops over a few per cent of the
-particles. docs/mpm.md,
-"Performance"; issue 19.
+particles (docs/mpm.md, "Performance"; issue 19).
 
 Every kernel that indexes the grid first checks the particle's stencil is on the grid and
 skips (and flags) it otherwise, so a bad particle can never write out of bounds.

@@ -200,8 +200,7 @@ class _PardisoFactor:
         except ImportError:
             raise LinearSolveError(f"linear_solver 'pardiso' needs pypardiso and MKL "
                                    f"({PARDISO_INSTALL})") from None
-        self.A = sp.csr_matrix(A)
-        self.A.sort_indices()
+        self.A = sp.csr_matrix(A)      # pypardiso sorts its indices in place
         if self.A.shape[0] and not np.diff(self.A.indptr).all():
             raise LinearSolveError(f"the system of {A.shape[0]} unknowns is singular (empty "
                                    f"row {int(np.flatnonzero(np.diff(self.A.indptr) == 0)[0])})")
