@@ -240,9 +240,10 @@ def reduced_stiffness(K, P, T, slaves, masters, cluster) -> sp.csr_matrix:
                          shape=(n, n))
 
 
-def penalty_system(K, f, c: Constraints, relative_weight: float):
-    """(A, b, w): A = K + w L^T L, b = f + w L^T p, w = relative_weight × mean diag K."""
+def penalty_system(K, f, c: Constraints, relative_weight: float, scale: float | None = None):
+    """(A, b, w): A = K + w L^T L, b = f + w L^T p, w = relative_weight × ``scale``, by
+    default mean diag K."""
     K = sp.csr_matrix(K)
-    w = float(relative_weight) * float(np.mean(K.diagonal()))
+    w = float(relative_weight) * float(np.mean(K.diagonal()) if scale is None else scale)
     L = c.rows
     return (K + w * (L.T @ L)).tocsr(), np.asarray(f, dtype=float) + w * (L.T @ c.rhs), w

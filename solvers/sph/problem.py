@@ -26,6 +26,7 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
 from solvers.sph.constraints import Constraints, master_slave, penalty_system
+from solvers.sph.factor_update import NotLowRank, UpdatedFactor
 from solvers.sph.linear import Factor, condition_estimate
 from solvers.sph.stiffness import block_diagonal, elasticity_matrices, lame, strain_operator
 from uqflow.errors import SolverError
@@ -75,7 +76,7 @@ class ElasticProblem:
                  penalty: float = 1e4, cutoff_threshold: float = 1e-12,
                  cutoff_radius: float | None = None, min_support: int = 5,
                  linear_solver: str = "auto", stabilisation: float = 0.0,
-                 dissection: bool = True):
+                 dissection: bool = True, update_factors: bool = True):
         if method not in METHODS:
             raise ValueError(f"unknown constraint method {method!r} (known: {', '.join(METHODS)})")
         if integration not in INTEGRATIONS:
@@ -88,6 +89,11 @@ class ElasticProblem:
         #: order the direct factorisation by nested dissection of the particles (False:
         #: SuperLU's own orders, kept for benchmarks/sph_scaling.py's comparison)
         self.dissection = bool(dissection)
+        #: solve a system after breaks through a low-rank update of the last factorised one
+        #: (factor_update.py) where the change allows, instead of factorising it afresh
+        self.update_factors = bool(update_factors)
+        self._factored = None             # (factor, its unknowns' global DOFs) of the last build
+        self._penalty_scale = None        # mean diag K of the first system built
         self.cutoff_threshold, self.cutoff_radius = float(cutoff_threshold), cutoff_radius
         lay = disc.layout
         n = disc.n
@@ -241,24 +247,48 @@ class ElasticProblem:
         dof_points = np.repeat(d.x, 2, axis=0)[keep]
         t0 = time.perf_counter()
         if self.method == "penalty":
-            A, _, w = penalty_system(K, f, c, self.penalty)
+            # one weight for the whole run, from the first system's stiffness (the intact
+            # plate's): a weight that followed the consistency term through the breaks would
+            # change every constraint row at each, and the system's update with it
+            # (factor_update.py)
+            if self._penalty_scale is None:
+                self._penalty_scale = float(np.mean(K.diagonal()))
+            A, _, w = penalty_system(K, f, c, self.penalty, self._penalty_scale)
             out.update(w=w, transformation=time.perf_counter() - t0)
-            out.update(factor=Factor(A, self.linear_solver,
-                                     points=dof_points if self.dissection else None))
+            out.update(factor=self._factorised(A, keep, dof_points))
             return out
         threshold = self.cutoff_threshold if self.method == "master-slave-cutoff" else 0.0
         radius = self.cutoff_radius if self.method == "master-slave-cutoff" else None
         ms = master_slave(K, f, c, dof_points, threshold=threshold, pattern_radius=radius)
         out["transformation"] = time.perf_counter() - t0
         rows = c.rows.tocsc()[:, c.slaves].tocsc()
-        out.update(ms=ms, factor=Factor(ms.K_hat, self.linear_solver, nearly_symmetric=True,
-                                        points=dof_points[ms.masters] if self.dissection
-                                        else None),
+        out.update(ms=ms, factor=self._factorised(ms.K_hat, keep[ms.masters],
+                                                  dof_points[ms.masters], nearly_symmetric=True),
                    scatter=sp.csr_matrix((np.ones(c.slaves.size),
                                           (c.slaves, np.arange(c.slaves.size))),
                                          shape=(keep.size, c.slaves.size)),
                    phi_ss=functools.cache(lambda: splu(rows)))
         return out
+
+    def _factorised(self, A, unknowns, points, nearly_symmetric=False):
+        """A's factors: a low-rank update of the last system built, where the breaks since
+        allow one, else a fresh Factor. ``unknowns``: the global DOF of each row of A, how the
+        last system's rows are found in A's."""
+        def fresh():
+            return Factor(A, self.linear_solver, nearly_symmetric,
+                          points if self.dissection else None)
+        if self.update_factors and self._factored is not None:
+            t0 = time.perf_counter()
+            try:
+                factor = UpdatedFactor(*self._factored, A, unknowns, fresh)
+            except NotLowRank:
+                factor = fresh()
+                # the refused update's time is the factors' too, not the assembly's
+                factor.build_seconds = time.perf_counter() - t0
+        else:
+            factor = fresh()
+        self._factored = (factor, unknowns)
+        return factor
 
     # -- solve ---------------------------------------------------------------------------
 

@@ -73,6 +73,10 @@ ONSETS = ("debonding_onset_strain", "detachment_onset_strain")
 class SPHSolver(Solver):
     """Quasi-static corrected SPH of a particulate composite with master–slave constraints."""
 
+    #: solve the system after a break through a low-rank update of the last one's factors
+    #: (factor_update.py); False factorises it afresh, the solver before (for the benchmark)
+    update_factors = True
+
     def __init__(self, cfg: Config):
         self.cfg = cfg
         self.layout = self._layout(None)
@@ -235,7 +239,8 @@ class SPHSolver(Solver):
                                      integration=c.integration, penalty=c.penalty,
                                      cutoff_threshold=c.cutoff_threshold, cutoff_radius=radius,
                                      min_support=c.min_support, linear_solver=c.linear_solver,
-                                     stabilisation=c.stabilisation)
+                                     stabilisation=c.stabilisation,
+                                     update_factors=self.update_factors)
             if c.loading == "tension":
                 out = self._tension(problem, layout, strength)
                 out.update(_bounds(layout, E, nu, c.state))
