@@ -67,15 +67,18 @@ def agree_within_residuals(A, x, y, b):
     return np.abs(x - y).sum() <= inverse_norm * (residuals + slack) * (1 + 1e-12)
 
 
-def fresh(A):
-    return lambda: Factor(A, "direct")
+def fresh(A, solver="direct"):
+    return lambda: Factor(A, solver)
 
 
-def test_removing_stiff_springs_is_solved_as_accurately_as_a_fresh_factorisation():
+@pytest.mark.parametrize("solver", ["direct", "pardiso"])
+def test_removing_stiff_springs_is_solved_as_accurately_as_a_fresh_factorisation(solver):
+    if solver == "pardiso":
+        pytest.importorskip("pypardiso")          # the optional extra: its block solves too
     before = grid(10, SPRINGS)
     after = grid(10, SPRINGS[2:])             # two springs broken: a rank-2 change
     ids = np.arange(100)
-    update = UpdatedFactor(Factor(before, "direct"), ids, after, ids, fresh(after))
+    update = UpdatedFactor(Factor(before, solver), ids, after, ids, fresh(after, solver))
     assert update.rank == 2
     b = np.random.default_rng(0).standard_normal(100)
     x, info = update.solve(b)
