@@ -101,6 +101,18 @@ def _parser() -> argparse.ArgumentParser:
                           "name without .nc; MPM: default the smallest standard error)")
 
     sub.add_parser("list", help="list the registered solvers and propagation methods")
+
+    srv = sub.add_parser("serve", help="serve a study's solver as a UM-Bridge model "
+                         "(docs/umbridge.md)")
+    srv.add_argument("study", type=Path, help="the study file (TOML): its solver, scene, "
+                     "inputs (the model's input vector) and outputs")
+    srv.add_argument("--host", default="127.0.0.1",
+                     help="address to listen on (default 127.0.0.1, this machine only)")
+    srv.add_argument("--port", type=int, default=4242, help="port (0: any free one; the "
+                     "line printed at start says which)")
+    srv.add_argument("--workers", type=int, default=1,
+                     help="evaluations run at once, each in a worker process of its own")
+    _add_set_option(srv)
     return p
 
 
@@ -268,9 +280,25 @@ def _list(args) -> int:
     return 0
 
 
+def _serve(args) -> int:
+    from uqflow.study import MAX_WORKERS
+    from uqflow.umbridge_server import serve
+
+    if not 1 <= args.workers <= MAX_WORKERS:
+        raise StudyError(f"must be between 1 and {MAX_WORKERS}, got {args.workers}",
+                         key="--workers")
+    if not 0 <= args.port <= 65535:
+        raise StudyError(f"must be a port number from 0 to 65535, got {args.port}",
+                         key="--port")
+    serve(args.study, host=args.host, port=args.port, workers=args.workers,
+          overrides=_overrides(args), ready=lambda line: print(line, flush=True))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
-    handler = {"run": _run, "validate": _validate, "report": _report, "list": _list}
+    handler = {"run": _run, "validate": _validate, "report": _report, "list": _list,
+               "serve": _serve}
     try:
         code = handler[args.command](args)
         sys.stdout.flush()  # a closed pipe shows here, not at exit

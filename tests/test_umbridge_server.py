@@ -1,0 +1,173 @@
+"""``uqflow serve``: a study's solver as a UM-Bridge model (uqflow/umbridge_server.py;
+docs/umbridge.md). Real servers in subprocesses on 127.0.0.1, called by the umbridge package's
+own client and by hand-made requests."""
+
+import json
+import subprocess
+import sys
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from uqflow.cli import main
+from uqflow.study import load_study
+
+umbridge = pytest.importorskip("umbridge")
+
+ROOT = Path(__file__).resolve().parent.parent
+ISHIGAMI = ROOT / "studies" / "ishigami_mc.toml"
+EULER = ROOT / "studies" / "multilevel" / "euler_mlmc.toml"
+START_TIMEOUT = 120          # s: a spawned worker imports uqflow and numba before it answers
+
+
+class Server:
+    """``uqflow serve STUDY --port 0`` in a subprocess; ``url`` from the line it prints."""
+
+    def __init__(self, study, *args):
+        self.process = subprocess.Popen(
+            [sys.executable, "-c", "import sys; from uqflow.cli import main; "
+             "sys.exit(main(sys.argv[1:]))", "serve", str(study), "--port", "0", *args],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        line = self.process.stdout.readline()
+        if "serving model" not in line:
+            self.process.kill()
+            raise RuntimeError(f"no server: {line!r} {self.process.stderr.read()!r}")
+        self.url = line.split(" on ")[1].split()[0]
+
+    def post(self, path, body=None, raw=None):
+        data = raw if raw is not None else json.dumps(body).encode()
+        request = urllib.request.Request(self.url + path, data=data, method="POST")
+        try:
+            with urllib.request.urlopen(request, timeout=START_TIMEOUT) as answer:
+                return answer.status, json.loads(answer.read())
+        except urllib.error.HTTPError as error:
+            return error.code, json.loads(error.read())
+
+    def stop(self):
+        self.process.kill()
+        self.process.wait()
+
+
+@pytest.fixture(scope="module")
+def ishigami():
+    server = Server(ISHIGAMI, "--workers", "2")
+    yield server
+    server.stop()
+
+
+@pytest.fixture(scope="module")
+def euler():
+    server = Server(EULER)
+    yield server
+    server.stop()
+
+
+POINTS = [[0.1, 0.2, 0.3], [-3.0, 1.5707963267948966, 2.9], [1e-300, -0.0, 3.141592653589793]]
+
+
+def test_the_umbridge_client_gets_the_in_process_outputs_bit_for_bit(ishigami):
+    model = umbridge.HTTPModel(ishigami.url, "ishigami-mc")
+    assert model.get_input_sizes() == [3] and model.get_output_sizes() == [1]
+    assert model.supports_evaluate() and not model.supports_gradient()
+    solver = load_study(ISHIGAMI).solver
+    for point in POINTS:
+        served = model([point])
+        here = float(solver.run(dict(zip(["x1", "x2", "x3"], point)))["y"])
+        assert served == [[here]]           # JSON's shortest repr round-trips every bit
+
+
+def test_a_level_and_an_output_are_chosen_by_config(euler):
+    model = umbridge.HTTPModel(euler.url, "euler-mlmc")
+    study = load_study(EULER)
+    status, info = euler.post("/ModelInfo", {"name": "euler-mlmc"})
+    assert status == 200 and info["uqflow"]["levels"] == {"key": "steps",
+                                                          "values": [4, 8, 16, 32, 64, 128]}
+    assert info["uqflow"]["outputs"]["path"]["dims"] == list(study.solver.outputs()["path"].dims)
+    for level in (0, 5):
+        expected = study.levels.aligned_solver(level).run({"k": 0.75})
+        served = model([[0.75]], {"level": level})
+        assert served[0] == [float(expected["y"])]
+        assert served[1] == np.asarray(expected["path"], dtype=float).ravel().tolist()
+    assert model([[0.75]], {"outputs": ["path"]}) == [model([[0.75]])[1]]
+    assert model.get_output_sizes({"outputs": ["y"]}) == [1]
+
+
+@pytest.mark.parametrize("path,body,raw,kind", [
+    ("/Evaluate", None, b"{not json", "InvalidInput"),
+    ("/Evaluate", {"input": [[0.0, 0.0, 0.0]]}, None, "InvalidInput"),              # no name
+    ("/Evaluate", {"name": "other", "input": [[0.0, 0.0, 0.0]]}, None, "ModelNotFound"),
+    ("/Evaluate", {"name": "ishigami-mc", "input": [[0.0, 0.0]]}, None, "InvalidInput"),
+    ("/Evaluate", {"name": "ishigami-mc", "input": [[0.0, "a", 0.0]]}, None, "InvalidInput"),
+    ("/Evaluate", {"name": "ishigami-mc", "input": [[0.0, 0.0, 1e999]]}, None, "InvalidInput"),
+    ("/Evaluate", {"name": "ishigami-mc", "input": [[0.0] * 3], "config": {"level": 1}}, None,
+     "InvalidInput"),                                                    # no [levels]
+    ("/Evaluate", {"name": "ishigami-mc", "input": [[0.0] * 3], "config": {"outputs": ["z"]}},
+     None, "InvalidInput"),
+    ("/Evaluate", {"name": "ishigami-mc", "input": [[0.0] * 3], "config": []}, None,
+     "InvalidInput"),
+    ("/Gradient", {"name": "ishigami-mc"}, None, "UnsupportedFeature"),
+    ("/Nowhere", {"name": "ishigami-mc"}, None, "UnsupportedFeature"),
+])
+def test_a_bad_request_gets_the_protocols_error_object_and_the_server_serves_on(
+        ishigami, path, body, raw, kind):
+    status, answer = ishigami.post(path, body, raw)
+    assert status >= 400 and set(answer) == {"error"}
+    assert answer["error"]["type"] == kind and answer["error"]["message"]
+    assert ishigami.post("/Evaluate", {"name": "ishigami-mc", "input": [[0.0] * 3]}) == \
+        (200, {"output": [[0.0]]})
+
+
+def test_info_names_the_model():
+    # GET /Info, through the client's discovery call
+    server = Server(ISHIGAMI)
+    try:
+        assert umbridge.supported_models(server.url) == ["ishigami-mc"]
+    finally:
+        server.stop()
+
+
+@pytest.mark.parametrize("argv,key", [
+    (["serve", str(ISHIGAMI), "--workers", "0"], "--workers"),
+    (["serve", str(ISHIGAMI), "--port", "70000"], "--port"),
+    (["serve", str(ROOT / "studies" / "sph" / "composite_kl_fields.toml")], "fields"),
+])
+def test_bad_serve_options_are_one_line_errors(argv, key, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and key in err
+
+
+FAULTY = """name = "faulty"
+solver = "analytic"
+scene = { model = "faulty", raise_above = 1.0, nan_below = -1.0 }
+
+[[inputs]]
+name = "x"
+distribution = "uniform"
+lower = -2.0
+upper = 2.0
+
+[method]
+kind = "monte-carlo"
+samples = 4
+"""
+
+
+def test_a_failed_run_is_an_error_object_with_its_message_and_the_next_run_is_served(tmp_path):
+    study = tmp_path / "faulty.toml"
+    study.write_text(FAULTY)
+    server = Server(study)
+    try:
+        request = {"name": "faulty"}
+        status, answer = server.post("/Evaluate", {**request, "input": [[1.5]]})
+        assert status == 500 and answer["error"]["type"] == "ModelError"
+        assert "diverged: x = 1.5 exceeds 1" in answer["error"]["message"]
+        status, answer = server.post("/Evaluate", {**request, "input": [[-1.5]]})
+        assert status == 500 and "non-finite output 'y'" in answer["error"]["message"]
+        assert server.post("/Evaluate", {**request, "input": [[0.25]]}) == (200, {"output":
+                                                                                [[0.25]]})
+    finally:
+        server.stop()

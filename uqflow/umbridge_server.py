@@ -1,0 +1,257 @@
+"""A study's solver served as a UM-Bridge model: ``uqflow serve`` (docs/umbridge.md).
+
+UM-Bridge (Seelinger et al., "Democratizing uncertainty quantification", arXiv 2402.13768) is
+HTTP + JSON: ``GET /Info``; ``POST /ModelInfo``, ``/InputSizes``, ``/OutputSizes`` and
+``/Evaluate`` with ``{"name", "input": [[...]], "config": {...}}``; errors as
+``{"error": {"type", "message"}}``. The umbridge package's own server is not used: a model
+that raises, or a request without a "name", gets aiohttp's plain 500 page instead of the
+protocol's error object; a NaN output is written into its JSON unquoted (which no JSON parser
+reads); and it listens on every interface, with no way to choose one. This server is the
+standard library's threaded HTTP server in front of a pool of worker processes, each of which
+loads the study once: a run that fails, or kills its worker, is an error object and the server
+keeps serving.
+
+The model: one input vector, the study's parameters in its order (its ``[[inputs]]``, in the
+solver's units); one output vector per study output, flattened in C order, its dims, shape and
+units under ``/ModelInfo``'s "uqflow" key. ``config``: ``{"level": k}`` runs fidelity level k
+of a study with ``[levels]`` (0 the coarsest; default the finest), ``{"outputs": [...]}`` a
+subset of the outputs in that order. Evaluate only: the MPM's constitutive sensitivities are
+local, frozen-state derivatives (docs/taylor_local.md), not the gradient of the whole run a
+UM-Bridge client would take ``/Gradient`` for, so none is served.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import threading
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+
+import numpy as np
+
+from uqflow.errors import StudyError
+from uqflow.layout import STATUS_OK
+
+PROTOCOL_VERSION = 1.0
+UNSUPPORTED = ("/Gradient", "/ApplyJacobian", "/ApplyHessian", "/EvaluateShMem",
+               "/TestShMem")
+
+
+class RequestError(Exception):
+    """A request the protocol answers with an error object: (type, message, HTTP status)."""
+
+    def __init__(self, kind: str, message: str, status: int = 400):
+        super().__init__(message)
+        self.kind, self.status = kind, status
+
+
+# -- the worker processes ----------------------------------------------------------------------
+
+_study = None
+
+
+def _load(path: str, overrides: dict) -> None:
+    from uqflow.study import load_study
+
+    global _study
+    _study = load_study(path, overrides=overrides)
+
+
+def _evaluate(level: int | None, values: list[float], outputs: list[str], seed):
+    """(status, message, {output: flat list}) of one run in a worker."""
+    from uqflow.realization import run_one, takes_seed
+
+    study = _study
+    solver = study.solver if level is None else study.levels.aligned_solver(level)
+    params = dict(zip(study.space.names, values))
+    status, message, result, _ = run_one(
+        solver, params, None, outputs, seed=seed if takes_seed(solver) else None)
+    return status, message, {k: np.asarray(v, dtype=float).ravel().tolist()
+                             for k, v in result.items()}
+
+
+# -- the model ---------------------------------------------------------------------------------
+
+class ServedStudy:
+    """The study's model as the protocol describes it; ``evaluate`` runs in the pool."""
+
+    def __init__(self, path: Path, overrides: dict | None = None, workers: int = 1):
+        from uqflow.study import load_study
+
+        self.path, self.overrides = Path(path), dict(overrides or {})
+        study = load_study(self.path, overrides=self.overrides)
+        if study.fields:
+            raise StudyError("a study with random fields is not served (a field's germ is "
+                             "not one of the model's inputs)", key="fields")
+        self.name = study.name
+        self.parameters = list(study.space.names)
+        self.outputs = list(study.outputs)
+        template = study.solver.outputs()
+        self.shapes = {o: tuple(int(n) for n in template[o].shape) for o in self.outputs}
+        self.info = {
+            "parameters": self.parameters,
+            "outputs": {o: {"dims": list(template[o].dims), "shape": list(self.shapes[o]),
+                            "units": template[o].attrs.get("units", "")}
+                        for o in self.outputs},
+            "levels": None if study.levels is None else
+            {"key": study.levels.spec.key, "values": study.levels.values},
+            "solver": study.spec.solver,
+        }
+        self.levels = 0 if study.levels is None else len(study.levels)
+        self.workers = int(workers)
+        self._pool_lock = threading.Lock()
+        self._pool = self._new_pool()
+
+    def _new_pool(self):
+        # spawned, not forked: a fork of a threaded server (and of numba's thread pools) is
+        # not safe; each worker loads the study once
+        return ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
+                                   initializer=_load,
+                                   initargs=(str(self.path), self.overrides))
+
+    def close(self):
+        self._pool.shutdown(wait=False, cancel_futures=True)
+
+    # -- what a request asks for --
+
+    def selected_outputs(self, config: dict) -> list[str]:
+        chosen = config.get("outputs", self.outputs)
+        if (not isinstance(chosen, list) or not chosen
+                or not all(isinstance(o, str) and o in self.shapes for o in chosen)):
+            raise RequestError("InvalidInput", f"config 'outputs' must be a non-empty list of "
+                                               f"the model's outputs {self.outputs}, got "
+                                               f"{chosen!r}")
+        return chosen
+
+    def level(self, config: dict) -> int | None:
+        if "level" not in config:
+            return None
+        k = config["level"]
+        if not self.levels:
+            raise RequestError("InvalidInput", "config 'level': this study has no [levels]")
+        if not isinstance(k, int) or isinstance(k, bool) or not 0 <= k < self.levels:
+            raise RequestError("InvalidInput", f"config 'level' must be an integer from 0 to "
+                                               f"{self.levels - 1}, got {k!r}")
+        return k
+
+    def output_sizes(self, config: dict) -> list[int]:
+        return [int(np.prod(self.shapes[o], dtype=np.int64)) for o in
+                self.selected_outputs(config)]
+
+    def evaluate(self, inputs, config: dict) -> list[list[float]]:
+        outputs, level = self.selected_outputs(config), self.level(config)
+        seed = config.get("seed")
+        if seed is not None and (not isinstance(seed, int) or isinstance(seed, bool)):
+            raise RequestError("InvalidInput", f"config 'seed' must be an integer, got {seed!r}")
+        if (not isinstance(inputs, list) or len(inputs) != 1 or not isinstance(inputs[0], list)
+                or len(inputs[0]) != len(self.parameters)):
+            raise RequestError("InvalidInput", f"input must be one vector of "
+                                               f"{len(self.parameters)} numbers "
+                                               f"({', '.join(self.parameters)})")
+        values = inputs[0]
+        if not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                   and np.isfinite(v) for v in values):
+            raise RequestError("InvalidInput", "input holds a value that is not a finite number")
+        pool = self._pool
+        try:
+            status, message, result = pool.submit(
+                _evaluate, level, [float(v) for v in values], outputs, seed).result()
+        except BrokenProcessPool:
+            with self._pool_lock:
+                if self._pool is pool:
+                    self._pool = self._new_pool()
+            raise RequestError("ModelError", "the worker running this evaluation died; the "
+                                             "server started a new one", 500) from None
+        if status != STATUS_OK:
+            raise RequestError("ModelError", message or "the run failed", 500)
+        return [result[o] for o in outputs]
+
+
+# -- HTTP --------------------------------------------------------------------------------------
+
+def _handler(model: ServedStudy):
+    class Handler(BaseHTTPRequestHandler):
+        protocol_version = "HTTP/1.1"
+
+        def log_message(self, *args):           # one line per request is noise for a model
+            pass
+
+        def _send(self, body: dict, status: int = 200):
+            data = json.dumps(body, allow_nan=False).encode()
+            self.send_response(status)
+            self.send_header("Content-Type", "application/json")
+            self.send_header("Content-Length", str(len(data)))
+            self.end_headers()
+            self.wfile.write(data)
+
+        def _error(self, exc: RequestError):
+            # the protocol's error object (keyword names: "message" is not the result's
+            # run-message variable of uqflow.layout)
+            self._send({"error": dict(type=exc.kind, message=str(exc))}, exc.status)
+
+        def do_GET(self):
+            if self.path == "/Info":
+                self._send({"protocolVersion": PROTOCOL_VERSION, "models": [model.name]})
+            else:
+                self._error(RequestError("UnsupportedFeature", f"no GET {self.path}", 404))
+
+        def do_POST(self):
+            try:
+                self._send(self._answer())
+            except RequestError as exc:
+                self._error(exc)
+            except Exception as exc:  # a bug here must not end the server: say what it was
+                self._error(RequestError("UnknownError", f"{type(exc).__name__}: {exc}", 500))
+
+        def _answer(self) -> dict:
+            length = int(self.headers.get("Content-Length") or 0)
+            try:
+                request = json.loads(self.rfile.read(length) or b"null")
+            except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+                raise RequestError("InvalidInput", f"the request is not JSON ({exc})") from None
+            if not isinstance(request, dict) or "name" not in request:
+                raise RequestError("InvalidInput", "the request must be a JSON object with "
+                                                   "the model's 'name'")
+            if request["name"] != model.name:
+                raise RequestError("ModelNotFound", f"model {request['name']!r} not found; "
+                                                    f"this server has {model.name!r}")
+            config = request.get("config")
+            config = {} if config is None else config
+            if not isinstance(config, dict):
+                raise RequestError("InvalidInput", "'config' must be a JSON object")
+            if self.path == "/ModelInfo":
+                return {"support": {"Evaluate": True, "Gradient": False,
+                                    "ApplyJacobian": False, "ApplyHessian": False},
+                        "uqflow": model.info}
+            if self.path == "/InputSizes":
+                return {"inputSizes": [len(model.parameters)]}
+            if self.path == "/OutputSizes":
+                return {"outputSizes": model.output_sizes(config)}
+            if self.path == "/Evaluate":
+                return {"output": model.evaluate(request.get("input"), config)}
+            if self.path in UNSUPPORTED:
+                raise RequestError("UnsupportedFeature", f"{self.path[1:]} is not served "
+                                                         f"(docs/umbridge.md)")
+            raise RequestError("UnsupportedFeature", f"no POST {self.path}", 404)
+
+    return Handler
+
+
+def serve(path: Path, *, host: str = "127.0.0.1", port: int = 4242, workers: int = 1,
+          overrides: dict | None = None, ready=print) -> None:
+    """Serve the study at ``path`` until interrupted; ``ready(line)`` is told where."""
+    model = ServedStudy(path, overrides, workers)
+    server = ThreadingHTTPServer((host, port), _handler(model))
+    server.daemon_threads = True
+    try:
+        ready(f"uqflow: serving model {model.name!r} on http://{host}:{server.server_port} "
+              f"({workers} worker{'s' if workers != 1 else ''}; Ctrl-C stops)")
+        server.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.server_close()
+        model.close()
