@@ -41,5 +41,11 @@ class SolverError(UqflowError):
     """
 
 
+class SolverUnavailable(UqflowError):
+    """The solver could not run a realization at all (a remote model that cannot be reached):
+    not the realization's failure. The study stops with the runs so far in its result file,
+    that realization still pending, and ``--resume`` runs it once the solver is back."""
+
+
 class AccuracyWarning(UserWarning):
     """An estimate may be inaccurate (large input C.V., unstable derivative, few samples)."""

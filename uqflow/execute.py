@@ -39,8 +39,8 @@ from uqflow.layout import (COMPLETE, CONVENTIONS, CREATED, ELAPSED_TIME, FAILED_
                            STUDY_TEXT_OMITTED, TITLE, WARM_UP_COMPILE_TIME, WARM_UP_PROCESSES,
                            WARM_UP_TIME, WARNINGS, WORKERS, is_sensitivity_variable)
 from uqflow.levels import AlignedSolver, level_array, same_level_runs
-from uqflow.realization import (add_field_value_variables, batch_arguments, empty_runs,
-                                realization_prefix, run_batch, store_batch)
+from uqflow.realization import (UNAVAILABLE, add_field_value_variables, batch_arguments,
+                                empty_runs, realization_prefix, run_batch, store_batch)
 from uqflow.store import (check_unlocked, check_writable, now, read_runs, result_lock, versions,
                           write_result)
 from uqflow.study import SET_OPTION, Study, scheduler_address_problem
@@ -372,6 +372,10 @@ class _Execution:
         store_batch(self.runs, done, result)
         self.bar.update(len(done), result[STATUS].count(STATUS_FAILED))
         self.checkpoint.dirty = True
+        if result.get(UNAVAILABLE):
+            return (f"failed:the solver could not run realization {int(indices[len(done)])} "
+                    f"({result[UNAVAILABLE]}); it and the rest are pending: finish with "
+                    f"--resume once the solver is back")
         ex = self.study.spec.execution
         failed = int((self.runs[STATUS].values == STATUS_FAILED).sum())
         if failed > ex.max_failure_fraction * self.n_total:

@@ -25,7 +25,7 @@ from contextlib import contextmanager
 import numpy as np
 import xarray as xr
 
-from uqflow.errors import SolverError
+from uqflow.errors import SolverError, SolverUnavailable
 from uqflow.fields import FieldSample, field_value_variable, germ_variable
 from uqflow.layout import (CLIPPED_POINTS, COMPILE_TIME, GERM_PREFIX, INPUTS, LONG_NAME,
                            MESSAGE, NO_VALUE_REASON, PARAMETER, PARAMETER_J, REALIZATION,
@@ -198,6 +198,8 @@ def run_one(solver, params: dict, fields, outputs: list[str], seed: int | None =
                 message += f": {result.attrs[NO_VALUE_REASON]}"
         else:
             status, message = STATUS_OK, ""
+    except SolverUnavailable:
+        raise                      # not this realization's failure: the caller stops
     except SolverError as exc:
         values, status, message = {}, STATUS_FAILED, f"SolverError: {exc}"
     except Exception as exc:  # a solver bug must not end the study; keep where it happened
@@ -262,6 +264,11 @@ def compile_clock():
         yield listener
 
 
+#: the key of ``run_batch``'s result saying why the solver could not run the next row (a
+#: ``SolverUnavailable``'s message; None when every row ran or the budget stopped the batch)
+UNAVAILABLE = "unavailable"
+
+
 def run_batch(solver, names: list[str], values: np.ndarray, outputs: list[str],
               fields: list | None = None, germs: dict | None = None,
               seeds: np.ndarray | None = None, budget: float | None = None,
@@ -275,12 +282,14 @@ def run_batch(solver, names: list[str], values: np.ndarray, outputs: list[str],
     respect to ``names``, under "sensitivities"). With ``budget`` (seconds) the batch
     returns after the first realization that ends past it, so finished realizations reach
     the caller (and its checkpoint) in bounded time: the result then covers the first
-    ``len(result[STATUS])`` rows, at least one.
+    ``len(result[STATUS])`` rows, at least one — or none, if the solver could not run the
+    first (``SolverUnavailable``: its message is ``result[UNAVAILABLE]``).
     """
     start = time.perf_counter()
     # once per batch: inspect is slow next to a run
     seeded = {False: takes_seed(solver), True: takes_seed(solver, "run_with_sensitivities")}
     statuses, messages, times, compiling, clipped, evaluated = [], [], [], [], [], []
+    unavailable = None
     results = {name: [] for name in outputs}
     derivatives = []
     derived = None
@@ -295,10 +304,15 @@ def run_batch(solver, names: list[str], values: np.ndarray, outputs: list[str],
                                           for f in fields})
         flagged = sensitivities is not None and bool(sensitivities[i])
         seed = int(seeds[i]) if seeds is not None and seeded[flagged] else None
-        with compile_clock() as compiled:
-            status, message, got, wall = run_one(solver, params, sample, outputs, seed,
-                                                 wrt=list(names) if flagged else None,
-                                                 derived=derived)
+        try:
+            with compile_clock() as compiled:
+                status, message, got, wall = run_one(solver, params, sample, outputs, seed,
+                                                     wrt=list(names) if flagged else None,
+                                                     derived=derived)
+        except SolverUnavailable as exc:
+            # the rows before it are returned; this one stays pending
+            unavailable = " ".join(str(exc).split())
+            break
         compiling.append(min(compiled.seconds, wall))
         clipped.append(sum(sample.clipped.values()) if sample is not None else 0)
         evaluated.append(sample.evaluated if sample is not None else {})
@@ -314,7 +328,7 @@ def run_batch(solver, names: list[str], values: np.ndarray, outputs: list[str],
     return {STATUS: statuses, MESSAGE: messages, WALL_TIME: times,
             COMPILE_TIME: compiling, "outputs": results,
             CLIPPED_POINTS: clipped, "field_values": evaluated,
-            "sensitivities": derivatives}
+            "sensitivities": derivatives, UNAVAILABLE: unavailable}
 
 
 def batch_arguments(runs: xr.Dataset, indices: np.ndarray, fields: list | None) -> dict:

@@ -71,7 +71,7 @@ def test_every_positional_argument_has_help():
     commands = next(a for a in _parser()._actions if a.dest == "command").choices
     positionals = [(name, action) for name, parser in commands.items()
                    for action in parser._actions if not action.option_strings]
-    assert {name for name, _ in positionals} == {"run", "validate", "report"}
+    assert {name for name, _ in positionals} == {"run", "validate", "report", "serve"}
     for name, action in positionals:
         assert action.help and len(action.help.split()) >= 3, (name, action.dest)
 
