@@ -171,3 +171,19 @@ def test_a_failed_run_is_an_error_object_with_its_message_and_the_next_run_is_se
                                                                                 [[0.25]]})
     finally:
         server.stop()
+
+
+def test_a_served_mpm_run_returns_the_in_process_outputs_bit_for_bit():
+    # the quickstart's thin plate (8,400 particles, one thread: one order of operations)
+    quickstart = ROOT / "studies" / "quickstart.toml"
+    study = load_study(quickstart)
+    nominal = study.solver.nominal()
+    point = [nominal[name] * 1.05 for name in study.space.names]   # off the nominal values
+    here = study.solver.run(dict(zip(study.space.names, point)))
+    server = Server(quickstart)
+    try:
+        served = umbridge.HTTPModel(server.url, study.name)([point])
+    finally:
+        server.stop()
+    for name, vector in zip(study.outputs, served):
+        assert vector == np.asarray(here[name].values, dtype=float).ravel().tolist(), name
