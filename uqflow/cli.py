@@ -105,7 +105,11 @@ def _parser() -> argparse.ArgumentParser:
     srv = sub.add_parser("serve", help="serve a study's solver as a UM-Bridge model "
                          "(docs/umbridge.md)")
     srv.add_argument("study", type=Path, help="the study file (TOML): its solver, scene, "
-                     "inputs (the model's input vector) and outputs")
+                     "inputs (the model's input vector) and outputs; or a scene file with "
+                     "--solver")
+    srv.add_argument("--solver", default=None, metavar="NAME",
+                     help="serve a scene file (not a study) with this solver: every parameter "
+                     "it has is an input, every output an output")
     srv.add_argument("--host", default="127.0.0.1",
                      help="address to listen on (default 127.0.0.1, this machine only)")
     srv.add_argument("--port", type=int, default=4242, help="port (0: any free one; the "
@@ -291,7 +295,8 @@ def _serve(args) -> int:
         raise StudyError(f"must be a port number from 0 to 65535, got {args.port}",
                          key="--port")
     serve(args.study, host=args.host, port=args.port, workers=args.workers,
-          overrides=_overrides(args), ready=lambda line: print(line, flush=True))
+          overrides=_overrides(args), solver=args.solver,
+          ready=lambda line: print(line, flush=True))
     return 0
 
 

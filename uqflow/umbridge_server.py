@@ -8,12 +8,14 @@ that raises, or a request without a "name", gets aiohttp's plain 500 page instea
 protocol's error object; a NaN output is written into its JSON unquoted (which no JSON parser
 reads); and it listens on every interface, with no way to choose one. This server is the
 standard library's threaded HTTP server in front of a pool of worker processes, each of which
-loads the study once: a run that fails, or kills its worker, is an error object and the server
+loads the model once: a run that fails, or kills its worker, is an error object and the server
 keeps serving.
 
 The model: one input vector, the study's parameters in its order (its ``[[inputs]]``, in the
 solver's units); one output vector per study output, flattened in C order, its dims, shape and
-units under ``/ModelInfo``'s "uqflow" key. ``config``: ``{"level": k}`` runs fidelity level k
+units under ``/ModelInfo``'s "uqflow" key. A scene file served with its solver's name
+(``--solver``) is the model of every parameter the solver has, in its ``nominal`` order, and of
+every output. ``config``: ``{"level": k}`` runs fidelity level k
 of a study with ``[levels]`` (0 the coarsest; default the finest), ``{"outputs": [...]}`` a
 subset of the outputs in that order. Evaluate only: the MPM's constitutive sensitivities are
 local, frozen-state derivatives (docs/taylor_local.md), not the gradient of the whole run a
@@ -25,6 +27,7 @@ from __future__ import annotations
 import json
 import multiprocessing
 import threading
+from dataclasses import dataclass
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -48,25 +51,76 @@ class RequestError(Exception):
         self.kind, self.status = kind, status
 
 
+# -- what is served ---------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Source:
+    """What to serve: a study file, or a scene file with the name of its solver."""
+
+    path: str
+    overrides: tuple = ()              # a study's (key, value) pairs, as --set gives them
+    solver: str | None = None          # a scene file's solver; None: a study file
+
+
+@dataclass
+class Loaded:
+    name: str
+    parameters: list[str]
+    outputs: list[str]
+    solver: object
+    levels: object = None              # a study's uqflow.levels.Levels, or None
+
+    def solver_at(self, level: int | None):
+        return self.solver if level is None else self.levels.aligned_solver(level)
+
+
+def load(source: Source) -> Loaded:
+    """The model of ``source``: a study's inputs and outputs, or a scene's every parameter
+    (in its solver's ``nominal`` order) and every output. One-line StudyErrors."""
+    from uqflow.solver import get_solver
+    from uqflow.study import load_study, read_toml
+
+    path = Path(source.path)
+    document, _ = read_toml(path, str(path))
+    is_study = "solver" in document and "method" in document
+    if source.solver is None:
+        if not is_study:
+            raise StudyError("a scene file (no 'solver' and 'method'): name its solver with "
+                             "--solver", file=str(path))
+        study = load_study(path, overrides=dict(source.overrides))
+        if study.fields:
+            raise StudyError("a study with random fields is not served (a field's germ is "
+                             "not one of the model's inputs)", file=str(path), key="fields")
+        return Loaded(study.name, list(study.space.names), list(study.outputs), study.solver,
+                      study.levels)
+    if is_study:
+        raise StudyError("--solver is for a scene file: this study names its own solver",
+                         file=str(path))
+    if source.overrides:
+        raise StudyError("--set applies to a study file, not a scene file", file=str(path))
+    try:
+        solver = get_solver(source.solver).from_scene(document)
+    except StudyError as exc:
+        raise exc.located(str(path)) from None
+    return Loaded(path.stem, list(solver.nominal()), list(solver.outputs().data_vars), solver)
+
+
 # -- the worker processes ----------------------------------------------------------------------
 
-_study = None
+_loaded: Loaded | None = None
 
 
-def _load(path: str, overrides: dict) -> None:
-    from uqflow.study import load_study
-
-    global _study
-    _study = load_study(path, overrides=overrides)
+def _load(source: Source) -> None:
+    global _loaded
+    _loaded = load(source)
 
 
 def _evaluate(level: int | None, values: list[float], outputs: list[str], seed):
     """(status, message, {output: flat list}) of one run in a worker."""
     from uqflow.realization import run_one, takes_seed
 
-    study = _study
-    solver = study.solver if level is None else study.levels.aligned_solver(level)
-    params = dict(zip(study.space.names, values))
+    solver = _loaded.solver_at(level)
+    params = dict(zip(_loaded.parameters, values))
     status, message, result, _ = run_one(
         solver, params, None, outputs, seed=seed if takes_seed(solver) else None)
     return status, message, {k: np.asarray(v, dtype=float).ravel().tolist()
@@ -75,42 +129,35 @@ def _evaluate(level: int | None, values: list[float], outputs: list[str], seed):
 
 # -- the model ---------------------------------------------------------------------------------
 
-class ServedStudy:
-    """The study's model as the protocol describes it; ``evaluate`` runs in the pool."""
+class ServedModel:
+    """The model as the protocol describes it; ``evaluate`` runs in the pool."""
 
-    def __init__(self, path: Path, overrides: dict | None = None, workers: int = 1):
-        from uqflow.study import load_study
-
-        self.path, self.overrides = Path(path), dict(overrides or {})
-        study = load_study(self.path, overrides=self.overrides)
-        if study.fields:
-            raise StudyError("a study with random fields is not served (a field's germ is "
-                             "not one of the model's inputs)", key="fields")
-        self.name = study.name
-        self.parameters = list(study.space.names)
-        self.outputs = list(study.outputs)
-        template = study.solver.outputs()
+    def __init__(self, source: Source, workers: int = 1):
+        self.source = source
+        loaded = load(source)
+        self.name, self.parameters, self.outputs = loaded.name, loaded.parameters, \
+            loaded.outputs
+        template = loaded.solver.outputs()
         self.shapes = {o: tuple(int(n) for n in template[o].shape) for o in self.outputs}
         self.info = {
             "parameters": self.parameters,
             "outputs": {o: {"dims": list(template[o].dims), "shape": list(self.shapes[o]),
                             "units": template[o].attrs.get("units", "")}
                         for o in self.outputs},
-            "levels": None if study.levels is None else
-            {"key": study.levels.spec.key, "values": study.levels.values},
-            "solver": study.spec.solver,
+            "levels": None if loaded.levels is None else
+            {"key": loaded.levels.spec.key, "values": loaded.levels.values},
+            "solver": loaded.solver.name,
         }
-        self.levels = 0 if study.levels is None else len(study.levels)
+        self.levels = 0 if loaded.levels is None else len(loaded.levels)
         self.workers = int(workers)
         self._pool_lock = threading.Lock()
         self._pool = self._new_pool()
 
     def _new_pool(self):
         # spawned, not forked: a fork of a threaded server (and of numba's thread pools) is
-        # not safe; each worker loads the study once
+        # not safe; each worker loads the model once
         return ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=_load,
-                                   initargs=(str(self.path), self.overrides))
+                                   initializer=_load, initargs=(self.source,))
 
     def close(self):
         self._pool.shutdown(wait=False, cancel_futures=True)
@@ -172,7 +219,7 @@ class ServedStudy:
 
 # -- HTTP --------------------------------------------------------------------------------------
 
-def _handler(model: ServedStudy):
+def _handler(model: ServedModel):
     class Handler(BaseHTTPRequestHandler):
         protocol_version = "HTTP/1.1"
 
@@ -241,9 +288,10 @@ def _handler(model: ServedStudy):
 
 
 def serve(path: Path, *, host: str = "127.0.0.1", port: int = 4242, workers: int = 1,
-          overrides: dict | None = None, ready=print) -> None:
-    """Serve the study at ``path`` until interrupted; ``ready(line)`` is told where."""
-    model = ServedStudy(path, overrides, workers)
+          overrides: dict | None = None, solver: str | None = None, ready=print) -> None:
+    """Serve the study (or, with ``solver``, the scene) at ``path`` until interrupted;
+    ``ready(line)`` is told where."""
+    model = ServedModel(Source(str(path), tuple((overrides or {}).items()), solver), workers)
     server = ThreadingHTTPServer((host, port), _handler(model))
     server.daemon_threads = True
     try:
