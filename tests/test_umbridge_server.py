@@ -71,7 +71,7 @@ POINTS = [[0.1, 0.2, 0.3], [-3.0, 1.5707963267948966, 2.9], [1e-300, -0.0, 3.141
 def test_the_umbridge_client_gets_the_in_process_outputs_bit_for_bit(ishigami):
     model = umbridge.HTTPModel(ishigami.url, "ishigami-mc")
     assert model.get_input_sizes() == [3] and model.get_output_sizes() == [1]
-    assert model.supports_evaluate() and not model.supports_gradient()
+    assert model.supports_evaluate()
     solver = load_study(ISHIGAMI).solver
     for point in POINTS:
         served = model([point])
@@ -108,7 +108,13 @@ def test_a_level_and_an_output_are_chosen_by_config(euler):
      None, "InvalidInput"),
     ("/Evaluate", {"name": "ishigami-mc", "input": [[0.0] * 3], "config": []}, None,
      "InvalidInput"),
-    ("/Gradient", {"name": "ishigami-mc"}, None, "UnsupportedFeature"),
+    ("/ApplyHessian", {"name": "ishigami-mc"}, None, "UnsupportedFeature"),
+    ("/Gradient", {"name": "ishigami-mc", "input": [[0.0] * 3], "outWrt": 1, "inWrt": 0,
+                   "sens": [1.0]}, None, "InvalidInput"),             # one output: index 0
+    ("/Gradient", {"name": "ishigami-mc", "input": [[0.0] * 3], "outWrt": 0, "inWrt": 0,
+                   "sens": [1.0, 2.0]}, None, "InvalidInput"),
+    ("/ApplyJacobian", {"name": "ishigami-mc", "input": [[0.0] * 3], "outWrt": 0, "inWrt": 1,
+                        "vec": [1.0, 0.0, 0.0]}, None, "InvalidInput"),
     ("/Nowhere", {"name": "ishigami-mc"}, None, "UnsupportedFeature"),
 ])
 def test_a_bad_request_gets_the_protocols_error_object_and_the_server_serves_on(
@@ -205,7 +211,13 @@ def test_a_served_mpm_run_returns_the_in_process_outputs_bit_for_bit():
     here = study.solver.run(dict(zip(study.space.names, point)))
     server = Server(quickstart)
     try:
-        served = umbridge.HTTPModel(server.url, study.name)([point])
+        model = umbridge.HTTPModel(server.url, study.name)
+        served = model([point])
+        # frozen-state constitutive sensitivities are not the run's gradient: none served
+        assert not model.supports_gradient() and not model.supports_apply_jacobian()
+        status, answer = server.post("/Gradient", {"name": study.name, "input": [point],
+                                                   "outWrt": 0, "inWrt": 0, "sens": [1.0]})
+        assert status == 400 and answer["error"]["type"] == "UnsupportedFeature"
     finally:
         server.stop()
     for name, vector in zip(study.outputs, served):
@@ -223,3 +235,17 @@ def test_qmcpys_wrapper_gets_the_in_process_outputs_bit_for_bit(ishigami):
     solver = load_study(ISHIGAMI).solver
     here = [float(solver.run(dict(zip(["x1", "x2", "x3"], x)))["y"]) for x in measure(16)]
     assert served.tolist() == here
+
+
+def test_gradient_and_jacobian_of_a_closed_form_are_the_in_process_derivatives(ishigami):
+    model = umbridge.HTTPModel(ishigami.url, "ishigami-mc")
+    assert model.supports_gradient() and model.supports_apply_jacobian()
+    solver = load_study(ISHIGAMI).solver
+    names = ["x1", "x2", "x3"]
+    for point in POINTS:
+        here = solver.run_with_sensitivities(dict(zip(names, point)), wrt=names,
+                                             outputs=["y"])
+        jacobian = np.asarray(here["y__gradient"], dtype=float).reshape(1, 3)
+        assert model.gradient(0, 0, [point], [2.5]) == (jacobian.T @ [2.5]).tolist()
+        vec = [0.5, -1.0, 3.0]
+        assert model.apply_jacobian(0, 0, [point], vec) == (jacobian @ vec).tolist()

@@ -60,6 +60,11 @@ class Solver(abc.ABC):
     """
 
     name: ClassVar[str] = ""
+    #: True when ``run_with_sensitivities``' derivatives are those of the whole run (a closed
+    #: form), not frozen-state ones: the derivative a caller of the solver as a black box
+    #: would mean (``uqflow serve`` answers UM-Bridge's /Gradient and /ApplyJacobian with
+    #: them). The MPM's constitutive sensitivities are frozen-state: False.
+    sensitivities_are_total: ClassVar[bool] = False
 
     @classmethod
     @abc.abstractmethod

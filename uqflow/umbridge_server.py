@@ -17,9 +17,11 @@ units under ``/ModelInfo``'s "uqflow" key. A scene file served with its solver's
 (``--solver``) is the model of every parameter the solver has, in its ``nominal`` order, and of
 every output. ``config``: ``{"level": k}`` runs fidelity level k
 of a study with ``[levels]`` (0 the coarsest; default the finest), ``{"outputs": [...]}`` a
-subset of the outputs in that order. Evaluate only: the MPM's constitutive sensitivities are
-local, frozen-state derivatives (docs/taylor_local.md), not the gradient of the whole run a
-UM-Bridge client would take ``/Gradient`` for, so none is served.
+subset of the outputs in that order. ``/Gradient`` and ``/ApplyJacobian`` are served for the
+outputs whose derivatives are those of the whole run (``Solver.sensitivities_are_total``: the
+analytic models' closed forms); the MPM's constitutive sensitivities are local, frozen-state
+derivatives (docs/taylor_local.md), not the gradient a UM-Bridge client would take those calls
+for, so the MPM serves none.
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ from uqflow.errors import StudyError
 from uqflow.layout import STATUS_OK
 
 PROTOCOL_VERSION = 1.0
-UNSUPPORTED = ("/Gradient", "/ApplyJacobian", "/ApplyHessian", "/EvaluateShMem",
+UNSUPPORTED = ("/ApplyHessian", "/EvaluateShMem", "/GradientShMem", "/ApplyJacobianShMem",
                "/TestShMem")
 
 
@@ -127,6 +129,20 @@ def _evaluate(level: int | None, values: list[float], outputs: list[str], seed):
                              for k, v in result.items()}
 
 
+def _jacobian(level: int | None, values: list[float], output: str):
+    """(status, message, d output / d inputs as a (output size, inputs) nested list)."""
+    from uqflow.layout import gradient_variable
+    from uqflow.realization import run_one
+
+    params = dict(zip(_loaded.parameters, values))
+    status, message, result, _ = run_one(_loaded.solver_at(level), params, None, [output],
+                                         wrt=_loaded.parameters, derived=[output])
+    if status != STATUS_OK:
+        return status, message, None
+    gradient = np.asarray(result[gradient_variable(output)], dtype=float)
+    return status, message, gradient.reshape(-1, len(_loaded.parameters)).tolist()
+
+
 # -- the model ---------------------------------------------------------------------------------
 
 class ServedModel:
@@ -149,6 +165,12 @@ class ServedModel:
             "solver": loaded.solver.name,
         }
         self.levels = 0 if loaded.levels is None else len(loaded.levels)
+        # derivatives of the whole run only (Solver.sensitivities_are_total), per output
+        available = loaded.solver.local_sensitivities() \
+            if loaded.solver.sensitivities_are_total else {}
+        self.derivable = {o for o in self.outputs
+                          if set(self.parameters) <= set(available.get(o, ()))}
+        self.info["derivatives"] = sorted(self.derivable)
         self.workers = int(workers)
         self._pool_lock = threading.Lock()
         self._pool = self._new_pool()
@@ -188,11 +210,7 @@ class ServedModel:
         return [int(np.prod(self.shapes[o], dtype=np.int64)) for o in
                 self.selected_outputs(config)]
 
-    def evaluate(self, inputs, config: dict) -> list[list[float]]:
-        outputs, level = self.selected_outputs(config), self.level(config)
-        seed = config.get("seed")
-        if seed is not None and (not isinstance(seed, int) or isinstance(seed, bool)):
-            raise RequestError("InvalidInput", f"config 'seed' must be an integer, got {seed!r}")
+    def _values(self, inputs) -> list[float]:
         if (not isinstance(inputs, list) or len(inputs) != 1 or not isinstance(inputs[0], list)
                 or len(inputs[0]) != len(self.parameters)):
             raise RequestError("InvalidInput", f"input must be one vector of "
@@ -202,10 +220,13 @@ class ServedModel:
         if not all(isinstance(v, (int, float)) and not isinstance(v, bool)
                    and np.isfinite(v) for v in values):
             raise RequestError("InvalidInput", "input holds a value that is not a finite number")
+        return [float(v) for v in values]
+
+    def _run(self, task, *args):
+        """``task(*args)`` in a worker: its answer, or the error object of a failed run."""
         pool = self._pool
         try:
-            status, message, result = pool.submit(
-                _evaluate, level, [float(v) for v in values], outputs, seed).result()
+            status, message, answer = pool.submit(task, *args).result()
         except BrokenProcessPool:
             with self._pool_lock:
                 if self._pool is pool:
@@ -214,7 +235,43 @@ class ServedModel:
                                              "server started a new one", 500) from None
         if status != STATUS_OK:
             raise RequestError("ModelError", message or "the run failed", 500)
+        return answer
+
+    def evaluate(self, inputs, config: dict) -> list[list[float]]:
+        outputs, level = self.selected_outputs(config), self.level(config)
+        seed = config.get("seed")
+        if seed is not None and (not isinstance(seed, int) or isinstance(seed, bool)):
+            raise RequestError("InvalidInput", f"config 'seed' must be an integer, got {seed!r}")
+        result = self._run(_evaluate, level, self._values(inputs), outputs, seed)
         return [result[o] for o in outputs]
+
+    def derivative(self, request: dict, config: dict, transpose: bool) -> list[float]:
+        """/Gradient (``transpose``: J^T sens) or /ApplyJacobian (J vec) of one output."""
+        outputs, level = self.selected_outputs(config), self.level(config)
+        out, into = request.get("outWrt"), request.get("inWrt")
+        if not isinstance(out, int) or isinstance(out, bool) or not 0 <= out < len(outputs):
+            raise RequestError("InvalidInput", f"outWrt must be an output's index from 0 to "
+                                               f"{len(outputs) - 1}, got {out!r}")
+        if into != 0:
+            raise RequestError("InvalidInput", f"inWrt must be 0 (one input vector), got "
+                                               f"{into!r}")
+        name = outputs[out]
+        if name not in self.derivable:
+            raise RequestError("UnsupportedFeature", f"no derivative of output {name!r}: the "
+                                                     f"solver's are not of the whole run "
+                                                     f"(docs/umbridge.md)")
+        size = len(self.parameters) if not transpose else \
+            int(np.prod(self.shapes[name], dtype=np.int64))
+        key = "sens" if transpose else "vec"
+        vector = request.get(key)
+        if (not isinstance(vector, list) or len(vector) != size
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                           for v in vector)):
+            raise RequestError("InvalidInput", f"'{key}' must be a vector of {size} numbers")
+        jacobian = np.asarray(self._run(_jacobian, level, self._values(request.get("input")),
+                                        name))
+        vector = np.asarray(vector, dtype=float)
+        return (jacobian.T @ vector if transpose else jacobian @ vector).tolist()
 
 
 # -- HTTP --------------------------------------------------------------------------------------
@@ -270,8 +327,9 @@ def _handler(model: ServedModel):
             if not isinstance(config, dict):
                 raise RequestError("InvalidInput", "'config' must be a JSON object")
             if self.path == "/ModelInfo":
-                return {"support": {"Evaluate": True, "Gradient": False,
-                                    "ApplyJacobian": False, "ApplyHessian": False},
+                derivatives = bool(model.derivable)
+                return {"support": {"Evaluate": True, "Gradient": derivatives,
+                                    "ApplyJacobian": derivatives, "ApplyHessian": False},
                         "uqflow": model.info}
             if self.path == "/InputSizes":
                 return {"inputSizes": [len(model.parameters)]}
@@ -279,6 +337,9 @@ def _handler(model: ServedModel):
                 return {"outputSizes": model.output_sizes(config)}
             if self.path == "/Evaluate":
                 return {"output": model.evaluate(request.get("input"), config)}
+            if self.path in ("/Gradient", "/ApplyJacobian"):
+                return {"output": model.derivative(request, config,
+                                                   transpose=self.path == "/Gradient")}
             if self.path in UNSUPPORTED:
                 raise RequestError("UnsupportedFeature", f"{self.path[1:]} is not served "
                                                          f"(docs/umbridge.md)")

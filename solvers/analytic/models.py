@@ -358,6 +358,9 @@ MODELS = {
 class AnalyticSolver(Solver):
     """Closed-form models with exact moments (ishigami, sobol_g, linear, quadratic, power, ...)."""
 
+    #: the models' derivatives are closed forms of the whole model
+    sensitivities_are_total = True
+
     def __init__(self, model_name: str, model, delay: float):
         self.model_name = model_name
         self.model = model

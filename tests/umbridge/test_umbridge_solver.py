@@ -198,3 +198,12 @@ def test_a_server_killed_mid_study_stops_it_and_resume_finishes_it(tmp_path):
     with xr.open_datatree(tmp_path / "killed.nc") as tree:
         status = tree["runs"]["status"].values
     assert (status == "ok").all() and status.size == 60
+
+
+def test_a_model_slower_than_the_timeout_fails_the_realization_naming_it(server):
+    solver = UMBridgeSolver.from_scene(ishigami_scene(server.url, config={"delay": 2.0},
+                                                      timeout=0.3))
+    t0 = time.monotonic()
+    with pytest.raises(SolverError, match=r"no answer within 0.3 s \(scene.timeout\)"):
+        solver.run({})
+    assert time.monotonic() - t0 < 2.0                       # not waited out, not retried
