@@ -59,8 +59,9 @@ def per_evaluation(f, repeats: int) -> list[float]:
     return times
 
 
-def overhead(study_path: Path, repeats: int, warm: int) -> dict:
-    """Median seconds per evaluation in process and over HTTP, the same point each time."""
+def overhead(study_path: Path, repeats: int, warm: int, served: Served | None = None) -> dict:
+    """Median seconds per evaluation in process and over HTTP, the same point each time (on
+    ``served``, else on a server of 1 worker of its own)."""
     study = load_study(study_path)
     nominal = study.solver.nominal()
     point = [nominal[name] for name in study.space.names]
@@ -68,22 +69,26 @@ def overhead(study_path: Path, repeats: int, warm: int) -> dict:
     for _ in range(warm):                                  # numba's kernels, caches
         study.solver.run(params)
     local = per_evaluation(lambda: study.solver.run(params), repeats)
-    served = Served(study_path, 1)
+    own = served is None
+    served = Served(study_path, 1) if own else served
     try:
         model = served.client()
         for _ in range(warm):                              # the worker's first run
             model([point])
         remote = per_evaluation(lambda: model([point]), repeats)
     finally:
-        served.close()
+        if own:
+            served.close()
     return {"in_process": statistics.median(local), "http": statistics.median(remote),
             "repeats": repeats}
 
 
-def throughput(evaluations: int, repeats: int, delay: float = 0.0) -> dict:
+def throughput(evaluations: int, repeats: int, delay: float = 0.0,
+               served: Served | None = None) -> dict:
     """Evaluations per second of the Ishigami model sleeping ``delay`` s a run, k clients at
-    once on 2 workers (median of ``repeats``)."""
-    served = Served(TRIVIAL, 2, "--set", f"scene.delay={delay!r}")
+    once on 2 workers (median of ``repeats``; on ``served`` if given)."""
+    own = served is None
+    served = Served(TRIVIAL, 2, "--set", f"scene.delay={delay!r}") if own else served
     out = {}
     try:
         model = served.client()
@@ -107,7 +112,8 @@ def throughput(evaluations: int, repeats: int, delay: float = 0.0) -> dict:
             out[k] = statistics.median(rates)
             log(f"delay {delay}: {k} clients: {out[k]:.1f} evaluations/s")
     finally:
-        served.close()
+        if own:
+            served.close()
     return out
 
 
@@ -119,15 +125,18 @@ def main(argv=None):
     ap.add_argument("--slow-evaluations", type=int, default=40)
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args(argv)
-    if args.quick:
-        args.repeats, args.throughput_evaluations = 5, 5
+    if args.quick:                  # one server for both parts: the code paths, not figures
+        served = Served(TRIVIAL, 2)
+        try:
+            return {"trivial": overhead(TRIVIAL, 5, 1, served),
+                    "throughput": throughput(5, 1, served=served)}
+        finally:
+            served.close()
     trivial = overhead(TRIVIAL, args.repeats, warm=3)
     log("trivial", trivial)
-    mpm = None if args.quick else overhead(MPM, args.mpm_repeats, warm=1)
+    mpm = overhead(MPM, args.mpm_repeats, warm=1)
     log("mpm", mpm)
-    rates = throughput(args.throughput_evaluations, 1 if args.quick else 3)
-    if args.quick:
-        return {"trivial": trivial, "throughput": rates}
+    rates = throughput(args.throughput_evaluations, 3)
     slow = throughput(args.slow_evaluations, 3, delay=SLOW_DELAY)
     body = (f"Seconds per evaluation, median of the repeats; the server `uqflow serve STUDY "
             f"--workers 1` in a subprocess on 127.0.0.1, the umbridge package's HTTPModel "

@@ -86,6 +86,7 @@ def test_a_level_and_an_output_are_chosen_by_config(euler):
     assert status == 200 and info["uqflow"]["levels"] == {"key": "steps",
                                                           "values": [4, 8, 16, 32, 64, 128]}
     assert info["uqflow"]["outputs"]["path"]["dims"] == list(study.solver.outputs()["path"].dims)
+    assert info["uqflow"]["input_units"] == {"k": study.solver.parameter_units().get("k", "")}
     for level in (0, 5):
         expected = study.levels.aligned_solver(level).run({"k": 0.75})
         served = model([[0.75]], {"level": level})
@@ -102,6 +103,8 @@ def test_a_level_and_an_output_are_chosen_by_config(euler):
     ("/Evaluate", {"name": "ishigami-mc", "input": [[0.0, 0.0]]}, None, "InvalidInput"),
     ("/Evaluate", {"name": "ishigami-mc", "input": [[0.0, "a", 0.0]]}, None, "InvalidInput"),
     ("/Evaluate", {"name": "ishigami-mc", "input": [[0.0, 0.0, 1e999]]}, None, "InvalidInput"),
+    ("/Evaluate", None, b'{"name": "ishigami-mc", "input": [[0, 0, 1' + b"0" * 400 + b']]}',
+     "InvalidInput"),                                     # an integer past a float's range
     ("/Evaluate", {"name": "ishigami-mc", "input": [[0.0] * 3], "config": {"level": 1}}, None,
      "InvalidInput"),                                                    # no [levels]
     ("/Evaluate", {"name": "ishigami-mc", "input": [[0.0] * 3], "config": {"outputs": ["z"]}},
@@ -126,13 +129,9 @@ def test_a_bad_request_gets_the_protocols_error_object_and_the_server_serves_on(
         (200, {"output": [[0.0]]})
 
 
-def test_info_names_the_model():
+def test_info_names_the_model(ishigami):
     # GET /Info, through the client's discovery call
-    server = Server(ISHIGAMI)
-    try:
-        assert umbridge.supported_models(server.url) == ["ishigami-mc"]
-    finally:
-        server.stop()
+    assert umbridge.supported_models(ishigami.url) == ["ishigami-mc"]
 
 
 SCENES = ROOT / "studies" / "scenes"
@@ -155,51 +154,39 @@ def test_bad_serve_options_are_one_line_errors(argv, says, capsys):
     assert err.count("\n") == 1 and says in err
 
 
-def test_a_scene_file_is_served_with_its_solvers_every_parameter_and_output(tmp_path):
-    scene = tmp_path / "ishigami_scene.toml"
-    scene.write_text('model = "ishigami"\na = 7.0\nb = 0.1\n')
+@pytest.fixture(scope="module")
+def faulty(tmp_path_factory):
+    """A scene file served with --solver: the analytic model that raises above 1 and gives
+    NaN below -1."""
+    scene = tmp_path_factory.mktemp("faulty") / "faulty.toml"
+    scene.write_text('model = "faulty"\nraise_above = 1.0\nnan_below = -1.0\n')
     server = Server(scene, "--solver", "analytic")
-    try:
-        model = umbridge.HTTPModel(server.url, "ishigami_scene")
-        status, info = server.post("/ModelInfo", {"name": "ishigami_scene"})
-        assert info["uqflow"]["parameters"] == ["x1", "x2", "x3"]
-        assert model([POINTS[1]]) == [[float(load_study(ISHIGAMI).solver.run(
-            dict(zip(["x1", "x2", "x3"], POINTS[1])))["y"])]]
-    finally:
-        server.stop()
+    yield server, scene
+    server.stop()
 
 
-FAULTY = """name = "faulty"
-solver = "analytic"
-scene = { model = "faulty", raise_above = 1.0, nan_below = -1.0 }
+def test_a_scene_file_is_served_with_its_solvers_every_parameter_and_output(faulty):
+    from solvers.analytic import AnalyticSolver
 
-[[inputs]]
-name = "x"
-distribution = "uniform"
-lower = -2.0
-upper = 2.0
-
-[method]
-kind = "monte-carlo"
-samples = 4
-"""
+    server, scene = faulty
+    status, info = server.post("/ModelInfo", {"name": "faulty"})     # named after the file
+    assert status == 200 and info["uqflow"]["parameters"] == ["x"]
+    assert list(info["uqflow"]["outputs"]) == ["y"]
+    here = AnalyticSolver.from_scene({"model": "faulty", "raise_above": 1.0,
+                                      "nan_below": -1.0}).run({"x": 0.3})
+    assert umbridge.HTTPModel(server.url, "faulty")([[0.3]]) == [[float(here["y"])]]
 
 
-def test_a_failed_run_is_an_error_object_with_its_message_and_the_next_run_is_served(tmp_path):
-    study = tmp_path / "faulty.toml"
-    study.write_text(FAULTY)
-    server = Server(study)
-    try:
-        request = {"name": "faulty"}
-        status, answer = server.post("/Evaluate", {**request, "input": [[1.5]]})
-        assert status == 500 and answer["error"]["type"] == "ModelError"
-        assert "diverged: x = 1.5 exceeds 1" in answer["error"]["message"]
-        status, answer = server.post("/Evaluate", {**request, "input": [[-1.5]]})
-        assert status == 500 and "non-finite output 'y'" in answer["error"]["message"]
-        assert server.post("/Evaluate", {**request, "input": [[0.25]]}) == (200, {"output":
-                                                                                [[0.25]]})
-    finally:
-        server.stop()
+def test_a_failed_run_is_an_error_object_with_its_message_and_the_next_run_is_served(faulty):
+    server, _ = faulty
+    request = {"name": "faulty"}
+    status, answer = server.post("/Evaluate", {**request, "input": [[1.5]]})
+    assert status == 500 and answer["error"]["type"] == "ModelError"
+    assert "diverged: x = 1.5 exceeds 1" in answer["error"]["message"]
+    status, answer = server.post("/Evaluate", {**request, "input": [[-1.5]]})
+    assert status == 500 and "non-finite output 'y'" in answer["error"]["message"]
+    assert server.post("/Evaluate", {**request, "input": [[0.25]]}) == (200, {"output":
+                                                                            [[0.25]]})
 
 
 def test_a_served_mpm_run_returns_the_in_process_outputs_bit_for_bit():
@@ -213,6 +200,9 @@ def test_a_served_mpm_run_returns_the_in_process_outputs_bit_for_bit():
     try:
         model = umbridge.HTTPModel(server.url, study.name)
         served = model([point])
+        status, info = server.post("/ModelInfo", {"name": study.name})
+        assert info["uqflow"]["input_units"] == {
+            name: study.solver.parameter_units()[name] for name in study.space.names}
         # frozen-state constitutive sensitivities are not the run's gradient: none served
         assert not model.supports_gradient() and not model.supports_apply_jacobian()
         status, answer = server.post("/Gradient", {"name": study.name, "input": [point],
@@ -225,7 +215,7 @@ def test_a_served_mpm_run_returns_the_in_process_outputs_bit_for_bit():
 
 
 def test_qmcpys_wrapper_gets_the_in_process_outputs_bit_for_bit(ishigami):
-    # QMCPy's own UM-Bridge client (not a test extra: run where it is installed)
+    # QMCPy's own UM-Bridge client (a test extra)
     qmcpy = pytest.importorskip("qmcpy")
     net = qmcpy.DigitalNetB2(dimension=3, seed=7)
     measure = qmcpy.Uniform(net, lower_bound=-np.pi, upper_bound=np.pi)

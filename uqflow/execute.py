@@ -373,7 +373,10 @@ class _Execution:
         self.bar.update(len(done), result[STATUS].count(STATUS_FAILED))
         self.checkpoint.dirty = True
         if result.get(UNAVAILABLE):
-            return (f"failed:the solver could not run realization {int(indices[len(done)])} "
+            stopped_at = int(indices[len(done)])
+            # it stays pending, for --resume to run; its message says why it has not run
+            self.runs[MESSAGE].values[stopped_at] = f"not run: {result[UNAVAILABLE]}"
+            return (f"failed:the solver could not run realization {stopped_at} "
                     f"({result[UNAVAILABLE]}); it and the rest are pending: finish with "
                     f"--resume once the solver is back")
         ex = self.study.spec.execution

@@ -27,6 +27,7 @@ for, so the MPM serves none.
 from __future__ import annotations
 
 import json
+import math
 import multiprocessing
 import threading
 from dataclasses import dataclass
@@ -155,8 +156,10 @@ class ServedModel:
             loaded.outputs
         template = loaded.solver.outputs()
         self.shapes = {o: tuple(int(n) for n in template[o].shape) for o in self.outputs}
+        units = loaded.solver.parameter_units()
         self.info = {
             "parameters": self.parameters,
+            "input_units": {p: units.get(p, "") for p in self.parameters},
             "outputs": {o: {"dims": list(template[o].dims), "shape": list(self.shapes[o]),
                             "units": template[o].attrs.get("units", "")}
                         for o in self.outputs},
@@ -216,11 +219,14 @@ class ServedModel:
             raise RequestError("InvalidInput", f"input must be one vector of "
                                                f"{len(self.parameters)} numbers "
                                                f"({', '.join(self.parameters)})")
-        values = inputs[0]
-        if not all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                   and np.isfinite(v) for v in values):
+        try:
+            values = [float(v) if isinstance(v, (int, float)) and not isinstance(v, bool)
+                      else math.nan for v in inputs[0]]
+        except OverflowError:                  # an integer beyond a float's range
+            values = [math.nan]
+        if not all(math.isfinite(v) for v in values):
             raise RequestError("InvalidInput", "input holds a value that is not a finite number")
-        return [float(v) for v in values]
+        return values
 
     def _run(self, task, *args):
         """``task(*args)`` in a worker: its answer, or the error object of a failed run."""

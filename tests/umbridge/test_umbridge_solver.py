@@ -17,6 +17,7 @@ import xarray as xr
 from solvers.umbridge import UMBridgeSolver
 from uqflow.cli import main
 from uqflow.errors import SceneError, SolverError
+from uqflow.testing import check_solver
 
 pytest.importorskip("umbridge")
 
@@ -190,14 +191,20 @@ def test_a_server_killed_mid_study_stops_it_and_resume_finishes_it(tmp_path):
     assert study.returncode == 1, err
     assert "could not run realization" in err and "unreachable after 1 attempts" in err
     assert "finish with --resume" in err
+    with xr.open_datatree(tmp_path / "killed.nc") as tree:        # the partial result
+        status, message = tree["runs"]["status"].values, tree["runs"]["message"].values
+    stopped = np.flatnonzero(np.char.startswith(message.astype(str), "not run: "))
+    assert stopped.size == 1 and status[stopped[0]] == "pending"
+    assert "unreachable after 1 attempts" in str(message[stopped[0]])
+    assert (status[:stopped[0]] == "ok").all() and (status[stopped[0]:] == "pending").all()
     server = Server(port)
     try:
         assert main(["run", str(path), "--resume", "--quiet", "--no-figures"]) == 0
     finally:
         server.stop()
     with xr.open_datatree(tmp_path / "killed.nc") as tree:
-        status = tree["runs"]["status"].values
-    assert (status == "ok").all() and status.size == 60
+        status, message = tree["runs"]["status"].values, tree["runs"]["message"].values
+    assert (status == "ok").all() and status.size == 60 and not any(message.astype(str))
 
 
 def test_a_model_slower_than_the_timeout_fails_the_realization_naming_it(server):
@@ -207,3 +214,11 @@ def test_a_model_slower_than_the_timeout_fails_the_realization_naming_it(server)
     with pytest.raises(SolverError, match=r"no answer within 0.3 s \(scene.timeout\)"):
         solver.run({})
     assert time.monotonic() - t0 < 2.0                       # not waited out, not retried
+
+
+def test_the_umbridge_solver_passes_check_solver(server):
+    # tests/test_conformance.py checks the other built-in solvers; this one needs the server
+    outcome = check_solver(UMBridgeSolver, ishigami_scene(server.url))
+    assert set(outcome) >= {"contract", "deterministic", "failure_capture", "pickle",
+                            "bad_scene", "run_matches_template"}
+    assert all(v == "ok" or v.startswith("not applicable") for v in outcome.values()), outcome
