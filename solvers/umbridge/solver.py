@@ -105,19 +105,22 @@ class _Client:
             except urllib.error.HTTPError as error:
                 return self._read(error.read(), path, error.code)
             except (TimeoutError, socket.timeout):
-                raise SolverError(f"{self.url}{path}: no answer within {self.timeout:g} s "
-                                  f"(scene.timeout)") from None
+                raise self._timed_out(path) from None
             except (urllib.error.URLError, ConnectionError) as error:
                 reason = getattr(error, "reason", error)
                 if isinstance(reason, (TimeoutError, socket.timeout)):
-                    raise SolverError(f"{self.url}{path}: no answer within {self.timeout:g} s "
-                                      f"(scene.timeout)") from None
+                    raise self._timed_out(path) from None
                 if attempt == self.retries:
                     # not the realization's failure: the study stops, --resume runs it
                     raise SolverUnavailable(f"{self.url}{path}: unreachable after "
                                             f"{self.retries + 1} attempts ({reason})") from None
                 time.sleep(self.retry_wait)
         raise AssertionError("unreachable")
+
+    def _timed_out(self, path: str) -> SolverError:
+        # a model that hangs at this input fails this realization; not retried
+        return SolverError(f"{self.url}{path}: no answer within {self.timeout:g} s "
+                           f"(scene.timeout)")
 
     def _read(self, payload: bytes, path: str, status: int = 200) -> dict:
         try:
