@@ -34,6 +34,7 @@ from _record import write_section  # noqa: E402
 
 from solvers.sph.exact import eshelby_displacement  # noqa: E402
 from solvers.sph.layouts import Box, Ellipse, regular_layout  # noqa: E402
+from solvers.sph.linear import MIXED_PRECISION_ABOVE  # noqa: E402
 from solvers.sph.problem import ElasticProblem  # noqa: E402
 from solvers.sph.stiffness import Discretisation  # noqa: E402
 
@@ -89,6 +90,21 @@ def one_run(side, method, extra, solver):
 
 
 def _solve(side, method, extra, solver):
+    problem, edge, t_layout = plate_problem(side, method, extra, solver)
+    sol = problem.solve(edge)
+    factor = problem._system[1]["factor"]
+    times = dict(problem.setup_timings, system_nnz=factor.A.nnz, factor_nnz=factor.factor_nnz,
+                 dissected=float(factor.ordering == "nested dissection"),
+                 single=float(factor.precision == "single, refined"))
+    for k, v in sol.timings.items():
+        times[k] = times.get(k, 0.0) + v
+    times["total"] = sum(times[k] for k in ("neighbours", "assembly", "transformation", "solve"))
+    return problem.disc.layout.n, times, t_layout
+
+
+def plate_problem(side, method, extra, solver):
+    """(the ElasticProblem of the plate of this side, its edge displacement, the layout's
+    seconds)."""
     t0 = time.perf_counter()
     lay = regular_layout(Box(-side / 2, -side / 2, side / 2, side / 2), 1.0,
                          [Ellipse(0.0, 0.0, side / 4, side / 4)])
@@ -105,14 +121,7 @@ def _solve(side, method, extra, solver):
     edge = eshelby_displacement(lay.x[lay.boundary], side / 4, eigenstrain=0.01,
                                 E_inclusion=1000.0, nu_inclusion=0.28, E_matrix=900.0,
                                 nu_matrix=0.33)
-    sol = problem.solve(edge)
-    factor = problem._system[1]["factor"]
-    times = dict(problem.setup_timings, system_nnz=factor.A.nnz, factor_nnz=factor.factor_nnz,
-                 dissected=float(factor.ordering == "nested dissection"))
-    for k, v in sol.timings.items():
-        times[k] = times.get(k, 0.0) + v
-    times["total"] = sum(times[k] for k in ("neighbours", "assembly", "transformation", "solve"))
-    return lay.n, times, t_layout
+    return problem, edge, t_layout
 
 
 def mkl_threads() -> str:
@@ -176,19 +185,23 @@ def main(argv=None):
             "then); superlu-order = SuperLU in its own orders (MMD on A^T + A for the "
             "master-slave systems, COLAMD for the penalty: the direct solver before); "
             "iterative = GMRES with an incomplete LU; pardiso = Intel MKL PARDISO (the "
-            "optional extra uqflow[pardiso]: METIS order, %s MKL threads)%s.\n\n"
-            "| particles | method | solver | neighbours | assembly | transformation | solve "
-            "| total | peak MiB | nnz system | nnz L+U |\n"
-            "|---|---|---|---|---|---|---|---|---|---|---|\n"
+            "optional extra uqflow[pardiso]: METIS order, %s MKL threads)%s. Factors: "
+            "\"single\" = in single precision, each solve refined in double (above %s "
+            "unknowns; benchmarks/sph_precision.py compares the two).\n\n"
+            "| particles | method | solver | factors | neighbours | assembly | transformation "
+            "| solve | total | peak MiB | nnz system | nnz L+U |\n"
+            "|---|---|---|---|---|---|---|---|---|---|---|---|\n"
             % (args.repeats, load, args.cap, mkl_threads(),
-               "" if "pardiso" in solvers else " (not installed: no pardiso rows)"))
+               "" if "pardiso" in solvers else " (not installed: no pardiso rows)",
+               f"{MIXED_PRECISION_ABOVE:,}"))
     for n, method, solver, t, repeats in rows:
         runs = "" if repeats == args.repeats else f" ({repeats} run)"
         peak = f"{t['peak_mib']:,.0f}" if "peak_mib" in t else ""
         fill = f"{t['factor_nnz'] / 1e6:.1f}M" if "factor_nnz" in t else ""
         if solver == "direct":
             solver = "direct (ND)" if t["dissected"] else "direct (MMD)"
-        body += (f"| {n:,}{runs} | {method} | {solver} | {t['neighbours']:.3f} "
+        factors = "" if solver == "iterative" else "single" if t["single"] else "double"
+        body += (f"| {n:,}{runs} | {method} | {solver} | {factors} | {t['neighbours']:.3f} "
                  f"| {t['assembly']:.2f} | {t['transformation']:.2f} | {t['solve']:.2f} "
                  f"| {t['total']:.2f} | {peak} | {t['system_nnz'] / 1e6:.1f}M | {fill} |\n")
     skipped = ", ".join(f"{m} ({s})" for m, s in sorted(stopped))

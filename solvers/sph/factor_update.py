@@ -10,12 +10,11 @@ run keeps the last system it factorised (the base) and solves the next ones thro
     A = E + U V^T,   A^-1 b = E^-1 b - E^-1 U C^-1 V^T E^-1 b,   C = I + V^T E^-1 U
 
 (Sherman–Morrison–Woodbury), E being the base with any new unknowns on their own diagonal.
-Taking out a penalty as stiff as the system can cancel digits of C, so every solve is
-refined against A itself (fixed-precision iterative refinement, Higham, "Accuracy and
-Stability of Numerical Algorithms", ch. 12) until its residual is at the level its own
-evaluation resolves: the backward error of a fresh LU. An update of rank above
-MAX_UPDATE_RANK, or whose C is singular to working precision, is refused (``NotLowRank``) and
-the system factorised afresh; a refinement that stalls factorises afresh itself.
+Taking out a penalty as stiff as the system can cancel digits of C, so every solve is refined
+against A itself (``refinement``: fixed-precision iterative refinement) until its residual is
+at the level its own evaluation resolves: the backward error of a fresh LU. An update of rank
+above MAX_UPDATE_RANK, or whose C is singular to working precision, is refused (``NotLowRank``)
+and the system factorised afresh; a refinement that stalls factorises afresh itself.
 """
 
 from __future__ import annotations
@@ -27,8 +26,8 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 
 from solvers.sph.linear import SolveInfo
+from solvers.sph.refinement import EPS, Refinement
 
-EPS = np.finfo(float).eps
 #: a correction of higher rank is not kept: the system is factorised afresh. Each break
 #: costs the solves of its own rank (6 a pair), every later solve one product with the n x r
 #: E^-1 U; and E^-1 U is held to a quarter of the factors' entries (or MIN_RANK_ALLOWED
@@ -42,11 +41,6 @@ MAX_CHANGED_BLOCK = 1200
 #: too slowly (its error per step is about eps times this ratio), if at all; A may be
 #: singular. The system is factorised afresh instead, and its own check decides
 MAX_CAPACITANCE_CONDITION = 1e10
-#: refinement steps, each to halve the residual at least, before a solve counts as stalled
-MAX_REFINEMENTS = 8
-#: refinement stops at a residual of this many times the bound on its own evaluation error,
-#: gamma_{k+1} (|b| + |A||x|) summed (Higham eq. 12.10; k entries a row)
-RESIDUAL_SLACK = 4.0
 
 
 class NotLowRank(Exception):
@@ -105,9 +99,7 @@ class UpdatedFactor:
         self.capacitance = sla.lu_factor(C) if self.rank else None
         self.ordering = f"{base.ordering} + rank-{self.rank} update"
         self.factor_nnz = base.factor_nnz
-        # what every solve's stopping test needs, once: |A| and gamma_{k+1} ~ (k + 1) eps
-        self._absolute = abs(self.A)
-        self._gamma = (int(np.diff(self.A.indptr).max(initial=0)) + 1) * EPS
+        self._refinement = Refinement(self.A)
         self.build_seconds = time.perf_counter() - t0
 
     # -- solves --------------------------------------------------------------------------
@@ -133,20 +125,12 @@ class UpdatedFactor:
             return self.fresh.solve(b)
         b = np.asarray(b, dtype=float)
         t0 = time.perf_counter()
-        x = self._apply(b)
-        previous, steps = np.inf, 0
-        while True:
-            r = b - self.A @ x
-            size = float(np.abs(r).sum())
-            target = RESIDUAL_SLACK * self._gamma * float(
-                (np.abs(b) + self._absolute @ np.abs(x)).sum())
-            if size <= target:
-                break
-            if steps == MAX_REFINEMENTS or not size < previous / 2:
-                # stalled (or not finite): what the base cannot resolve, A's factors can
-                self.fresh = self._refactorise()
-                return self.fresh.solve(b)
-            x, previous, steps = x + self._apply(r), size, steps + 1
+        refined = self._refinement.solve(b, self._apply)
+        if refined is None:
+            # what the base cannot resolve, A's factors can
+            self.fresh = self._refactorise()
+            return self.fresh.solve(b)
+        x, r, steps = refined
         return x, SolveInfo(self.method, steps, float(np.linalg.norm(r)) /
                             (float(np.linalg.norm(b)) or 1.0), time.perf_counter() - t0,
                             self.singular_ratio)

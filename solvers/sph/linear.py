@@ -1,29 +1,31 @@
 """Linear solves of the SPH systems and their condition (docs/sph.md § 5).
 
-Direct: SuperLU; or, asked for by name (``"pardiso"``, the optional extra
-``uqflow[pardiso]``), Intel MKL's PARDISO through pypardiso: a multithreaded supernodal LU
-in METIS's nested-dissection order, 2-3 × faster than SuperLU on the large composites
-(§ 11). It is never chosen for the user: a study's numbers must not depend on which extras
-happen to be installed. The stiffness, reduced and penalty systems are not symmetric under the
-default integration (its corrected test gradients differ from the trial ones: ||A - A^T|| is
-a few per cent of ||A||), so no Cholesky. Given the unknowns' points, many unknowns and local
-couplings, the fill-reducing ordering is a geometric nested dissection of the pattern of
-A + A^T; otherwise SuperLU's own orderings; diagonal pivots are preferred. Iterative: GMRES
-with an incomplete-LU preconditioner. A singular system — an unconstrained rigid mode — is
-detected by inverse iteration on the factors and refused with the DOF where it shows, never
-solved silently.
+Direct: SuperLU; or, asked for by name (``"pardiso"``, the optional extra ``uqflow[pardiso]``),
+Intel MKL's PARDISO (``pardiso``): a multithreaded supernodal LU in METIS's nested-dissection
+order, 2-3 × faster than SuperLU on the large composites (§ 11). It is never chosen for the
+user: a study's numbers must not depend on which extras happen to be installed. Above
+MIXED_PRECISION_ABOVE unknowns either factorises in single precision and refines every solve in
+double to a double LU's backward error (``refinement``). The stiffness, reduced and penalty
+systems are not symmetric under the default integration (its corrected test gradients differ
+from the trial ones: ||A - A^T|| is a few per cent of ||A||), so no Cholesky. Given the
+unknowns' points, many unknowns and local couplings, the fill-reducing ordering is a geometric
+nested dissection of the pattern of A + A^T; otherwise SuperLU's own orderings; diagonal pivots
+are preferred. Iterative: GMRES with an incomplete-LU preconditioner. A singular system — an
+unconstrained rigid mode — is detected by inverse iteration on the factors and refused with the
+DOF where it shows, never solved silently.
 """
 
 from __future__ import annotations
 
-import os
 import time
-import weakref
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+
+from solvers.sph.pardiso import PardisoError, PardisoLU
+from solvers.sph.refinement import MixedPrecisionFactor
 
 SOLVERS = ("auto", "direct", "iterative", "pardiso")
 #: "auto" factorises up to this many unknowns and iterates beyond, where the factors would
@@ -31,7 +33,12 @@ SOLVERS = ("auto", "direct", "iterative", "pardiso")
 #: (benchmarks/sph_scaling.py), and its 408,226-unknown factorisation peaked at 11.8 GiB
 #: (780 million entries, growing as n log n)
 AUTO_ITERATIVE_ABOVE = 500_000
-PARDISO_INSTALL = "pip install 'uqflow[pardiso]'"
+#: a direct solver factorises in single precision above this many unknowns and refines each
+#: solve in double (``refinement.MixedPrecisionFactor``): MS2's solve phase at 10,353
+#: particles (20,274 unknowns) took 1.17 s against 1.86 s in double with SuperLU, 0.56 against
+#: 0.67 s with PARDISO (benchmarks/sph_precision.py). The systems of every shipped study are
+#: smaller: their numbers do not change
+MIXED_PRECISION_ABOVE = 20_000
 #: smallest singular value below this fraction of the largest entry: singular to working
 #: precision (a free rigid mode leaves one at rounding level, ~1e-16 of the largest)
 MIN_SINGULAR_RATIO = 1e-13
@@ -82,33 +89,44 @@ class Factor:
     def __init__(self, A, solver: str = "auto", nearly_symmetric: bool = False, points=None):
         if solver not in SOLVERS:
             raise ValueError(f"unknown linear solver {solver!r} (known: {', '.join(SOLVERS)})")
-        self.A = sp.csc_matrix(A)
-        n = self.A.shape[0]
+        n = A.shape[0]
         self.method = solver if solver != "auto" else ("direct" if n <= AUTO_ITERATIVE_ABOVE
                                                        else "iterative")
+        # each solver's own format, converted once: PARDISO and the products read rows
+        self.A = sp.csr_matrix(A) if self.method == "pardiso" else sp.csc_matrix(A)
         t0 = time.perf_counter()
         self.singular_ratio = np.nan
         self.ordering = None
         if self.method == "pardiso":
             self.ordering = "METIS (PARDISO)"
-            self.lu, self.singular_ratio = _checked(self.A, _PardisoFactor(self.A))
+            self.lu, self.singular_ratio = _checked(self.A, _in_precision(
+                self.A, lambda dtype: _pardiso(self.A, dtype)))
         elif self.method == "direct":
             if points is not None and (n <= DISSECTION_ABOVE or not local_couplings(self.A)):
                 points, nearly_symmetric = None, True
             self.ordering = ("nested dissection" if points is not None else
                              "MMD" if nearly_symmetric else "COLAMD")
-            self.lu, self.singular_ratio = _factorise(self.A, nearly_symmetric, points)
+            self.lu, self.singular_ratio = _checked(self.A, _in_precision(
+                self.A, lambda dtype: _factorise(self.A, nearly_symmetric, points, dtype)))
         else:
             ilu = spla.spilu(self.A, drop_tol=1e-5, fill_factor=20)
             self.preconditioner = spla.LinearOperator(self.A.shape, ilu.solve)
         self.build_seconds = time.perf_counter() - t0
 
     @property
+    def precision(self) -> str | None:
+        """The factors' precision: "double", or "single, refined" (None for the iterative
+        solver)."""
+        if self.method == "iterative":
+            return None
+        return getattr(self.lu, "precision", "double")
+
+    @property
     def factor_nnz(self) -> int | None:
         """Entries of the factors L + U (None for the iterative solver)."""
         if self.method == "iterative":
             return None
-        return int(getattr(self.lu, "lu", self.lu).nnz)
+        return int(self.lu.nnz)
 
     def solve(self, b):
         """x with A x = b, and a SolveInfo (its time excludes the factorisation,
@@ -116,7 +134,8 @@ class Factor:
         b = np.asarray(b, dtype=float)
         t0 = time.perf_counter()
         if self.method != "iterative":
-            x, iterations = self.lu.solve(b), 0
+            x = self.lu.solve(b)
+            iterations = getattr(self.lu, "steps", 0)   # refinement steps, if refined
         else:
             x, iterations = _gmres(self.A, b, self.preconditioner)
         if not np.all(np.isfinite(x)):
@@ -135,19 +154,40 @@ def solve(A, b, solver: str = "auto", nearly_symmetric: bool = False, points=Non
     return Factor(A, solver, nearly_symmetric, points).solve(b)
 
 
-class _Permuted:
-    """SuperLU factors of P A P^T, solving A x = b."""
+class _SuperLU:
+    """SuperLU's factors (``lu``) of P A P^T in ``dtype``, solving A x = b for float64 b
+    (P: ``perm``, or the identity)."""
 
-    def __init__(self, lu, perm):
-        self.lu, self.perm = lu, perm
+    def __init__(self, lu, dtype, perm=None):
+        self.lu, self.dtype, self.perm, self.nnz = lu, dtype, perm, lu.nnz
 
     def solve(self, b):
+        b = np.asarray(b)
+        if self.perm is None:
+            return np.asarray(self.lu.solve(b.astype(self.dtype, copy=False)), dtype=float)
         x = np.empty_like(b, dtype=float)
-        x[self.perm] = self.lu.solve(np.asarray(b, dtype=float)[self.perm])
+        x[self.perm] = self.lu.solve(b[self.perm].astype(self.dtype, copy=False))
         return x
 
 
-def _factorise(A, nearly_symmetric=False, points=None):
+def _in_precision(A, factorise):
+    """``factorise(dtype)``'s factors: in single precision, refined, above
+    MIXED_PRECISION_ABOVE unknowns; else in double."""
+    if A.shape[0] > MIXED_PRECISION_ABOVE:
+        return MixedPrecisionFactor(A, factorise)
+    return factorise(np.float64)
+
+
+def _pardiso(A, dtype):
+    try:
+        return PardisoLU(A, dtype)
+    except PardisoError as e:
+        raise LinearSolveError(str(e)) from None
+
+
+def _factorise(A, nearly_symmetric=False, points=None, dtype=np.float64):
+    """SuperLU's factors of A in ``dtype``, in a nested-dissection order of ``points`` or
+    in SuperLU's own."""
     if points is not None:
         perm = nested_dissection(A, points)
         target = A[perm][:, perm].tocsc()
@@ -160,10 +200,10 @@ def _factorise(A, nearly_symmetric=False, points=None):
                     "options": {"SymmetricMode": True}} if nearly_symmetric
                    else {"permc_spec": "COLAMD"})
     try:
-        lu = spla.splu(target, **options)
+        lu = spla.splu(target.astype(dtype, copy=False), **options)
     except RuntimeError as e:          # SuperLU: "Factor is exactly singular"
         raise LinearSolveError(f"the system of {A.shape[0]} unknowns is singular ({e})") from None
-    return _checked(A, lu if perm is None else _Permuted(lu, perm))
+    return _SuperLU(lu, dtype, perm)
 
 
 def _checked(A, factor):
@@ -176,46 +216,6 @@ def _checked(A, factor):
                                f"largest entry, its vector largest at unknown {where} (a free "
                                f"rigid mode?)")
     return factor, ratio
-
-
-def _pardiso_solver(pypardiso):
-    """A PARDISO handle for a real unsymmetric matrix (mtype 11). When the loader does not
-    know MKL's runtime library (pip's MKL), pypardiso finds it by a recursive search of the
-    environment, 0.2 s a handle, unless PYPARDISO_MKL_RT (its documented setting) names it:
-    the path the first search found is set there for the handles after it."""
-    solver = pypardiso.PyPardisoSolver(mtype=11)
-    os.environ.setdefault("PYPARDISO_MKL_RT", solver.libmkl._name)
-    return solver
-
-
-class _PardisoFactor:
-    """PARDISO's LU of A (MKL, unsymmetric: METIS order, scaling and matching, its default
-    iparm), solving A x = b. A tiny pivot is perturbed, not refused, so singularity is left
-    to ``_checked``'s inverse iteration, as for SuperLU. The factors live in MKL's memory
-    until this object is collected."""
-
-    def __init__(self, A):
-        try:
-            import pypardiso
-        except ImportError:
-            raise LinearSolveError(f"linear_solver 'pardiso' needs pypardiso and MKL "
-                                   f"({PARDISO_INSTALL})") from None
-        self.A = sp.csr_matrix(A)      # pypardiso sorts its indices in place
-        if self.A.shape[0] and not np.diff(self.A.indptr).all():
-            raise LinearSolveError(f"the system of {A.shape[0]} unknowns is singular (empty "
-                                   f"row {int(np.flatnonzero(np.diff(self.A.indptr) == 0)[0])})")
-        self._pardiso = _pardiso_solver(pypardiso)
-        try:
-            self._pardiso.factorize(self.A)
-        except pypardiso.pardiso_wrapper.PyPardisoError as e:
-            raise LinearSolveError(f"PARDISO could not factorise the system of "
-                                   f"{A.shape[0]} unknowns ({e})") from None
-        # iparm(18): entries of L + U, reported by the factorisation
-        self.nnz = int(self._pardiso.get_iparm(18))
-        self._finalizer = weakref.finalize(self, self._pardiso.free_memory, True)
-
-    def solve(self, b):
-        return self._pardiso.solve(self.A, np.asarray(b, dtype=float))
 
 
 def smallest_singular_ratio(A, factor) -> tuple[float, int]:

@@ -1,6 +1,7 @@
 """The linear solves of the SPH systems (solvers/sph/linear.py; docs/sph.md § 5): which systems
 are symmetric, the nested-dissection order against SuperLU's own, and the singularity check."""
 
+import importlib.util
 import sys
 
 import numpy as np
@@ -9,7 +10,7 @@ import scipy.sparse as sp
 
 from solvers.sph.exact import eshelby_displacement
 from solvers.sph.layouts import Box, Ellipse, regular_layout
-from solvers.sph import linear
+from solvers.sph import linear, pardiso, refinement
 from solvers.sph.linear import (Factor, LinearSolveError, MIN_SINGULAR_RATIO,
                                 nested_dissection, smallest_singular_ratio, solve)
 from solvers.sph.problem import ElasticProblem
@@ -217,9 +218,32 @@ def test_small_or_nonlocal_systems_are_ordered_by_superlus_mmd_not_dissected(mon
 
 # -- PARDISO (the optional extra uqflow[pardiso]) ----------------------------------------------
 
+def agreement_bound(A, b, x, y):
+    """A bound on ||x - y||_1 for two solves of A z = b: x - y = A^-1 (r_y - r_x), each
+    residual computed to within k eps ||A||_1 ||z||_1 (k entries a row)."""
+    k = int(np.diff(sp.csr_matrix(A).indptr).max())
+    residuals = sum(np.abs(b - A @ z).sum() + k * EPS * abs(A).sum(axis=0).max() * np.abs(z).sum()
+                    for z in (x, y))
+    return np.abs(np.linalg.inv(sp.csr_matrix(A).toarray())).sum(axis=0).max() * residuals
+
+
+def assert_same_solution(ref, method, A, b, fast, slow):
+    """Two solves (x, u) of one plate's system agree within their residuals, the
+    displacements u = P x (+ the prescribed part) within ||P||_1 times that."""
+    (x_fast, u_fast), (x_ref, u_ref) = fast, slow
+    difference = agreement_bound(A, b, x_fast, x_ref)
+    assert np.abs(x_fast - x_ref).sum() <= difference
+    P = ref._system[1]["ms"].P if method != "penalty" else sp.identity(A.shape[0])
+    # bound: the 1e-12 only absorbs the roundings of the bound's own sums (a few eps in any
+    # order, any BLAS/numpy): the bound itself is the residual-based estimate above
+    assert np.abs(u_fast - u_ref).sum() <= abs(P).sum(axis=0).max() * difference * (1 + 1e-12)
+
+
 def test_pardiso_without_the_extra_says_how_to_install_it(monkeypatch):
-    # None in sys.modules makes `import pypardiso` raise ImportError, installed or not
+    # None in sys.modules makes `import pypardiso` raise ImportError, installed or not; and
+    # the library an earlier test found is forgotten
     monkeypatch.setitem(sys.modules, "pypardiso", None)
+    monkeypatch.setattr(pardiso, "_library", None)
     A, _ = free_grid(4, shift=1.0)
     with pytest.raises(LinearSolveError, match=r"pip install 'uqflow\[pardiso\]'"):
         Factor(A, "pardiso")
@@ -248,19 +272,17 @@ def test_pardiso_gives_superlus_displacements_within_their_backward_errors(
     x_ref = ref._system[1]["factor"].solve(b)[0]
     # PARDISO is held to the backward error SuperLU's own factors guarantee (its L and U are
     # not readable): a wrong order, pivot or system would leave a far larger residual
-    residuals = [np.abs(b - A @ x).sum() for x in (x_fast, x_ref)]
-    assert residuals[0] <= lu_residual_bound(ref._system[1]["factor"], A, x_fast)
-    # the computed residuals are the true ones up to their evaluation, k eps ||A|| ||x|| each
-    k = int(np.diff(sp.csr_matrix(A).indptr).max())
-    evaluation = sum(k * EPS * abs(A).sum(axis=0).max() * np.abs(x).sum()
-                     for x in (x_fast, x_ref))
-    inverse_norm = np.abs(np.linalg.inv(A.toarray())).sum(axis=0).max()
-    difference = inverse_norm * (sum(residuals) + evaluation)
-    assert np.abs(x_fast - x_ref).sum() <= difference
-    P = ref._system[1]["ms"].P if method != "penalty" else sp.identity(A.shape[0])
-    # bound: the 1e-12 only absorbs the roundings of the bound's own sums (a few eps in any
-    # order, any BLAS/numpy): the bound itself is the residual-based estimate above
-    assert np.abs(u_fast - u_ref).sum() <= abs(P).sum(axis=0).max() * difference * (1 + 1e-12)
+    assert np.abs(b - A @ x_fast).sum() <= lu_residual_bound(ref._system[1]["factor"], A, x_fast)
+    assert_same_solution(ref, method, A, b, (x_fast, u_fast), (x_ref, u_ref))
+
+
+def test_pardiso_refuses_an_empty_row_naming_it():
+    pytest.importorskip("pypardiso")
+    A, _ = free_grid(4, shift=1.0)
+    A = A.tolil()
+    A[3, :] = 0.0
+    with pytest.raises(LinearSolveError, match=r"singular \(empty row 3\)"):
+        Factor(sp.csr_matrix(A), "pardiso")
 
 
 def test_pardiso_refuses_singular_systems_naming_where_they_show():
@@ -276,3 +298,84 @@ def test_pardiso_refuses_singular_systems_naming_where_they_show():
     x, info = solve(A, np.ones(144), "pardiso")
     # A = L + 1e-3 I, L's null vector the constant: x = 1000 everywhere, to cond eps
     assert info.method == "pardiso" and np.abs(x - 1000.0).max() <= 100 * 8e3 * EPS * 1000.0
+
+
+# -- single-precision factors refined in double (above MIXED_PRECISION_ABOVE unknowns) --------
+
+SOLVERS = ("direct", pytest.param("pardiso", marks=pytest.mark.skipif(
+    importlib.util.find_spec("pypardiso") is None, reason="the optional extra uqflow[pardiso]")))
+
+
+@pytest.fixture
+def mixed(monkeypatch):
+    """Single-precision factors at test sizes."""
+    monkeypatch.setattr(linear, "MIXED_PRECISION_ABOVE", 0)
+
+
+def refinement_target(A, x, b):
+    """What a refined solve promises: its residual within RESIDUAL_SLACK times the bound on the
+    residual's own evaluation, gamma_{k+1} (|b| + |A||x|) summed, column by column."""
+    k = int(np.diff(sp.csr_matrix(A).indptr).max()) + 1
+    return refinement.RESIDUAL_SLACK * k * EPS * (np.abs(b) + abs(A) @ np.abs(x)).sum(axis=0)
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+@pytest.mark.parametrize("method,extra", METHODS)
+def test_single_precision_factors_refined_give_the_double_factors_displacements(
+        small_plate, monkeypatch, solver, method, extra):
+    disc, materials, edge = small_plate
+    ref = ElasticProblem(disc, **materials, method=method, linear_solver=solver, **extra)
+    u_ref = ref.solve(edge).u
+    monkeypatch.setattr(linear, "MIXED_PRECISION_ABOVE", 0)
+    fast = ElasticProblem(disc, **materials, method=method, linear_solver=solver, **extra)
+    u_fast = fast.solve(edge).u
+    factor, double = fast._system[1]["factor"], ref._system[1]["factor"]
+    assert factor.precision == "single, refined" and double.precision == "double"
+    A = double.A
+    b = right_hand_side(ref, edge)
+    (x_fast, info), x_ref = factor.solve(b), double.solve(b)[0]
+    # the single-precision solve alone is ~1e-7 off: the target needs refinement steps
+    assert info.iterations >= 1
+    assert np.abs(b - A @ x_fast).sum() <= refinement_target(A, x_fast, b)
+    assert_same_solution(ref, method, A, b, (x_fast, u_fast), (x_ref, u_ref))
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_each_column_of_a_block_is_refined_to_its_own_target(mixed, solver):
+    # the block solves of a low-rank update (factor_update: E^-1 U) go through the same factors
+    A, _ = free_grid(12, shift=0.05)
+    factor = Factor(A, solver)
+    assert factor.precision == "single, refined"
+    rng = np.random.default_rng(3)
+    B = np.column_stack([rng.standard_normal(144), 1e-9 * rng.standard_normal(144),
+                         np.zeros(144)])
+    X = factor.lu.solve(B)
+    assert np.all(np.abs(B - A @ X).sum(axis=0) <= refinement_target(A, X, B))
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_a_system_too_ill_conditioned_for_single_precision_is_factorised_in_double(
+        monkeypatch, solver):
+    # cond ~ 8 / 1e-9: single precision's relative error, cond x 6e-8, is far above 1, so its
+    # factors cannot be refined; the matrix is well inside double's range (singular ratio
+    # ~1e-10 against the refusal's 1e-13)
+    A, _ = free_grid(12, shift=1e-9)
+    b = np.linspace(1.0, 2.0, 144)
+    double = Factor(A, solver)
+    monkeypatch.setattr(linear, "MIXED_PRECISION_ABOVE", 0)
+    factor = Factor(A, solver)
+    assert factor.precision == "double"
+    x, x_ref = factor.solve(b)[0], double.solve(b)[0]
+    if solver == "direct":                  # the same SuperLU factorisation of the same matrix
+        assert np.array_equal(x, x_ref)
+    # and either solver within its residual of SuperLU's double solve
+    superlu = Factor(A, "direct").solve(b)[0]
+    assert np.abs(x - superlu).sum() <= agreement_bound(A, b, x, superlu)
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_single_precision_factors_do_not_hide_a_singular_system(mixed, solver):
+    for shift in (0.0, 1e-15):
+        A, _ = free_grid(12, shift)
+        with pytest.raises(LinearSolveError, match="singular"):
+            solve(A, np.ones(144), solver)
