@@ -6,6 +6,10 @@ with each direct solver twice per repeat, alternating: factors in double precisi
 (``linear.MIXED_PRECISION_ABOVE`` raised past the system) and the solver's own choice (single
 precision refined, above that many unknowns). Median of ``--repeats`` pairs; the displacement
 difference is the largest over the repeats, against the double solve's largest displacement.
+A case and solver are not run at a size where their last pair, grown as the side cubed (a
+direct solve's n^1.5), would exceed ``--cap`` seconds. The refined runs try single precision
+on the stiff penalty too, which the solver itself does not (problem.SINGLE_PRECISION_MAX_PENALTY):
+those rows show why.
 
     python benchmarks/sph_precision.py            # writes BENCHMARKS.md section "sph-precision"
     python benchmarks/sph_precision.py --quick    # a tiny run
@@ -26,6 +30,7 @@ from _record import load1, log, write_section  # noqa: E402
 from sph_scaling import mkl_threads, pardiso_available, plate_problem  # noqa: E402
 
 from solvers.sph import linear  # noqa: E402
+from solvers.sph import problem as problem_module  # noqa: E402
 
 CASES = (("master-slave-local", {}), ("master-slave-cutoff", {"cutoff_threshold": 1e-8}),
          ("penalty", {"penalty": 1e4}), ("penalty", {"penalty": 1e6}))
@@ -34,8 +39,10 @@ CASES = (("master-slave-local", {}), ("master-slave-cutoff", {"cutoff_threshold"
 def one_solve(side, method, extra, solver, mixed):
     """(particles, unknowns, seconds of the whole solve, of its factorisation and solves,
     the factors' precision, refinement steps, displacements)."""
-    limit = linear.MIXED_PRECISION_ABOVE
-    if not mixed:
+    limit, stiffest = linear.MIXED_PRECISION_ABOVE, problem_module.SINGLE_PRECISION_MAX_PENALTY
+    if mixed:
+        problem_module.SINGLE_PRECISION_MAX_PENALTY = np.inf
+    else:
         linear.MIXED_PRECISION_ABOVE = np.iinfo(np.int64).max
     try:
         problem, edge, _ = plate_problem(side, method, extra, solver)
@@ -44,6 +51,7 @@ def one_solve(side, method, extra, solver, mixed):
         total = time.perf_counter() - t0 + sum(problem.setup_timings.values())
     finally:
         linear.MIXED_PRECISION_ABOVE = limit
+        problem_module.SINGLE_PRECISION_MAX_PENALTY = stiffest
     factor = problem._system[1]["factor"]
     return (problem.disc.layout.n, factor.A.shape[0], total, sol.timings["solve"],
             factor.precision, sol.solve_info.iterations, sol.displacement)
@@ -53,16 +61,21 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sides", type=int, nargs="*", default=[100, 200])
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--cap", type=float, default=60.0)
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args(argv)
     if args.quick:
         args.sides, args.repeats = [30], 1
         linear.MIXED_PRECISION_ABOVE = 0
     solvers = ["direct"] + (["pardiso"] if pardiso_available() else [])
-    rows = []
+    rows, last, capped = [], {}, []
     for side in args.sides:
         for method, extra in CASES:
             for solver in solvers:
+                case = (method, extra.get("penalty"), solver)
+                if case in last and last[case][1] * (side / last[case][0]) ** 3 > args.cap:
+                    capped.append((side, case))
+                    continue
                 runs = {False: [], True: []}
                 for _ in range(args.repeats):
                     for mixed in (False, True):
@@ -79,6 +92,7 @@ def main(argv=None):
                            precision=single[-1][4], steps=max(r[5] for r in single),
                            difference=worst / scale)
                 rows.append(row)
+                last[case] = (side, row["total_double"] + row["total_mixed"])
                 log(row)
     if args.quick:
         return rows
@@ -88,6 +102,8 @@ def main(argv=None):
             "double precision and as the solver chooses: single precision refined in double "
             "above %s unknowns, falling back to double where refinement stalls (\"precision\" "
             "says what the run ended with; \"steps\": the most refinement steps of a solve). "
+            "The stiff penalty (10^6) is tried in single precision here, though the solver "
+            "itself factorises it in double (above 10^5): its rows show why. "
             "\"difference\": the largest |u_refined - u_double| over the repeats, against the "
             "largest |u_double|. direct = SuperLU (the default), pardiso = Intel MKL PARDISO "
             "(%s MKL threads).\n\n"
@@ -102,6 +118,10 @@ def main(argv=None):
                  f"| {r['solve_double'] / r['solve_mixed']:.2f} | {r['total_double']:.2f} "
                  f"| {r['total_mixed']:.2f} | {r['total_double'] / r['total_mixed']:.2f} "
                  f"| {r['precision']} | {r['steps']} | {r['difference']:.1e} |\n")
+    if capped:
+        body += "\nNot run (the cap of %g s a pair): %s.\n" % (args.cap, ", ".join(
+            f"{method}{f' ({weight:g})' if weight else ''} {solver} at side {side}"
+            for side, (method, weight, solver) in capped))
     write_section("sph-precision", "SPH: single-precision factors refined, against double",
                   body)
     return rows

@@ -17,6 +17,7 @@ DOF where it shows, never solved silently.
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass
 
@@ -34,11 +35,11 @@ SOLVERS = ("auto", "direct", "iterative", "pardiso")
 #: (780 million entries, growing as n log n)
 AUTO_ITERATIVE_ABOVE = 500_000
 #: a direct solver factorises in single precision above this many unknowns and refines each
-#: solve in double (``refinement.MixedPrecisionFactor``): MS2's solve phase at 10,353
-#: particles (20,274 unknowns) took 1.17 s against 1.86 s in double with SuperLU, 0.56 against
-#: 0.67 s with PARDISO (benchmarks/sph_precision.py). The systems of every shipped study are
-#: smaller: their numbers do not change
-MIXED_PRECISION_ABOVE = 20_000
+#: solve in double (``refinement.MixedPrecisionFactor``): from 19,586 unknowns (MS2 at 10,353
+#: particles) it was the faster with either solver (BENCHMARKS.md "SPH: single-precision
+#: factors refined"). The systems of every shipped study are smaller (Example 3: 8,888 unknowns
+#: at most): their numbers do not change
+MIXED_PRECISION_ABOVE = 10_000
 #: smallest singular value below this fraction of the largest entry: singular to working
 #: precision (a free rigid mode leaves one at rounding level, ~1e-16 of the largest)
 MIN_SINGULAR_RATIO = 1e-13
@@ -84,9 +85,11 @@ class Factor:
     """A factorised (direct) or preconditioned (iterative) system, solved for many b.
     ``points`` (n, 2): where each unknown lives; the direct solver orders by nested dissection
     of them if there are more than DISSECTION_ABOVE and the couplings are local, else by
-    SuperLU's MMD on A^T + A (docs/sph.md § 5)."""
+    SuperLU's MMD on A^T + A (docs/sph.md § 5). ``single_precision=False``: factors in double
+    at every size (a system known to be too ill-conditioned for single precision)."""
 
-    def __init__(self, A, solver: str = "auto", nearly_symmetric: bool = False, points=None):
+    def __init__(self, A, solver: str = "auto", nearly_symmetric: bool = False, points=None,
+                 single_precision: bool = True):
         if solver not in SOLVERS:
             raise ValueError(f"unknown linear solver {solver!r} (known: {', '.join(SOLVERS)})")
         n = A.shape[0]
@@ -99,15 +102,18 @@ class Factor:
         self.ordering = None
         if self.method == "pardiso":
             self.ordering = "METIS (PARDISO)"
+            # partial, not a lambda on self: the factors must not hold their Factor in a
+            # reference cycle, or gigabytes wait for the cyclic collector
             self.lu, self.singular_ratio = _checked(self.A, _in_precision(
-                self.A, lambda dtype: _pardiso(self.A, dtype)))
+                self.A, functools.partial(_pardiso, self.A), single_precision))
         elif self.method == "direct":
             if points is not None and (n <= DISSECTION_ABOVE or not local_couplings(self.A)):
                 points, nearly_symmetric = None, True
             self.ordering = ("nested dissection" if points is not None else
                              "MMD" if nearly_symmetric else "COLAMD")
             self.lu, self.singular_ratio = _checked(self.A, _in_precision(
-                self.A, lambda dtype: _factorise(self.A, nearly_symmetric, points, dtype)))
+                self.A, functools.partial(_factorise, self.A, nearly_symmetric, points),
+                single_precision))
         else:
             ilu = spla.spilu(self.A, drop_tol=1e-5, fill_factor=20)
             self.preconditioner = spla.LinearOperator(self.A.shape, ilu.solve)
@@ -170,10 +176,10 @@ class _SuperLU:
         return x
 
 
-def _in_precision(A, factorise):
+def _in_precision(A, factorise, single_precision=True):
     """``factorise(dtype)``'s factors: in single precision, refined, above
-    MIXED_PRECISION_ABOVE unknowns; else in double."""
-    if A.shape[0] > MIXED_PRECISION_ABOVE:
+    MIXED_PRECISION_ABOVE unknowns (if ``single_precision``); else in double."""
+    if single_precision and A.shape[0] > MIXED_PRECISION_ABOVE:
         return MixedPrecisionFactor(A, factorise)
     return factorise(np.float64)
 

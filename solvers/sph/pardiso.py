@@ -63,8 +63,9 @@ def _parameters(single: bool) -> np.ndarray:
     them), with zero-based indices and the precision chosen. In single precision without
     scaling and matching: every solve through those factors is refined against A (and A
     factorised in double if refinement stalls), which is the robustness matching buys, and
-    skipping it took 0.6 s off the 1.5 s analysis of MS2's and the penalty's systems at
-    40,709 particles (benchmarks/sph_precision.py)."""
+    skipping it took about 0.6 s off the 1.5 s analysis of MS2's and the penalty's systems of
+    benchmarks/sph_scaling.py's plate at 40,709 particles (one measurement, same refinement
+    steps)."""
     iparm = np.zeros(64, dtype=np.int32)
     iparm[0] = 1        # these values, not PARDISO's defaults
     iparm[1] = 2        # METIS nested dissection
@@ -99,10 +100,11 @@ class PardisoLU:
         self._handle = np.zeros(64, dtype=np.int64)
         self._iparm = _parameters(self.dtype == np.float32)
         self._call = library.pardiso
-        empty = np.zeros(1, dtype=self.dtype)
-        self._phase(ANALYSE, empty, empty, 1)
+        # MKL's memory is released with the handle, whichever phase fails
         self._finalizer = weakref.finalize(self, _release, library.pardiso, self._handle,
                                            self._iparm, self.n)
+        empty = np.zeros(1, dtype=self.dtype)
+        self._phase(ANALYSE, empty, empty, 1)
         self._phase(FACTORISE, empty, empty, 1)
         self.nnz = int(self._iparm[17])
 

@@ -32,6 +32,12 @@ from solvers.sph.stiffness import block_diagonal, elasticity_matrices, lame, str
 from uqflow.errors import SolverError
 
 METHODS = ("master-slave", "master-slave-cutoff", "master-slave-local", "penalty")
+#: a penalty system's condition number grows with the penalty's relative weight (its
+#: constrained directions that much stiffer than the mean diagonal), and single-precision
+#: factors refine only while cond(A) x 6e-8 is well below 1: at 1e4 three steps; at 1e6
+#: refinement stalled and the solve paid a single and a double factorisation
+#: (benchmarks/sph_precision.py before this rule). Above this weight: double factors only
+SINGLE_PRECISION_MAX_PENALTY = 1e5
 INTEGRATIONS = ("vci", "nodal")
 EIGENSTRAIN_MODES = ("in_plane", "dilatation_3d")
 
@@ -276,7 +282,9 @@ class ElasticProblem:
         last system's rows are found in A's."""
         def fresh():
             return Factor(A, self.linear_solver, nearly_symmetric,
-                          points if self.dissection else None)
+                          points if self.dissection else None,
+                          single_precision=not (self.method == "penalty"
+                                                and self.penalty > SINGLE_PRECISION_MAX_PENALTY))
         if self.update_factors and self._factored is not None:
             t0 = time.perf_counter()
             try:

@@ -1,8 +1,10 @@
 """The linear solves of the SPH systems (solvers/sph/linear.py; docs/sph.md § 5): which systems
 are symmetric, the nested-dissection order against SuperLU's own, and the singularity check."""
 
+import gc
 import importlib.util
 import sys
+import weakref
 
 import numpy as np
 import pytest
@@ -379,3 +381,36 @@ def test_single_precision_factors_do_not_hide_a_singular_system(mixed, solver):
         A, _ = free_grid(12, shift)
         with pytest.raises(LinearSolveError, match="singular"):
             solve(A, np.ones(144), solver)
+
+
+def test_a_stiff_penalty_is_factorised_in_double_without_trying_single(
+        small_plate, mixed, monkeypatch):
+    disc, materials, edge = small_plate
+    precisions = {}
+    for weight in (1e4, 1e6):
+        problem = ElasticProblem(disc, **materials, method="penalty", penalty=weight)
+        if weight > 1e5:
+            # cond(A) grows as the weight: at 1e6 refinement would stall, so single-precision
+            # factors are not even built (their factorisation would be wasted)
+            monkeypatch.setattr(linear, "MixedPrecisionFactor",
+                                lambda *a: pytest.fail("single precision tried"))
+        problem.solve(edge)
+        precisions[weight] = problem._system[1]["factor"].precision
+    assert precisions == {1e4: "single, refined", 1e6: "double"}
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+@pytest.mark.parametrize("limit", [0, 10**9], ids=["single-refined", "double"])
+def test_a_factor_is_freed_as_soon_as_it_is_dropped(monkeypatch, solver, limit):
+    # no reference cycle through the factors: a large system's gigabytes of factors must go
+    # when the last reference does, not at the cyclic collector's next full pass
+    monkeypatch.setattr(linear, "MIXED_PRECISION_ABOVE", limit)
+    A, _ = free_grid(8, shift=0.05)
+    gc.disable()
+    try:
+        factor = Factor(A, solver)
+        dropped = weakref.ref(factor)
+        del factor
+        assert dropped() is None
+    finally:
+        gc.enable()
