@@ -31,8 +31,8 @@ from solvers.sph.refinement import MixedPrecisionFactor
 SOLVERS = ("auto", "direct", "iterative", "pardiso")
 #: "auto" factorises up to this many unknowns and iterates beyond, where the factors would
 #: outgrow the memory of a 24 GiB machine: SuperLU was the faster at every size measured
-#: (benchmarks/sph_scaling.py), and its 408,226-unknown factorisation peaked at 11.8 GiB
-#: (780 million entries, growing as n log n)
+#: (benchmarks/sph_scaling.py), and its 408,226-unknown factorisation peaked at 9.9 GiB in
+#: single precision (780 million entries, growing as n log n)
 AUTO_ITERATIVE_ABOVE = 500_000
 #: a direct solver factorises in single precision above this many unknowns and refines each
 #: solve in double (``refinement.MixedPrecisionFactor``): from 19,586 unknowns (MS2 at 10,353

@@ -53,8 +53,9 @@ class Refinement:
 
 
 class MixedPrecisionFactor:
-    """A's factors in single precision — half the time and memory of double's — each solve
-    refined in double to a double LU's backward error. ``factorise(dtype)`` returns factors of
+    """A's factors in single precision — half the memory of double's, and faster
+    (benchmarks/sph_precision.py) — each solve refined in double to a double LU's backward
+    error. ``factorise(dtype)`` returns factors of
     A in that precision (an object with ``solve`` and ``nnz``). If the single-precision
     factorisation fails (an ArithmeticError: a pivot that vanishes in single precision) or a
     solve's refinement stalls (A too ill-conditioned for single precision: each step's
