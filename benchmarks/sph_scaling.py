@@ -35,12 +35,19 @@ from _record import write_section  # noqa: E402
 from solvers.sph.exact import eshelby_displacement  # noqa: E402
 from solvers.sph.layouts import Box, Ellipse, regular_layout  # noqa: E402
 from solvers.sph.linear import MIXED_PRECISION_ABOVE  # noqa: E402
-from solvers.sph.problem import ElasticProblem  # noqa: E402
+from solvers.sph.problem import LAGRANGE_FORM_ABOVE, ElasticProblem  # noqa: E402
 from solvers.sph.stiffness import Discretisation  # noqa: E402
 
-METHODS = (("master-slave", {}), ("master-slave-cutoff", {"cutoff_threshold": 1e-8}),
+#: plain MS twice: as the solver chooses (its Lagrange form above LAGRANGE_FORM_ABOVE unknowns)
+#: and always reduced (K^ = P^T K P, the solver before)
+METHODS = (("master-slave", {}), ("master-slave", {"lagrange_form_above": 10**12}),
+           ("master-slave-cutoff", {"cutoff_threshold": 1e-8}),
            ("master-slave-local", {}), ("penalty", {"penalty": 1e4}))
 SOLVERS = ("direct", "superlu-order", "iterative", "pardiso")
+
+
+def label(method, extra) -> str:
+    return method + (" (reduced)" if "lagrange_form_above" in extra else "")
 
 
 def pardiso_available() -> bool:
@@ -151,6 +158,7 @@ def main(argv=None):
     rows, stopped, undissected, last = [], set(), set(), {}
     for side, method, extra, solver, repeats in cells:
         big = side == args.big and repeats == 1
+        method_run, method = method, label(method, extra)
         if not big and (method, solver) in stopped:
             continue
         if not big and (method, solver) in last:
@@ -161,7 +169,7 @@ def main(argv=None):
                 continue
         if solver == "superlu-order" and (side, method) in undissected:
             continue                    # "direct" already used SuperLU's order
-        runs = [one_run(side, method, extra, solver) for _ in range(repeats)]
+        runs = [one_run(side, method_run, extra, solver) for _ in range(repeats)]
         n = runs[0][0]
         med = {k: statistics.median(r[1][k] for r in runs) for k in runs[0][1]
                if runs[0][1][k] is not None}
@@ -187,13 +195,15 @@ def main(argv=None):
             "iterative = GMRES with an incomplete LU; pardiso = Intel MKL PARDISO (the "
             "optional extra uqflow[pardiso]: METIS order, %s MKL threads)%s. Factors: "
             "\"single\" = in single precision, each solve refined in double (above %s "
-            "unknowns; benchmarks/sph_precision.py compares the two).\n\n"
+            "unknowns; benchmarks/sph_precision.py compares the two). Plain master-slave "
+            "as the solver runs it (its Lagrange form above %s unknowns) and "
+            "\"master-slave (reduced)\": always K^ = P^T K P, the solver before.\n\n"
             "| particles | method | solver | factors | neighbours | assembly | transformation "
             "| solve | total | peak MiB | nnz system | nnz L+U |\n"
             "|---|---|---|---|---|---|---|---|---|---|---|---|\n"
             % (args.repeats, load, args.cap, mkl_threads(),
                "" if "pardiso" in solvers else " (not installed: no pardiso rows)",
-               f"{MIXED_PRECISION_ABOVE:,}"))
+               f"{MIXED_PRECISION_ABOVE:,}", f"{LAGRANGE_FORM_ABOVE:,}"))
     for n, method, solver, t, repeats in rows:
         runs = "" if repeats == args.repeats else f" ({repeats} run)"
         peak = f"{t['peak_mib']:,.0f}" if "peak_mib" in t else ""

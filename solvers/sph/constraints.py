@@ -85,15 +85,20 @@ def slave_clusters(phi_ss: sp.csr_matrix) -> tuple[int, np.ndarray]:
     return connected_components(graph, directed=False)
 
 
+def _clusters(phi_ss):
+    """(cluster count, the slaves sorted by cluster, each cluster's bounds in that order)."""
+    n_clusters, label = slave_clusters(phi_ss)
+    order = np.argsort(label, kind="stable")
+    return n_clusters, order, np.searchsorted(label[order], np.arange(n_clusters + 1))
+
+
 def relation_matrix(c: Constraints, masters: np.ndarray, master_points=None,
                     threshold: float = 0.0, pattern_radius: float | None = None):
     """T (ns x nm CSR), q, and the cluster count and largest size, per cluster."""
     L = c.rows.tocsc()
     phi_ss = L[:, c.slaves].tocsr()
     phi_sm = L[:, masters].tocsr()
-    n_clusters, label = slave_clusters(phi_ss)
-    order = np.argsort(label, kind="stable")
-    bounds = np.searchsorted(label[order], np.arange(n_clusters + 1))
+    n_clusters, order, bounds = _clusters(phi_ss)
     rows_out, cols_out, vals_out = [], [], []
     q = np.zeros(c.slaves.size)
     sizes = np.diff(bounds)
@@ -101,14 +106,7 @@ def relation_matrix(c: Constraints, masters: np.ndarray, master_points=None,
     # single-slave clusters (all of them under master-slave-local): one division per row
     alone = order[bounds[:-1][sizes == 1]]
     if alone.size:
-        diag = phi_ss[alone, alone].A1 if hasattr(phi_ss[alone, alone], "A1") \
-            else np.asarray(phi_ss[alone, alone]).ravel()
-        bad = ~(np.abs(diag) > MIN_CLUSTER_RCOND * np.abs(phi_sm[alone]).max(axis=1).toarray().ravel())
-        if bad.any():
-            first = alone[np.flatnonzero(bad)[0]]
-            raise ConstraintError(
-                f"constraint '{c.label[first]}' at ({c.points[first, 0]:.6g}, "
-                f"{c.points[first, 1]:.6g}): its slave has a zero coefficient in its own row")
+        diag = _single_slave_diagonal(c, phi_ss, phi_sm, alone)
         q[alone] = c.rhs[alone] / diag
         sub = sp.diags(-1.0 / diag) @ phi_sm[alone]
         if pattern_radius is not None and master_points is not None:
@@ -124,18 +122,7 @@ def relation_matrix(c: Constraints, masters: np.ndarray, master_points=None,
         vals_out.append(sub.data[nz])
     for k in np.flatnonzero(sizes > 1):
         members = order[bounds[k]:bounds[k + 1]]
-        block = phi_ss[members][:, members].toarray()
-        with warnings.catch_warnings():
-            # a singular block is reported below, with the row that names it
-            warnings.simplefilter("ignore", la.LinAlgWarning)
-            lu = la.lu_factor(block, check_finite=False)
-        rcond = _rcond(block, lu)
-        if not rcond > MIN_CLUSTER_RCOND:
-            first = members[0]
-            raise ConstraintError(
-                f"constraint '{c.label[first]}' at ({c.points[first, 0]:.6g}, "
-                f"{c.points[first, 1]:.6g}): its slave cluster of {members.size} rows is "
-                f"singular (reciprocal condition {rcond:.2g})")
+        lu = _cluster_lu(c, phi_ss, members)
         sub = phi_sm[members]
         used = np.unique(sub.indices)
         q[members] = la.lu_solve(lu, c.rhs[members], check_finite=False)
@@ -161,6 +148,38 @@ def relation_matrix(c: Constraints, masters: np.ndarray, master_points=None,
     T = sp.csr_matrix((cat(vals_out, float), (cat(rows_out, np.int64), cat(cols_out, np.int64))),
                       shape=(c.slaves.size, masters.size))
     return T, q, n_clusters, largest
+
+
+def _single_slave_diagonal(c, phi_ss, phi_sm, alone) -> np.ndarray:
+    """The own coefficients of the slaves alone in their clusters (rows ``alone``), or
+    ConstraintError naming the first that is zero next to its row's masters."""
+    picked = phi_ss[alone, alone]
+    diag = picked.A1 if hasattr(picked, "A1") else np.asarray(picked).ravel()
+    bad = ~(np.abs(diag) > MIN_CLUSTER_RCOND * np.abs(phi_sm[alone]).max(axis=1).toarray().ravel())
+    if bad.any():
+        first = alone[np.flatnonzero(bad)[0]]
+        raise ConstraintError(
+            f"constraint '{c.label[first]}' at ({c.points[first, 0]:.6g}, "
+            f"{c.points[first, 1]:.6g}): its slave has a zero coefficient in its own row")
+    return diag
+
+
+def _cluster_lu(c, phi_ss, members):
+    """LAPACK's LU of the cluster's block of Phi_ss, or ConstraintError naming its first row
+    if the block is singular to working precision."""
+    block = phi_ss[members][:, members].toarray()
+    with warnings.catch_warnings():
+        # a singular block is reported below, with the row that names it
+        warnings.simplefilter("ignore", la.LinAlgWarning)
+        lu = la.lu_factor(block, check_finite=False)
+    rcond = _rcond(block, lu)
+    if not rcond > MIN_CLUSTER_RCOND:
+        first = members[0]
+        raise ConstraintError(
+            f"constraint '{c.label[first]}' at ({c.points[first, 0]:.6g}, "
+            f"{c.points[first, 1]:.6g}): its slave cluster of {members.size} rows is "
+            f"singular (reciprocal condition {rcond:.2g})")
+    return lu
 
 
 def _rcond(block, lu):
@@ -243,6 +262,53 @@ def reduced_stiffness(K, P, T, slaves, masters, cluster) -> sp.csr_matrix:
     n = masters.size
     return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                          shape=(n, n))
+
+
+@dataclass
+class LagrangeForm:
+    """Plain MS (seed eq. 6-7, 27) as the equivalent saddle-point system of K and L,
+
+        [K    s L^T] [u]   [f  ]
+        [s L  0    ] [mu] = [s p],
+
+    with each constraint row swapped with its slave's equilibrium row (``row_order``), so that
+    every diagonal entry is nonzero: the slave's own coefficient s Phi_ss[r, r], in both
+    places. Its first n unknowns are u. Why it is the same solution: L P = Phi_sm + Phi_ss T =
+    0, so P^T times the first block row is P^T K u = P^T f with u = P u_m + u_q, MS's
+    equations; and its factors never see T, whose rows are dense over every master near a
+    slave cluster (docs/sph.md § 5)."""
+    A: sp.csr_matrix
+    row_order: np.ndarray
+    scale: float
+    n: int
+
+    def rhs(self, f, p) -> np.ndarray:
+        return np.concatenate([f, self.scale * np.asarray(p, dtype=float)])[self.row_order]
+
+
+def lagrange_form(K, c: Constraints, scale: float) -> LagrangeForm:
+    """Plain MS's system in the Lagrange form, after the checks MS's T makes: a slave cluster
+    whose Phi_ss is singular is the same ConstraintError (the form itself only needs L of
+    full rank, but the method must not depend on how it is solved). ``scale``: the
+    constraint rows' weight, about K's diagonal, so that neither block's rounding hides the
+    other's."""
+    n, m = K.shape[0], c.rhs.size
+    L = c.rows.tocsc()
+    phi_ss = L[:, c.slaves].tocsr()
+    _, order, bounds = _clusters(phi_ss)
+    sizes = np.diff(bounds)
+    alone = order[bounds[:-1][sizes == 1]]
+    if alone.size:
+        is_slave = np.zeros(n, dtype=bool)
+        is_slave[c.slaves] = True
+        _single_slave_diagonal(c, phi_ss, L[:, ~is_slave].tocsr(), alone)
+    for k in np.flatnonzero(sizes > 1):
+        _cluster_lu(c, phi_ss, order[bounds[k]:bounds[k + 1]])
+    A = sp.bmat([[sp.csr_matrix(K), scale * c.rows.T], [scale * c.rows, None]], format="csr")
+    row_order = np.arange(n + m)
+    row_order[c.slaves] = n + np.arange(m)
+    row_order[n + np.arange(m)] = c.slaves
+    return LagrangeForm(A[row_order].tocsr(), row_order, float(scale), n)
 
 
 def penalty_system(K, f, c: Constraints, relative_weight: float, scale: float | None = None):

@@ -25,7 +25,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
-from solvers.sph.constraints import Constraints, master_slave, penalty_system
+from solvers.sph.constraints import Constraints, lagrange_form, master_slave, penalty_system
 from solvers.sph.factor_update import NotLowRank, UpdatedFactor
 from solvers.sph.linear import Factor, condition_estimate
 from solvers.sph.stiffness import block_diagonal, elasticity_matrices, lame, strain_operator
@@ -38,6 +38,11 @@ METHODS = ("master-slave", "master-slave-cutoff", "master-slave-local", "penalty
 #: refinement stalled and the solve paid a single and a double factorisation
 #: (benchmarks/sph_precision.py before this rule). Above this weight: double factors only
 SINGLE_PRECISION_MAX_PENALTY = 1e5
+#: plain MS solves its equivalent Lagrange form (constraints.LagrangeForm) above this many
+#: unknowns: its factors keep K's sparsity where K^'s have a dense block over every master
+#: near a slave cluster (on benchmarks/sph_scaling.py's plate at 3,829 particles: 4.7 against
+#: 10.0 million entries, MS2's 4.4). Every shipped study is smaller: its numbers do not change
+LAGRANGE_FORM_ABOVE = 10_000
 INTEGRATIONS = ("vci", "nodal")
 EIGENSTRAIN_MODES = ("in_plane", "dilatation_3d")
 
@@ -82,7 +87,8 @@ class ElasticProblem:
                  penalty: float = 1e4, cutoff_threshold: float = 1e-12,
                  cutoff_radius: float | None = None, min_support: int = 5,
                  linear_solver: str = "auto", stabilisation: float = 0.0,
-                 dissection: bool = True, update_factors: bool = True):
+                 dissection: bool = True, update_factors: bool = True,
+                 lagrange_form_above: int = LAGRANGE_FORM_ABOVE):
         if method not in METHODS:
             raise ValueError(f"unknown constraint method {method!r} (known: {', '.join(METHODS)})")
         if integration not in INTEGRATIONS:
@@ -98,6 +104,8 @@ class ElasticProblem:
         #: solve a system after breaks through a low-rank update of the last factorised one
         #: (factor_update.py) where the change allows, instead of factorising it afresh
         self.update_factors = bool(update_factors)
+        #: plain MS's systems of more unknowns than this are solved in the Lagrange form
+        self.lagrange_form_above = int(lagrange_form_above)
         self._factored = None             # (factor, its unknowns' global DOFs) of the last build
         self._penalty_scale = None        # mean diag K of the first system built
         self.cutoff_threshold, self.cutoff_radius = float(cutoff_threshold), cutoff_radius
@@ -263,6 +271,15 @@ class ElasticProblem:
             out.update(w=w, transformation=time.perf_counter() - t0)
             out.update(factor=self._factorised(A, keep, dof_points))
             return out
+        if self.method == "master-slave" and K.shape[0] > self.lagrange_form_above:
+            form = lagrange_form(K, c, float(np.mean(K.diagonal())))
+            out["transformation"] = time.perf_counter() - t0
+            points = np.concatenate([dof_points, c.points])
+            # its unknowns (the multipliers among them) are not the next system's: no update
+            self._factored = None
+            out.update(lagrange=form, factor=Factor(
+                form.A, self.linear_solver, True, points if self.dissection else None))
+            return out
         threshold = self.cutoff_threshold if self.method == "master-slave-cutoff" else 0.0
         radius = self.cutoff_radius if self.method == "master-slave-cutoff" else None
         ms = master_slave(K, f, c, dof_points, threshold=threshold, pattern_radius=radius)
@@ -332,6 +349,12 @@ class ElasticProblem:
             b = system["f"] + system["w"] * (c.rows.T @ c.rhs)
             t2 = time.perf_counter()
             u_free, info = system["factor"].solve(b)
+        elif "lagrange" in system:
+            form = system["lagrange"]
+            b = form.rhs(system["f"], c.rhs)
+            t2 = time.perf_counter()
+            x, info = system["factor"].solve(b)
+            u_free = x[:form.n]
         else:
             ms = system["ms"]
             if not built:

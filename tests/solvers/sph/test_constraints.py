@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from solvers.sph.constraints import (ConstraintError, Constraints, master_slave,
-                                     penalty_system, slave_clusters)
+from solvers.sph.constraints import (ConstraintError, Constraints, lagrange_form,
+                                     master_slave, penalty_system, slave_clusters)
 from solvers.sph.linear import LinearSolveError, condition_estimate, solve
 
 EPS = np.finfo(float).eps
@@ -54,6 +54,32 @@ def test_master_slave_equals_the_lagrange_multiplier_solution(nonsymmetric):
     assert np.abs(u - ref).max() < 10 * EPS * cond * np.abs(ref).max()
     assert np.abs(L @ u - c.rhs).max() < 10 * EPS * np.linalg.cond(L[:, c.slaves]) * 2
     assert ms.clusters == 3 and ms.largest_cluster == 3
+
+
+@pytest.mark.parametrize("nonsymmetric", [0.0, 0.3])
+def test_the_lagrange_form_gives_master_slaves_solution(nonsymmetric):
+    n = 40
+    K = laplacian_1d(n, nonsymmetric)
+    f = np.sin(np.arange(n))
+    p = np.array([0.1, 0.2, 0.0, 1.0, 1.1, -1.0, 0.5])
+    c = constraints(n, [0, 1, 2, 20, 21, 38, 39], rhs=p)
+    ms = master_slave(K, f, c, np.c_[np.arange(n, dtype=float), np.zeros(n)])
+    u_ms = ms.expand(solve(ms.K_hat, ms.f_hat)[0])
+    scale = 2.0
+    form = lagrange_form(K, c, scale)
+    A = form.A.toarray()
+    # the swap puts the slave's own coefficient on the diagonal twice: no zero pivot there
+    own = scale * c.rows[np.arange(p.size), c.slaves].A1
+    assert np.array_equal(A.diagonal()[c.slaves], own)
+    assert np.array_equal(A.diagonal()[n:], own)
+    assert np.count_nonzero(A.diagonal()) == n + p.size
+    u = np.linalg.solve(A, form.rhs(f, p))[:form.n]
+    # two solutions of one linear system: agreement to eps times its condition
+    assert np.abs(u - u_ms).max() < 10 * EPS * np.linalg.cond(A) * np.abs(u_ms).max()
+    # a form that lost a row's scale or its swap is another system: far outside that bound
+    wrong = lagrange_form(K, c, scale)
+    wrong.row_order = np.arange(n + p.size)
+    assert np.abs(np.linalg.solve(A, wrong.rhs(f, p))[:n] - u_ms).max() > 1e-3
 
 
 def test_the_relation_matrix_is_minus_phi_ss_inverse_phi_sm():
@@ -106,6 +132,21 @@ def test_a_singular_slave_cluster_names_its_row():
                     np.array(["pair 3 x", "pair 3 y"]))
     with pytest.raises(ConstraintError, match=r"'pair 3 x' at \(5, 0\).*singular"):
         master_slave(laplacian_1d(n), np.zeros(n), c)
+    # the Lagrange form needs only L of full rank, but the method refuses what MS refuses
+    with pytest.raises(ConstraintError, match=r"'pair 3 x' at \(5, 0\).*singular"):
+        lagrange_form(laplacian_1d(n), c, 1.0)
+
+
+def test_a_lone_slave_absent_from_its_own_row_is_refused_in_either_form():
+    n = 20
+    L = rows(n, [5, 12]).tolil()
+    L[1, 12] = 0.0
+    c = Constraints(L.tocsr(), np.zeros(2), np.array([5, 12]),
+                    np.array([[5.0, 0.0], [12.0, 0.0]]), np.array(["row 0", "edge 7 y"]))
+    for form in (lambda: master_slave(laplacian_1d(n), np.zeros(n), c),
+                 lambda: lagrange_form(laplacian_1d(n), c, 1.0)):
+        with pytest.raises(ConstraintError, match=r"'edge 7 y' at \(12, 0\).*zero coeff"):
+            form()
 
 
 def test_a_free_rigid_mode_is_refused_not_solved():

@@ -195,3 +195,18 @@ def test_updated_runs_break_the_pairs_of_refactorised_runs(plate, monkeypatch, m
     assert info.iterations == 0
     assert np.abs(b - A @ x).sum() <= residual_bound(A, x, b)
     assert agree_within_residuals(A, x, Factor(A, "direct", nearly_symmetric=True).solve(b)[0], b)
+
+
+def test_plain_ms_in_the_lagrange_form_debonds_like_its_reduced_system(plate):
+    disc = Discretisation(plate, 2.0)
+    inside = plate.phase > 0
+    E, nu = np.where(inside, 150e6, 1e6), np.where(inside, 0.3, 0.4)
+    runs = []
+    for above in (0, 10**9):        # the Lagrange form at every size, then never
+        problem = ElasticProblem(disc, E, nu, method="master-slave", lagrange_form_above=above)
+        runs.append(run_tension(problem, plate, 0.04e6, 0.05e-6, 24))
+        assert ("lagrange" in problem._system[1]) == (above == 0)
+    lagrange, reduced = runs
+    assert reduced.intact_pairs[-1] < reduced.intact_pairs[0]               # the plate debonds
+    assert np.array_equal(lagrange.pair_break_step, reduced.pair_break_step)
+    assert np.array_equal(lagrange.pair_break_resolve, reduced.pair_break_resolve)

@@ -21,6 +21,9 @@ from solvers.sph.stiffness import Discretisation
 EPS = np.finfo(float).eps
 METHODS = (("master-slave", {}), ("master-slave-cutoff", {"cutoff_threshold": 1e-8}),
            ("master-slave-local", {}), ("penalty", {"penalty": 1e4}))
+#: plain MS solved in its Lagrange form (above LAGRANGE_FORM_ABOVE unknowns; here at every size)
+LAGRANGE = ("master-slave", {"lagrange_form_above": 0})
+SOLVED = METHODS + (LAGRANGE,)
 #: PARDISO is an optional extra that CI's venv (pip install -e ".[test]") does not install; with
 #: it installed (pip install 'uqflow[pardiso]') these cases run
 NEEDS_PARDISO = pytest.mark.skipif(
@@ -134,10 +137,24 @@ def right_hand_side(problem, edge):
     if "ms" in system:
         return system["ms"].f_hat
     c, _ = problem.constraints(edge, np.ones(problem.pairs.shape[0], dtype=bool))
+    if "lagrange" in system:
+        return system["lagrange"].rhs(system["f"], c.rhs)
     return system["f"] + system["w"] * (c.rows.T @ c.rhs)
 
 
-@pytest.mark.parametrize("method,extra", METHODS)
+def parameters_map(problem):
+    """The matrix that takes a system's unknowns to the parameters u (its homogeneous part):
+    P for the reduced systems, the identity for the penalty's, [I 0] for the Lagrange form's."""
+    system = problem._system[1]
+    n = system["factor"].A.shape[0]
+    if "ms" in system:
+        return system["ms"].P
+    if "lagrange" in system:
+        return sp.eye(system["lagrange"].n, n)
+    return sp.identity(n)
+
+
+@pytest.mark.parametrize("method,extra", SOLVED)
 def test_the_dissected_factor_gives_the_displacements_of_superlus_own_order(
         small_plate, dissect_small, method, extra):
     disc, materials, edge = small_plate
@@ -150,7 +167,6 @@ def test_the_dissected_factor_gives_the_displacements_of_superlus_own_order(
     A = new._system[1]["factor"].A
     assert (A != old._system[1]["factor"].A).nnz == 0          # the same system, two orders
     b = right_hand_side(new, edge)
-    n = A.shape[0]
     bounds, solutions = [], []
     for problem in (new, old):
         factor = problem._system[1]["factor"]
@@ -164,10 +180,40 @@ def test_the_dissected_factor_gives_the_displacements_of_superlus_own_order(
     difference = inverse_norm * sum(bounds)
     assert np.abs(solutions[0] - solutions[1]).sum() <= difference
     # the parameters: u = P x + u_q (master-slave) or x (penalty): at most ||P||_1 times that
-    P = new._system[1]["ms"].P if method != "penalty" else sp.identity(n)
+    P = parameters_map(new)
     # bound: the 1e-12 only absorbs the roundings of the bound's own two sums (a few eps
     # in any order, any BLAS/numpy): the bound itself is the backward-error estimate above
     assert np.abs(u_new - u_old).sum() <= abs(P).sum(axis=0).max() * difference * (1 + 1e-12)
+
+def test_plain_ms_in_the_lagrange_form_gives_the_reduced_systems_displacements(small_plate):
+    disc, materials, edge = small_plate
+    reduced = ElasticProblem(disc, **materials, method="master-slave")
+    u_reduced = reduced.solve(edge).u
+    lagrange = ElasticProblem(disc, **materials, method="master-slave", lagrange_form_above=0)
+    u_lagrange = lagrange.solve(edge).u
+    system = lagrange._system[1]
+    assert "lagrange" in system and "ms" in reduced._system[1]
+    form, K, f = system["lagrange"], system["K"], system["f"]
+    c, _ = lagrange.constraints(edge, np.ones(lagrange.pairs.shape[0], dtype=bool))
+    A, b = system["factor"].A, form.rhs(f, c.rhs)
+    # MS's solution with the multipliers its own slave rows imply (s Phi_ss^T mu = (f - K u)_s)
+    # solves the Lagrange form to within MS's own residuals: both agree to within the two
+    # residuals times ||A^-1||
+    phi_ss = c.rows[:, c.slaves].toarray()
+    mu = np.linalg.solve(form.scale * phi_ss.T, (f - K @ u_reduced)[c.slaves])
+    x_reduced = np.concatenate([u_reduced, mu])
+    x_lagrange = system["factor"].solve(b)[0]
+    assert np.array_equal(x_lagrange[:form.n], u_lagrange)
+    bound = agreement_bound(A, b, x_reduced, x_lagrange)
+    assert np.abs(u_reduced - u_lagrange).sum() <= bound
+    # and the bound is one of rounding, or it proves nothing: two consistent solves' residuals
+    # are each within k eps ||A||_1 ||x||_1 times the LU's growth (k <= 100 entries a row,
+    # growth a few), so the bound is within 1e3 cond_1(A) eps ||x||_1; a solve of another
+    # system (a constraint's value off by 1e-4 of itself) leaves one 1e5 times larger
+    cond = np.linalg.cond(A.toarray(), 1)
+    assert int(np.diff(sp.csr_matrix(A).indptr).max()) <= 100
+    assert bound <= 1e3 * cond * EPS * np.abs(x_lagrange).sum()
+
 
 def free_grid(m, shift=0.0):
     """A grid Laplacian with free edges (its constant vector has no energy) plus shift I."""
@@ -241,7 +287,7 @@ def assert_same_solution(ref, method, A, b, fast, slow):
     (x_fast, u_fast), (x_ref, u_ref) = fast, slow
     difference = agreement_bound(A, b, x_fast, x_ref)
     assert np.abs(x_fast - x_ref).sum() <= difference
-    P = ref._system[1]["ms"].P if method != "penalty" else sp.identity(A.shape[0])
+    P = parameters_map(ref)
     # bound: the 1e-12 only absorbs the roundings of the bound's own sums (a few eps in any
     # order, any BLAS/numpy): the bound itself is the residual-based estimate above
     assert np.abs(u_fast - u_ref).sum() <= abs(P).sum(axis=0).max() * difference * (1 + 1e-12)
@@ -263,7 +309,7 @@ def test_auto_never_chooses_pardiso():
     assert Factor(A, "auto").method == "direct"
 
 
-@pytest.mark.parametrize("method,extra", METHODS)
+@pytest.mark.parametrize("method,extra", SOLVED)
 def test_pardiso_gives_superlus_displacements_within_their_backward_errors(
         small_plate, method, extra):
     pytest.importorskip("pypardiso")
@@ -327,7 +373,7 @@ def refinement_target(A, x, b):
 
 
 @pytest.mark.parametrize("solver", SOLVERS)
-@pytest.mark.parametrize("method,extra", METHODS)
+@pytest.mark.parametrize("method,extra", SOLVED)
 def test_single_precision_factors_refined_give_the_double_factors_displacements(
         small_plate, monkeypatch, solver, method, extra):
     disc, materials, edge = small_plate
