@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import ast
 import re
+import subprocess
 import sys
 import tomllib
 import warnings
@@ -467,3 +469,27 @@ def test_a_function_solver_from_an_entry_point_runs_a_study(tmp_path, monkeypatc
     assert uqflow.get_solver("beam-fn").__module__ == "beamplug"
     # moment = 3 F is linear: Taylor's mean is exact, 3 × 1000 (binary-exact integers)
     assert float(outcome.statistics["moment"].sel(statistic="mean")) == 3000.0
+
+
+def test_a_built_in_name_imports_its_own_module_and_no_other_built_in():
+    # a fresh process: what a CLI run or a dask worker imports to find its solver and method
+    code = ("import sys; import uqflow; uqflow.get_solver('analytic'); "
+            "from uqflow.registry import method_registry as m; m.get('monte-carlo'); "
+            "print(sorted(k for k in sys.modules if k.split('.')[0] == 'solvers' "
+            "or k.startswith('uqflow.methods.')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, cwd=Path(__file__).parents[1]).stdout
+    imported = ast.literal_eval(out)
+    assert "solvers.analytic" in imported and "uqflow.methods.monte_carlo" in imported
+    assert not [m for m in imported if m.startswith(("solvers.mpm", "solvers.sph",
+                                                     "uqflow.methods.form"))]
+
+
+def test_a_name_that_is_no_module_is_still_found_among_the_built_ins(monkeypatch):
+    from uqflow.registry import method_registry
+
+    monkeypatch.setattr(method_registry, "_classes", {})
+    monkeypatch.setattr(method_registry, "_entry_points_loaded", False)
+    # "sorm" lives in form.py, "cross-entropy" in importance_sampling.py
+    assert method_registry.get("sorm").name == "sorm"
+    assert method_registry.get("cross-entropy").name == "cross-entropy"

@@ -52,7 +52,23 @@ class Registry:
             if not getattr(cls, "name", ""):
                 cls.name = ep.name
 
+    def _import_named(self, name: str) -> None:
+        """Import the built-in module named after ``name`` alone (``solvers.mpm`` for "mpm",
+        ``uqflow.methods.monte_carlo`` for "monte-carlo"), where most names register: every
+        built-in module imported is a second per process (the solvers' numba modules), paid
+        by each CLI run and each dask worker for one solver and one method."""
+        module = name.replace("-", "_")
+        if not module.isidentifier():
+            return
+        for package in self.builtins:
+            try:
+                import_module(f"{package}.{module}")
+            except ImportError:
+                pass
+
     def get(self, name: str) -> type:
+        if name not in self._classes and not self._entry_points_loaded:
+            self._import_named(name)
         if name not in self._classes:
             self._load_entry_points()
         try:

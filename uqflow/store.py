@@ -229,6 +229,8 @@ def write_result(path: Path, runs: xr.Dataset, statistics: xr.Dataset | None,
     On failure the temporary file is removed, the previous file stays as it was and a
     one-line ``ResultFileError`` names the file and the reason.
     """
+    import dask  # imported with the first write, not with the CLI
+
     path = Path(path)
     groups = {"/": xr.Dataset(attrs=_netcdf_attrs({**attrs, RUNS_HASH: runs_checksum(runs)})),
               RUNS_GROUP: _clean(runs)}
@@ -238,7 +240,12 @@ def write_result(path: Path, runs: xr.Dataset, statistics: xr.Dataset | None,
     tmp = path.with_name(path.name + ".tmp")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tree.to_netcdf(tmp, engine=ENGINE)
+        # with a dask client open (a study on dask), xarray would guard the file's every
+        # variable write with a distributed lock, a round trip to the scheduler each: 3 x
+        # the write's time at every checkpoint. This process alone writes the file
+        # (``result_lock``); the synchronous scheduler's lock is a thread lock
+        with dask.config.set(scheduler="synchronous"):
+            tree.to_netcdf(tmp, engine=ENGINE)
         os.replace(tmp, path)
     except BaseException as exc:
         # Whatever stopped the write (a full disk, a value netCDF cannot hold, Ctrl-C), the

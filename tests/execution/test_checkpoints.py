@@ -87,3 +87,25 @@ def test_dask_tasks_hand_back_finished_realizations_mid_batch(write_study, monke
         # A task stops after the first realization that ends past half the interval: all
         # those before it ended within the budget (worker clock, whatever the load).
         assert walls[:-1].sum() < interval / 2, walls
+
+
+def test_a_checkpoint_under_a_dask_client_takes_no_distributed_lock(tmp_path, monkeypatch):
+    # xarray guards a netCDF write with a distributed lock while a dask client is open, a
+    # scheduler round trip per variable (3 x the write's time at every checkpoint of a
+    # study on dask); the result file has one writer, this process, and its own lock
+    import numpy as np
+    import xarray as xr
+    from dask.distributed import Client, Lock
+
+    from uqflow.layout import RUNS_GROUP
+    from uqflow.store import write_result
+
+    def refused(*args, **kw):
+        raise AssertionError("a distributed lock was taken for a result write")
+
+    runs = xr.Dataset({"y": ("realization", np.arange(3.0))})
+    with Client(processes=False, n_workers=1, threads_per_worker=1, dashboard_address=":0"):
+        monkeypatch.setattr(Lock, "__init__", refused)
+        write_result(tmp_path / "r.nc", runs, None, {"complete": 0})
+    with xr.open_datatree(tmp_path / "r.nc") as tree:
+        assert np.array_equal(tree[RUNS_GROUP]["y"].values, np.arange(3.0))

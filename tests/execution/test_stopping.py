@@ -96,10 +96,12 @@ def test_the_issue_case_is_identical_for_workers_0_and_2_and_after_a_kill(write_
     result = killed.parent / "out" / "killed.nc"
     runs, attrs = run_and_kill(killed, result, at_least=150)
     assert attrs["complete"] == 0
-    assert 150 <= (runs["status"].values == "ok").sum() < 1000
+    finished = int((runs["status"].values == "ok").sum())
+    assert 150 <= finished < 1000
     cmd = uqflow_cli("run", killed, "--resume", "--quiet", "--no-figures")
-    _, err = cmd.communicate(timeout=300)
+    out, err = cmd.communicate(timeout=300)
     assert cmd.returncode == 0, err
+    assert f"resumed: {finished} realizations were already done" in out
 
     runs_0, stats_0 = comparable(reference)
     for other in (two.parent / "out" / "w2.nc", result):
