@@ -40,8 +40,9 @@ METHODS = ("master-slave", "master-slave-cutoff", "master-slave-local", "penalty
 SINGLE_PRECISION_MAX_PENALTY = 1e5
 #: plain MS solves its equivalent Lagrange form (constraints.LagrangeForm) above this many
 #: unknowns: its factors keep K's sparsity where K^'s have a dense block over every master
-#: near a slave cluster (on benchmarks/sph_scaling.py's plate at 3,829 particles: 4.7 against
-#: 10.0 million entries, MS2's 4.4). Every shipped study is smaller: its numbers do not change
+#: near a slave cluster (benchmarks/sph_scaling.py's plate at 10,353 particles: 17.2 against
+#: 34.9 million entries in L + U, MS2's 16.9). Every shipped study is smaller: its numbers
+#: do not change
 LAGRANGE_FORM_ABOVE = 10_000
 INTEGRATIONS = ("vci", "nodal")
 EIGENSTRAIN_MODES = ("in_plane", "dilatation_3d")
