@@ -275,11 +275,9 @@ class ElasticProblem:
         if self.method == "master-slave" and K.shape[0] > self.lagrange_form_above:
             form = lagrange_form(K, c, float(np.mean(K.diagonal())))
             out["transformation"] = time.perf_counter() - t0
-            points = np.concatenate([dof_points, c.points])
             # its unknowns (the multipliers among them) are not the next system's: no update
-            self._factored = None
-            out.update(lagrange=form, factor=Factor(
-                form.A, self.linear_solver, True, points if self.dissection else None))
+            out.update(lagrange=form, factor=self._factorised(
+                form.A, None, np.concatenate([dof_points, c.points]), nearly_symmetric=True))
             return out
         threshold = self.cutoff_threshold if self.method == "master-slave-cutoff" else 0.0
         radius = self.cutoff_radius if self.method == "master-slave-cutoff" else None
@@ -297,13 +295,14 @@ class ElasticProblem:
     def _factorised(self, A, unknowns, points, nearly_symmetric=False):
         """A's factors: a low-rank update of the last system built, where the breaks since
         allow one, else a fresh Factor. ``unknowns``: the global DOF of each row of A, how the
-        last system's rows are found in A's."""
+        last system's rows are found in A's; None: A is never updated nor updates another
+        (the Lagrange form, whose multipliers are no DOF)."""
         def fresh():
             return Factor(A, self.linear_solver, nearly_symmetric,
                           points if self.dissection else None,
                           single_precision=not (self.method == "penalty"
                                                 and self.penalty > SINGLE_PRECISION_MAX_PENALTY))
-        if self.update_factors and self._factored is not None:
+        if self.update_factors and self._factored is not None and unknowns is not None:
             t0 = time.perf_counter()
             try:
                 factor = UpdatedFactor(*self._factored, A, unknowns, fresh)
@@ -313,7 +312,7 @@ class ElasticProblem:
                 factor.build_seconds = time.perf_counter() - t0
         else:
             factor = fresh()
-        self._factored = (factor, unknowns)
+        self._factored = (factor, unknowns) if unknowns is not None else None
         return factor
 
     # -- solve ---------------------------------------------------------------------------

@@ -15,6 +15,8 @@ from solvers.sph.factor_update import NotLowRank, UpdatedFactor
 from solvers.sph.linear import Factor
 from solvers.sph.loading import run_tension
 from solvers.sph.problem import ElasticProblem
+
+from .test_linear import NEEDS_PARDISO
 from solvers.sph.stiffness import Discretisation
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -72,11 +74,9 @@ def fresh(A, solver="direct"):
 
 
 @pytest.mark.parametrize("mixed", [False, True], ids=["double", "single-refined"])
-@pytest.mark.parametrize("solver", ["direct", "pardiso"])
+@pytest.mark.parametrize("solver", ["direct", pytest.param("pardiso", marks=NEEDS_PARDISO)])
 def test_removing_stiff_springs_is_solved_as_accurately_as_a_fresh_factorisation(
         monkeypatch, solver, mixed):
-    if solver == "pardiso":
-        pytest.importorskip("pypardiso")          # the optional extra: its block solves too
     if mixed:
         # a base in single precision, refined: springs 1e6 times the grid's stiffness make the
         # system too ill-conditioned for that (cond x 6e-8 > 1: it falls back to double), 100

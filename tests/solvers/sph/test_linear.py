@@ -24,12 +24,13 @@ METHODS = (("master-slave", {}), ("master-slave-cutoff", {"cutoff_threshold": 1e
 #: plain MS solved in its Lagrange form (above LAGRANGE_FORM_ABOVE unknowns; here at every size)
 LAGRANGE = ("master-slave", {"lagrange_form_above": 0})
 SOLVED = METHODS + (LAGRANGE,)
-#: PARDISO is an optional extra that CI's venv (pip install -e ".[test]") does not install; with
-#: it installed (pip install 'uqflow[pardiso]') these cases run
+#: PARDISO is an optional extra (Intel MKL, a large binary wheel) that CI's venv, pip install
+#: -e ".[test]", does not install; "auto" never chooses it, so no default solve depends on it.
+#: With it installed (pip install 'uqflow[pardiso]') these cases run
 NEEDS_PARDISO = pytest.mark.skipif(
     importlib.util.find_spec("pypardiso") is None,
-    reason="needs the optional extra uqflow[pardiso] (pypardiso with Intel MKL), not installed "
-           "by the test extra: pip install 'uqflow[pardiso]' runs it")
+    reason="PARDISO is the optional extra uqflow[pardiso] (Intel MKL), which the test extra "
+           "does not install and no default solve uses: pip install 'uqflow[pardiso]' runs it")
 
 
 def plate(side=12):
@@ -309,10 +310,10 @@ def test_auto_never_chooses_pardiso():
     assert Factor(A, "auto").method == "direct"
 
 
+@NEEDS_PARDISO
 @pytest.mark.parametrize("method,extra", SOLVED)
 def test_pardiso_gives_superlus_displacements_within_their_backward_errors(
         small_plate, method, extra):
-    pytest.importorskip("pypardiso")
     disc, materials, edge = small_plate
     fast = ElasticProblem(disc, **materials, method=method, linear_solver="pardiso", **extra)
     u_fast = fast.solve(edge).u
@@ -339,9 +340,9 @@ def test_pardiso_refuses_an_empty_row_naming_it():
         Factor(sp.csr_matrix(A), "pardiso")
 
 
+@NEEDS_PARDISO
 def test_pardiso_refuses_singular_systems_naming_where_they_show():
     # PARDISO perturbs a tiny pivot instead of stopping: the inverse-iteration check finds it
-    pytest.importorskip("pypardiso")
     A, _ = free_grid(12)
     with pytest.raises(LinearSolveError, match="singular"):
         solve(A, np.ones(144), "pardiso")
