@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from solvers.sph.interpolation import (InterpolationError, find_neighbours,
-                                       restricted_neighbours, shape_functions)
+                                       restricted_neighbours, shape_functions, sorted_unique)
 from solvers.sph.kernel import KERNELS, kernel
 from solvers.sph.stiffness import Discretisation, elasticity_matrices
 
@@ -96,6 +96,29 @@ def test_a_support_never_crosses_into_another_phase():
     nb = find_neighbours(lay.x, lay.phase, lay.x, lay.phase, 2.3)
     assert np.all(lay.phase[nb.row] == lay.phase[nb.col])
     assert nb.counts().min() >= 4
+
+
+@pytest.mark.parametrize("keys", [np.zeros(0, dtype=np.int64), np.array([7]),
+                                  np.array([3, -2, 3, 3, 9, -2, 0]),
+                                  np.random.default_rng(1).integers(-10**12, 10**12, 5000),
+                                  np.random.default_rng(2).integers(0, 50, 5000)])
+def test_sorted_unique_is_numpys_unique(keys):
+    out = sorted_unique(keys)
+    assert out.dtype == keys.dtype and np.array_equal(out, np.unique(keys))
+
+
+def test_the_neighbour_pairs_are_every_same_phase_pair_within_the_radius_sorted():
+    lay = lattice(12, jitter=0.3, seed=4)
+    lay.phase = (lay.x[:, 1] > 5.0).astype(np.int32)
+    points = np.vstack([lay.x[::5], lay.x[7]])        # one point on a particle, exactly
+    point_phase = np.r_[lay.phase[::5], lay.phase[7]]
+    radius = 2.2
+    nb = find_neighbours(points, point_phase, lay.x, lay.phase, radius)
+    d = np.hypot(points[:, None, 0] - lay.x[None, :, 0], points[:, None, 1] - lay.x[None, :, 1])
+    # no distance within 1e-9 of the radius here, so rounding cannot decide a pair
+    assert np.abs(d - radius).min() > 1e-9
+    row, col = np.nonzero((d <= radius) & (point_phase[:, None] == lay.phase[None, :]))
+    assert np.array_equal(nb.row, row) and np.array_equal(nb.col, col)
 
 
 @pytest.mark.parametrize("where", ["too_small", "collinear"])
