@@ -223,45 +223,43 @@ DENSE_CLUSTER_FILL = 0.5
 
 
 def reduced_stiffness(K, P, T, slaves, masters, cluster) -> sp.csr_matrix:
-    """K^ = P^T K P = (K P)_m + T^T (K P)_s. Under plain MS a cluster's rows of T are dense
-    over every master near it (Phi_ss^-1 of a chain of slaves decays but has no zeros), and
-    the sparse product T^T (K P)_s costs ~ the square of that row length per slave: such a
-    cluster's term is one dense product instead, its exact zeros dropped."""
+    """K^ = P^T K P. Under plain MS a cluster's rows of T are dense over every master near it
+    (Phi_ss^-1 of a chain of slaves decays but has no zeros), and a sparse product costs ~ the
+    square of that row length per slave: such a cluster's term T_k^T (K P)_k is one dense
+    product instead, its exact zeros dropped. The rest of P (the masters' identity rows and
+    every other slave's row) goes through one sparse product: slicing K P into master and
+    slave rows and summing the parts as triplets took 2.3 s of MS2's 2.9 s transformation at
+    40,709 particles, the one product 0.2 s (one measurement, benchmarks/sph_scaling.py's
+    plate)."""
     KP = (K @ P).tocsr()
-    KP_s = KP[slaves]
-    total = KP[masters].tocoo()
-    rows, cols, vals = [total.row], [total.col], [total.data]
-    sparse_rows = []
     order = np.argsort(cluster, kind="stable")
     bounds = np.searchsorted(cluster[order], np.arange(cluster.max(initial=-1) + 2))
-    for k in range(bounds.size - 1):
+    rows, cols, vals = [], [], []
+    dense_rows = []
+    for k in np.flatnonzero(np.diff(bounds) > 1):
         members = order[bounds[k]:bounds[k + 1]]
-        if members.size < 2:
-            # MS2's clusters are all single slaves: thousands of them, each kept sparse
-            # without slicing T for it (1.5 s of row slicing at 40,709 particles)
-            sparse_rows.append(members)
-            continue
         Tk = T[members]
         used_t = np.unique(Tk.indices)
         if Tk.nnz < DENSE_CLUSTER_FILL * members.size * used_t.size:
-            sparse_rows.append(members)
             continue
-        Xk = KP_s[members]
+        Xk = KP[slaves[members]]
         used_x = np.unique(Xk.indices)
         block = Tk[:, used_t].toarray().T @ Xk[:, used_x].toarray()
         r, col = np.nonzero(block)
         rows.append(used_t[r])
         cols.append(used_x[col])
         vals.append(block[r, col])
-    if sparse_rows:
-        rest = np.concatenate(sparse_rows)
-        part = (T[rest].T @ KP_s[rest]).tocoo()
-        rows.append(part.row)
-        cols.append(part.col)
-        vals.append(part.data)
+        dense_rows.append(slaves[members])
+    if dense_rows:      # those rows of P are summed above, not again in the sparse product
+        keep = np.ones(P.shape[0])
+        keep[np.concatenate(dense_rows)] = 0.0
+        P = sp.diags(keep) @ P
+    K_hat = (P.T.tocsr() @ KP).tocsr()
+    if not rows:
+        return K_hat
     n = masters.size
-    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                         shape=(n, n))
+    return K_hat + sp.csr_matrix((np.concatenate(vals),
+                                  (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
 
 
 @dataclass
