@@ -107,12 +107,17 @@ class Factor:
             self.lu, self.singular_ratio = _checked(self.A, _in_precision(
                 self.A, functools.partial(_pardiso, self.A), single_precision))
         elif self.method == "direct":
-            if points is not None and (n <= DISSECTION_ABOVE or not local_couplings(self.A)):
-                points, nearly_symmetric = None, True
-            self.ordering = ("nested dissection" if points is not None else
+            perm = None
+            if points is not None and n > DISSECTION_ABOVE:
+                graph = coupling_graph(self.A)
+                if local_couplings(self.A, graph):
+                    perm = nested_dissection(self.A, points, graph=graph)
+            if points is not None and perm is None:
+                nearly_symmetric = True
+            self.ordering = ("nested dissection" if perm is not None else
                              "MMD" if nearly_symmetric else "COLAMD")
             self.lu, self.singular_ratio = _checked(self.A, _in_precision(
-                self.A, functools.partial(_factorise, self.A, nearly_symmetric, points),
+                self.A, functools.partial(_factorise, self.A, nearly_symmetric, perm),
                 single_precision))
         else:
             ilu = spla.spilu(self.A, drop_tol=1e-5, fill_factor=20)
@@ -191,11 +196,10 @@ def _pardiso(A, dtype):
         raise LinearSolveError(str(e)) from None
 
 
-def _factorise(A, nearly_symmetric=False, points=None, dtype=np.float64):
-    """SuperLU's factors of A in ``dtype``, in a nested-dissection order of ``points`` or
-    in SuperLU's own."""
-    if points is not None:
-        perm = nested_dissection(A, points)
+def _factorise(A, nearly_symmetric=False, perm=None, dtype=np.float64):
+    """SuperLU's factors of A in ``dtype``, in the order ``perm`` (nested dissection) or in
+    SuperLU's own."""
+    if perm is not None:
         target = A[perm][:, perm].tocsc()
         options = {"permc_spec": "NATURAL", "diag_pivot_thresh": DIAGONAL_PIVOT_THRESHOLD,
                    "options": {"SymmetricMode": True}}
@@ -231,7 +235,7 @@ def smallest_singular_ratio(A, factor) -> tuple[float, int]:
     and a free rigid mode (sigma_min ~1e12 below the next) is reached in two steps. Two
     solves: far cheaper than extracting SuperLU's U to read its pivots."""
     n = A.shape[0]
-    scale = float(abs(A).max()) if A.nnz else 0.0
+    scale = float(np.abs(A.data).max()) if A.nnz else 0.0     # abs(A) would copy A
     if n == 0 or scale == 0.0:
         return (1.0 if n == 0 else 0.0), 0
     y = np.random.default_rng(CHECK_SEED).standard_normal(n)
@@ -247,22 +251,33 @@ def smallest_singular_ratio(A, factor) -> tuple[float, int]:
     return sigma / scale, int(np.argmax(np.abs(y)))
 
 
-def local_couplings(A) -> bool:
-    """Whether no unknown of A + A^T couples to more than NONLOCAL_DEGREE_RATIO times the
-    median count: the systems nested dissection orders well."""
+def coupling_graph(A) -> sp.csr_matrix:
+    """Which unknowns couple: the pattern of |A| + |A|^T (its entries positive), from A's
+    nonzero entries — built once per factorisation for ``local_couplings`` and
+    ``nested_dissection``, from A's pattern rather than two copies of |A|: for MS2's 79,194
+    unknowns at 40,709 particles (11 million entries) the graph took 0.47 s against 1.0 s,
+    and the two checks and the order 0.5-0.8 s against 2.2-2.7 s (one ad hoc run, the
+    same order)."""
     A = sp.csr_matrix(A)
-    degree = np.diff((abs(A) + abs(A).T).tocsr().indptr)
+    pattern = sp.csr_matrix(((A.data != 0.0).astype(float), A.indices, A.indptr), shape=A.shape)
+    return (pattern + pattern.T).tocsr()
+
+
+def local_couplings(A, graph=None) -> bool:
+    """Whether no unknown of A + A^T couples to more than NONLOCAL_DEGREE_RATIO times the
+    median count: the systems nested dissection orders well. ``graph``: A's
+    ``coupling_graph``, if built already."""
+    degree = np.diff((coupling_graph(A) if graph is None else graph).indptr)
     return degree.size == 0 or degree.max() <= NONLOCAL_DEGREE_RATIO * np.median(degree)
 
 
-def nested_dissection(A, points, leaf: int = DISSECTION_LEAF) -> np.ndarray:
+def nested_dissection(A, points, leaf: int = DISSECTION_LEAF, graph=None) -> np.ndarray:
     """A fill-reducing elimination order of A (George's nested dissection, split by the
     unknowns' coordinates): each set is cut at the median of its longer extent, the unknowns
     of the lower half coupled (in A + A^T) to the upper half form the separator, and the order
     is lower interior, upper half, separator, recursively. The separator is read from the
     matrix, so the order is valid for any coupling; the points only choose the cuts."""
-    A = sp.csr_matrix(A)
-    graph = (abs(A) + abs(A).T).tocsr()
+    graph = coupling_graph(A) if graph is None else graph
     points = np.asarray(points, dtype=float).reshape(A.shape[0], -1)
     upper_flag = np.zeros(A.shape[0])
     order = []

@@ -13,8 +13,9 @@ import scipy.sparse as sp
 from solvers.sph.exact import eshelby_displacement
 from solvers.sph.layouts import Box, Ellipse, regular_layout
 from solvers.sph import linear, pardiso, refinement
-from solvers.sph.linear import (Factor, LinearSolveError, MIN_SINGULAR_RATIO,
-                                nested_dissection, smallest_singular_ratio, solve)
+from solvers.sph.linear import (Factor, LinearSolveError, MIN_SINGULAR_RATIO, coupling_graph,
+                                local_couplings, nested_dissection, smallest_singular_ratio,
+                                solve)
 from solvers.sph.problem import ElasticProblem
 from solvers.sph.stiffness import Discretisation
 
@@ -114,6 +115,26 @@ def test_nested_dissection_fills_less_than_the_band_and_gains_with_size():
         ratios.append(factor_fill(A, nested_dissection(A, points))
                       / factor_fill(A, np.arange(m * m)))
     assert ratios[1] < ratios[0] < 1.0
+
+
+def test_the_coupling_graph_is_the_pattern_of_abs_a_plus_its_transpose():
+    rng = np.random.default_rng(3)
+    dense = np.where(rng.uniform(size=(60, 60)) < 0.08, rng.uniform(-1, 1, (60, 60)), 0.0)
+    dense[[5, 7, 9, 2], [7, 5, 2, 9]] = [0.0, 0.0, 1.0, -1.0]   # a pair that sums to zero
+    A = sp.coo_matrix(dense)
+    # (5, 7) and (7, 5) stored as explicit zeros: no coupling
+    A = sp.csc_matrix((np.r_[A.data, 0.0, 0.0], (np.r_[A.row, 5, 7], np.r_[A.col, 7, 5])),
+                      shape=A.shape)                   # the direct solver's format
+    assert A.nnz == np.count_nonzero(dense) + 2
+    graph = coupling_graph(A)
+    expected = (abs(sp.csr_matrix(A)) + abs(sp.csr_matrix(A)).T).tocsr()
+    assert np.array_equal(graph.indptr, expected.indptr)
+    assert np.array_equal(graph.indices, expected.indices)
+    assert np.all(graph.data > 0.0) and graph[5, 7] == 0.0 and graph[9, 2] > 0.0
+    assert local_couplings(A, graph) == local_couplings(A)
+    points = rng.uniform(size=(60, 2))
+    assert np.array_equal(nested_dissection(A, points, leaf=4, graph=graph),
+                          nested_dissection(A, points, leaf=4))
 
 
 def test_nested_dissection_of_coincident_points_keeps_their_order():
