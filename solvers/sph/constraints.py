@@ -228,9 +228,9 @@ def reduced_stiffness(K, P, T, slaves, masters, cluster) -> sp.csr_matrix:
     square of that row length per slave: such a cluster's term T_k^T (K P)_k is one dense
     product instead, its exact zeros dropped. The rest of P (the masters' identity rows and
     every other slave's row) goes through one sparse product: slicing K P into master and
-    slave rows and summing the parts as triplets took 2.3 s of MS2's 2.9 s transformation at
-    40,709 particles, the one product 0.2 s (one measurement, benchmarks/sph_scaling.py's
-    plate)."""
+    slave rows and summing the parts as triplets made most of MS2's transformation phase,
+    1.69 s against 0.20 s with the one product at 40,709 particles (BENCHMARKS.md
+    "sph-scaling", direct, the runs before and after)."""
     KP = (K @ P).tocsr()
     order = np.argsort(cluster, kind="stable")
     bounds = np.searchsorted(cluster[order], np.arange(cluster.max(initial=-1) + 2))

@@ -80,9 +80,9 @@ def find_neighbours(points, point_phase, x, phase, radius) -> Neighbours:
 
 def sorted_unique(keys: np.ndarray) -> np.ndarray:
     """``np.unique(keys)`` of an integer array, by a sort: numpy 2.3+ finds unique integers
-    by hashing, which took 0.77 s for the 836,041 pair keys of a 40,709-particle plate
-    against 0.013 s for this sort (one measurement: benchmarks/sph_scaling.py's plate,
-    numpy 2.4)."""
+    by hashing, which made most of the neighbour search on numpy 2.4 (MS2 at 40,709
+    particles: 0.68 s against 0.11 s with this sort; BENCHMARKS.md "sph-scaling", direct,
+    the runs before and after)."""
     s = np.sort(keys)
     return s[np.concatenate(([True], s[1:] != s[:-1]))] if s.size else s
 
