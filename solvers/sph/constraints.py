@@ -94,15 +94,15 @@ def _clusters(phi_ss):
 
 def relation_matrix(c: Constraints, masters: np.ndarray, master_points=None,
                     threshold: float = 0.0, pattern_radius: float | None = None):
-    """T (ns x nm CSR), q, and the cluster count and largest size, per cluster."""
+    """T (ns x nm CSR), q, and the slave clusters it was computed by (``_clusters``: the
+    slaves in cluster order and each cluster's bounds in it)."""
     L = c.rows.tocsc()
     phi_ss = L[:, c.slaves].tocsr()
     phi_sm = L[:, masters].tocsr()
-    n_clusters, order, bounds = _clusters(phi_ss)
+    _, order, bounds = _clusters(phi_ss)
     rows_out, cols_out, vals_out = [], [], []
     q = np.zeros(c.slaves.size)
     sizes = np.diff(bounds)
-    largest = int(sizes.max()) if sizes.size else 0
     # single-slave clusters (all of them under master-slave-local): one division per row
     alone = order[bounds[:-1][sizes == 1]]
     if alone.size:
@@ -147,7 +147,7 @@ def relation_matrix(c: Constraints, masters: np.ndarray, master_points=None,
     cat = (lambda a, dt: np.concatenate(a) if a else np.zeros(0, dt))  # noqa: E731
     T = sp.csr_matrix((cat(vals_out, float), (cat(rows_out, np.int64), cat(cols_out, np.int64))),
                       shape=(c.slaves.size, masters.size))
-    return T, q, n_clusters, largest
+    return T, q, order, bounds
 
 
 def _single_slave_diagonal(c, phi_ss, phi_sm, alone) -> np.ndarray:
@@ -200,8 +200,7 @@ def master_slave(K, f, c: Constraints, dof_points=None, *, threshold: float = 0.
     is_slave[c.slaves] = True
     masters = np.flatnonzero(~is_slave)
     master_points = None if dof_points is None else np.asarray(dof_points)[masters]
-    T, q, n_clusters, largest = relation_matrix(c, masters, master_points, threshold,
-                                                pattern_radius)
+    T, q, order, bounds = relation_matrix(c, masters, master_points, threshold, pattern_radius)
     identity = sp.csr_matrix((np.ones(masters.size), (masters, np.arange(masters.size))),
                              shape=(ndof, masters.size))
     scatter = sp.csr_matrix((np.ones(c.slaves.size), (c.slaves, np.arange(c.slaves.size))),
@@ -209,11 +208,11 @@ def master_slave(K, f, c: Constraints, dof_points=None, *, threshold: float = 0.
     P = (identity + scatter @ T).tocsr()
     u_q = scatter @ q
     K = sp.csr_matrix(K)
-    K_hat = reduced_stiffness(K, P, T, c.slaves, masters, slave_clusters(
-        c.rows.tocsc()[:, c.slaves].tocsr())[1])
+    K_hat = reduced_stiffness(K, P, T, c.slaves, order, bounds)
     f_hat = P.T @ (np.asarray(f, dtype=float) - K @ u_q)
-    return MasterSlave(masters, c.slaves, T, q, P, u_q, K_hat, f_hat, n_clusters, largest,
-                       time.perf_counter() - t0)
+    sizes = np.diff(bounds)
+    return MasterSlave(masters, c.slaves, T, q, P, u_q, K_hat, f_hat, sizes.size,
+                       int(sizes.max()) if sizes.size else 0, time.perf_counter() - t0)
 
 
 #: a slave cluster whose rows of T fill at least this fraction of the masters they use has
@@ -222,7 +221,7 @@ def master_slave(K, f, c: Constraints, dof_points=None, *, threshold: float = 0.
 DENSE_CLUSTER_FILL = 0.5
 
 
-def reduced_stiffness(K, P, T, slaves, masters, cluster) -> sp.csr_matrix:
+def reduced_stiffness(K, P, T, slaves, order, bounds) -> sp.csr_matrix:
     """K^ = P^T K P. Under plain MS a cluster's rows of T are dense over every master near it
     (Phi_ss^-1 of a chain of slaves decays but has no zeros), and a sparse product costs ~ the
     square of that row length per slave: such a cluster's term T_k^T (K P)_k is one dense
@@ -230,10 +229,9 @@ def reduced_stiffness(K, P, T, slaves, masters, cluster) -> sp.csr_matrix:
     every other slave's row) goes through one sparse product: slicing K P into master and
     slave rows and summing the parts as triplets made most of MS2's transformation phase,
     1.69 s against 0.20 s with the one product at 40,709 particles (BENCHMARKS.md
-    "sph-scaling", direct, the runs before and after)."""
+    "sph-scaling", direct, the runs before and after). ``order``, ``bounds``: the slave
+    clusters T was computed by (``relation_matrix``)."""
     KP = (K @ P).tocsr()
-    order = np.argsort(cluster, kind="stable")
-    bounds = np.searchsorted(cluster[order], np.arange(cluster.max(initial=-1) + 2))
     rows, cols, vals = [], [], []
     dense_rows = []
     for k in np.flatnonzero(np.diff(bounds) > 1):
@@ -257,9 +255,9 @@ def reduced_stiffness(K, P, T, slaves, masters, cluster) -> sp.csr_matrix:
     K_hat = (P.T.tocsr() @ KP).tocsr()
     if not rows:
         return K_hat
-    n = masters.size
     return K_hat + sp.csr_matrix((np.concatenate(vals),
-                                  (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
+                                  (np.concatenate(rows), np.concatenate(cols))),
+                                 shape=K_hat.shape)
 
 
 @dataclass

@@ -15,9 +15,9 @@ from solvers.sph.factor_update import NotLowRank, UpdatedFactor
 from solvers.sph.linear import Factor
 from solvers.sph.loading import run_tension
 from solvers.sph.problem import ElasticProblem
+from solvers.sph.stiffness import Discretisation
 
 from .test_linear import NEEDS_PARDISO
-from solvers.sph.stiffness import Discretisation
 
 sys.path.insert(0, str(Path(__file__).parent))
 from _scenes import example3  # noqa: E402
