@@ -29,9 +29,19 @@ class Refinement:
 
     def __init__(self, A):
         self.A = sp.csr_matrix(A)
-        # what every solve's stopping test needs, once: |A| and gamma_{k+1} ~ (k + 1) eps
-        self._absolute = abs(self.A)
+        # what every solve's stopping test needs, once: gamma_{k+1} ~ (k + 1) eps, and the
+        # column sums c of |A|, since || |A| |x| ||_1 = c . |x|: a dot product, where |A| @ |x|
+        # was a second sparse product each step, through a copy of A (12 bytes an entry, 132 MB
+        # for MS2's 11.0 million at 40,709 particles) kept as long as the factors
         self._gamma = (int(np.diff(self.A.indptr).max(initial=0)) + 1) * EPS
+        self._column_sums = np.bincount(self.A.indices, weights=np.abs(self.A.data),
+                                        minlength=self.A.shape[1])
+
+    def target(self, b, x):
+        """The residual ||b - A x||_1 a solve stops at: RESIDUAL_SLACK gamma_{k+1}
+        || |b| + |A||x| ||_1, each column of a block its own."""
+        return RESIDUAL_SLACK * self._gamma * (np.abs(b).sum(axis=0)
+                                               + self._column_sums @ np.abs(x))
 
     def solve(self, b, approximate):
         """(x, residual b - A x, steps), x refined from ``approximate(b)`` (one b or a block
@@ -41,9 +51,7 @@ class Refinement:
         while True:
             r = b - self.A @ x
             size = np.abs(r).sum(axis=0)
-            target = RESIDUAL_SLACK * self._gamma * (
-                np.abs(b) + self._absolute @ np.abs(x)).sum(axis=0)
-            done = size <= target
+            done = size <= self.target(b, x)
             if np.all(done):
                 return x, r, steps
             # stalled (or not finite): refinement cannot resolve what M misses

@@ -396,6 +396,25 @@ def refinement_target(A, x, b):
     return refinement.RESIDUAL_SLACK * k * EPS * (np.abs(b) + abs(A) @ np.abs(x)).sum(axis=0)
 
 
+@pytest.mark.parametrize("columns", [None, 1, 3])
+def test_the_refinement_target_takes_abs_a_abs_x_from_the_column_sums_of_abs_a(columns):
+    # an unsymmetric A whose row and column sums of |A| differ, entries of both signs, and a
+    # column of b and x zero: the target from |A|'s column sums is the one from |A| @ |x|
+    rng = np.random.default_rng(11)
+    n = 300
+    A = sp.random(n, n, density=0.03, random_state=rng, format="csr")
+    A.data = rng.standard_normal(A.nnz) * np.exp(rng.uniform(-5, 5, A.nnz))
+    A = (A + sp.diags(np.arange(1.0, n + 1.0))).tocsr()
+    shape = (n,) if columns is None else (n, columns)
+    b, x = rng.standard_normal(shape), rng.standard_normal(shape)
+    if columns == 3:
+        b[:, 2] = x[:, 2] = 0.0
+    got, want = refinement.Refinement(A).target(b, x), refinement_target(A, x, b)
+    # both sum at most nnz + n nonnegative terms: each within (nnz + n) eps of the exact sum
+    assert np.all(np.abs(got - want) <= 2 * (A.nnz + n) * EPS * want)
+    assert got.shape == want.shape
+
+
 @pytest.mark.parametrize("solver", SOLVERS)
 @pytest.mark.parametrize("method,extra", SOLVED)
 def test_single_precision_factors_refined_give_the_double_factors_displacements(
