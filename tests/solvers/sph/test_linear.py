@@ -508,3 +508,23 @@ def test_a_factor_is_freed_as_soon_as_it_is_dropped(monkeypatch, solver, limit):
         assert dropped() is None
     finally:
         gc.enable()
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+@pytest.mark.parametrize("limit", [0, 10**9], ids=["single-refined", "double"])
+def test_a_factorisation_and_its_solves_leave_nothing_to_the_cyclic_collector(
+        monkeypatch, solver, limit):
+    # nor any cycle through what the calls pass: pointers made by ndarray.ctypes.data_as kept
+    # PARDISO's copy of A and every right-hand side alive until the collector's next pass
+    monkeypatch.setattr(linear, "MIXED_PRECISION_ABOVE", limit)
+    A, _ = free_grid(8, shift=0.05)
+    Factor(A, solver)           # the first PARDISO call loads MKL: one-off garbage of imports
+    gc.collect()
+    gc.disable()
+    try:
+        factor = Factor(A, solver)
+        factor.solve(np.ones(A.shape[0]))
+        del factor
+        assert gc.collect() == 0
+    finally:
+        gc.enable()
