@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import ctypes
 import os
+import time
 import weakref
 
 import numpy as np
@@ -104,8 +105,13 @@ class PardisoLU:
         self._finalizer = weakref.finalize(self, _release, library.pardiso, self._handle,
                                            self._iparm, self.n)
         empty = np.zeros(1, dtype=self.dtype)
+        t0 = time.perf_counter()
         self._phase(ANALYSE, empty, empty, 1)
+        t1 = time.perf_counter()
         self._phase(FACTORISE, empty, empty, 1)
+        #: seconds of the analysis (METIS's order, the symbolic factorisation) and of the
+        #: numerical factorisation (benchmarks/sph_factor_floor.py)
+        self.seconds = {"analysis": t1 - t0, "factorisation": time.perf_counter() - t1}
         self.nnz = int(self._iparm[17])
 
     def solve(self, b):
