@@ -34,8 +34,10 @@ class Refinement:
         # was a second sparse product each step, through a copy of A (12 bytes an entry, 132 MB
         # for MS2's 11.0 million at 40,709 particles) kept as long as the factors
         self._gamma = (int(np.diff(self.A.indptr).max(initial=0)) + 1) * EPS
-        self._column_sums = np.bincount(self.A.indices, weights=np.abs(self.A.data),
-                                        minlength=self.A.shape[1])
+        # |A|^T 1 through the transpose's view: np.bincount would copy the indices to int64
+        absolute = sp.csr_matrix((np.abs(self.A.data), self.A.indices, self.A.indptr),
+                                 shape=self.A.shape)
+        self._column_sums = absolute.T @ np.ones(self.A.shape[0])
 
     def target(self, b, x):
         """The residual ||b - A x||_1 a solve stops at: RESIDUAL_SLACK gamma_{k+1}
