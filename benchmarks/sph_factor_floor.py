@@ -17,6 +17,7 @@ them at this size (docs/sph.md § 5).
 from __future__ import annotations
 
 import argparse
+import inspect
 import statistics
 import sys
 import time
@@ -30,6 +31,7 @@ from _record import load1, log, write_section  # noqa: E402
 from sph_scaling import _solve, mkl_threads, pardiso_available  # noqa: E402
 
 from solvers.sph import linear  # noqa: E402
+from solvers.sph.pardiso import PardisoLU  # noqa: E402  (MKL is loaded at its first use)
 
 BEFORE_S = 40.6                 # MS2 direct at 40,709 particles before issue 19 (docs/sph.md)
 SPEED_UP = 8.0                  # the issue's target
@@ -40,22 +42,20 @@ def system_of(side):
     captured = {}
     original = linear.Factor.__init__
 
-    def capture(self, A, solver="auto", nearly_symmetric=False, points=None,
-                single_precision=True):
-        captured.update(A=sp.csr_matrix(A), points=np.asarray(points))
-        original(self, A, solver, nearly_symmetric, points, single_precision)
+    def capture(self, *args, **kwargs):
+        captured.update(inspect.signature(original).bind(self, *args, **kwargs).arguments)
+        original(self, *args, **kwargs)
 
     linear.Factor.__init__ = capture
     try:
         _solve(side, "master-slave-local", {}, "direct")
     finally:
         linear.Factor.__init__ = original
-    return captured["A"], captured["points"]
+    return sp.csr_matrix(captured["A"]), np.asarray(captured["points"])
 
 
 def pardiso_phases(A):
     """(analysis, factorisation) seconds of PARDISO on A, in single precision."""
-    from solvers.sph.pardiso import PardisoLU
     seconds = PardisoLU(A, np.float32).seconds
     return seconds["analysis"], seconds["factorisation"]
 
@@ -83,7 +83,7 @@ def main(argv=None):
     solvers = ["direct"] + (["pardiso"] if pardiso_available() else [])
     A, points = system_of(args.side)
     runs = {s: [] for s in solvers}
-    alone = {"pardiso": [], "direct": []}
+    alone = {s: [] for s in solvers}
     for _ in range(args.repeats):
         for solver in solvers:
             n, phases, _ = _solve(args.side, "master-slave-local", {}, solver)

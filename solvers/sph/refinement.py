@@ -30,11 +30,10 @@ class Refinement:
     def __init__(self, A):
         self.A = sp.csr_matrix(A)
         # what every solve's stopping test needs, once: gamma_{k+1} ~ (k + 1) eps, and the
-        # column sums c of |A|, since || |A| |x| ||_1 = c . |x|: a dot product, where |A| @ |x|
-        # was a second sparse product each step, through a copy of A (12 bytes an entry, 132 MB
-        # for MS2's 11.0 million at 40,709 particles) kept as long as the factors
+        # column sums c = |A|^T 1, since || |A| |x| ||_1 = c . |x| — a dot product, where
+        # |A| @ |x| was a second sparse product each step through a copy of A (12 bytes an
+        # entry, 132 MB for MS2's 11.0 million at 40,709 particles) kept beside the factors
         self._gamma = (int(np.diff(self.A.indptr).max(initial=0)) + 1) * EPS
-        # |A|^T 1 through the transpose's view: np.bincount would copy the indices to int64
         absolute = sp.csr_matrix((np.abs(self.A.data), self.A.indices, self.A.indptr),
                                  shape=self.A.shape)
         self._column_sums = absolute.T @ np.ones(self.A.shape[0])
