@@ -27,6 +27,7 @@ import scipy.sparse.linalg as spla
 
 from solvers.sph.pardiso import PardisoError, PardisoLU
 from solvers.sph.refinement import MixedPrecisionFactor
+from solvers.sph.symbolic import pattern_key
 
 SOLVERS = ("auto", "direct", "iterative", "pardiso")
 #: "auto" factorises up to this many unknowns and iterates beyond, where the factors would
@@ -86,10 +87,13 @@ class Factor:
     ``points`` (n, 2): where each unknown lives; the direct solver orders by nested dissection
     of them if there are more than DISSECTION_ABOVE and the couplings are local, else by
     SuperLU's MMD on A^T + A (docs/sph.md § 5). ``single_precision=False``: factors in double
-    at every size (a system known to be too ill-conditioned for single precision)."""
+    at every size (a system known to be too ill-conditioned for single precision).
+    ``store``: a ``symbolic.SymbolicStore`` that hands the order (direct) or the analysis
+    (PARDISO, single precision) of a system of the same pattern to this one, and keeps this
+    one's for the next."""
 
     def __init__(self, A, solver: str = "auto", nearly_symmetric: bool = False, points=None,
-                 single_precision: bool = True):
+                 single_precision: bool = True, store=None):
         if solver not in SOLVERS:
             raise ValueError(f"unknown linear solver {solver!r} (known: {', '.join(SOLVERS)})")
         n = A.shape[0]
@@ -105,13 +109,11 @@ class Factor:
             # partial, not a lambda on self: the factors must not hold their Factor in a
             # reference cycle, or gigabytes wait for the cyclic collector
             self.lu, self.singular_ratio = _checked(self.A, _in_precision(
-                self.A, functools.partial(_pardiso, self.A), single_precision))
+                self.A, functools.partial(_pardiso, self.A, store=store), single_precision))
         elif self.method == "direct":
             perm = None
             if points is not None and n > DISSECTION_ABOVE:
-                graph = coupling_graph(self.A)
-                if local_couplings(self.A, graph):
-                    perm = nested_dissection(self.A, points, graph=graph)
+                perm = _dissection_order(self.A, points, store)
             if points is not None and perm is None:
                 nearly_symmetric = True
             self.ordering = ("nested dissection" if perm is not None else
@@ -189,9 +191,26 @@ def _in_precision(A, factorise, single_precision=True):
     return factorise(np.float64)
 
 
-def _pardiso(A, dtype):
+def _dissection_order(A, points, store=None):
+    """A's nested-dissection order of ``points``, or None where its couplings are not local
+    (``local_couplings``): from ``store`` if it holds this pattern's and points', else
+    computed (and kept there)."""
+    key = None if store is None else pattern_key("dissection", A, points)
+    kept = None if key is None else store.lookup(key)
+    if kept is not None:
+        return kept[0]
+    graph = coupling_graph(A)
+    perm = nested_dissection(A, points, graph=graph) if local_couplings(A, graph) else None
+    if perm is not None:
+        perm.flags.writeable = False        # shared by every factorisation that reuses it
+    if key is not None:
+        store.keep(key, (perm,))
+    return perm
+
+
+def _pardiso(A, dtype, store=None):
     try:
-        return PardisoLU(A, dtype)
+        return PardisoLU(A, dtype, store)
     except PardisoError as e:
         raise LinearSolveError(str(e)) from None
 

@@ -2,8 +2,13 @@
 
 A multithreaded supernodal LU of a real unsymmetric matrix (MKL's mtype 11) in METIS's
 nested-dissection order, with MKL's default scaling, matching and pivot perturbation, called
-through ctypes. pypardiso supplies MKL's runtime library (it knows where pip puts it), not the
-calls: its wrapper copies the index arrays to 1-based ones and compares the whole matrix with
+through ctypes. In single precision the analysis reads the pattern alone, and a
+``symbolic.SymbolicStore`` hands it on: a later matrix whose entries the analysed pattern
+covers is factorised on the analysed handle (PARDISO's phase 22 alone), once the
+predecessor's factors are released.
+
+pypardiso supplies MKL's runtime library (it knows where pip puts it), not the calls: its
+wrapper copies the index arrays to 1-based ones and compares the whole matrix with
 the factorised one at every solve (0.3 s a solve at 40,709 particles, where the solve itself
 takes 0.05 s), and it has no single precision, which halves the factorisation's time.
 """
@@ -18,9 +23,11 @@ import weakref
 import numpy as np
 import scipy.sparse as sp
 
+from solvers.sph.symbolic import covering_pattern, embedded
+
 INSTALL = "pip install 'uqflow[pardiso]'"
 REAL_UNSYMMETRIC = 11
-ANALYSE, FACTORISE, SOLVE, RELEASE = 11, 22, 33, -1
+ANALYSE, FACTORISE, SOLVE, RELEASE_FACTORS, RELEASE = 11, 22, 33, 0, -1
 #: PARDISO's error codes (MKL reference, "pardiso"), for the one-line error
 ERRORS = {-1: "input inconsistent", -2: "not enough memory", -3: "reordering problem",
           -4: "zero pivot, numerical factorisation or iterative refinement problem",
@@ -84,7 +91,7 @@ class PardisoLU:
     A x = b for one b or a block of columns (x always float64). The factors live in MKL's
     memory until this object is collected."""
 
-    def __init__(self, A, dtype=np.float64):
+    def __init__(self, A, dtype=np.float64, store=None):
         library = _mkl()
         A = sp.csr_matrix(A)
         if not A.has_sorted_indices:        # PARDISO's requirement; a sorted copy
@@ -95,22 +102,47 @@ class PardisoLU:
             raise PardisoError(f"the system of {self.n} unknowns is singular (empty row "
                                f"{int(empty[0])})")
         self.dtype = np.dtype(dtype)
-        self._data = np.ascontiguousarray(A.data, dtype=self.dtype)
-        self._indptr = np.ascontiguousarray(A.indptr, dtype=np.int32)
-        self._indices = np.ascontiguousarray(A.indices, dtype=np.int32)
-        self._handle = np.zeros(64, dtype=np.int64)
-        self._iparm = _parameters(self.dtype == np.float32)
+        key, analysed, pattern = None, None, (A.indptr, A.indices)
+        data = A.data
+        if store is not None and self.dtype == np.float32:
+            # without scaling and matching (_parameters) the analysis reads the pattern alone
+            key = ("pardiso", self.n)
+            analysed = store.take(key)
+            if analysed is not None:
+                data = embedded(A, *analysed[2:])
+                if data is None:        # not covered: analyse the union (symbolic.py)
+                    kept, analysed = analysed, None
+                    _release(library.pardiso, *kept[:2], self.n)
+                    pattern = covering_pattern(A, *kept[2:])
+                    data = embedded(A, *pattern)
+        if analysed is not None:
+            # the handle and the pattern it was analysed for, kept together
+            self._handle, self._iparm, self._indptr, self._indices = analysed
+        else:
+            self._indptr = np.ascontiguousarray(pattern[0], dtype=np.int32)
+            self._indices = np.ascontiguousarray(pattern[1], dtype=np.int32)
+            self._handle = np.zeros(64, dtype=np.int64)
+            self._iparm = _parameters(self.dtype == np.float32)
+        self._data = np.ascontiguousarray(data, dtype=self.dtype)
         self._call = library.pardiso
-        # MKL's memory is released with the handle, whichever phase fails
-        self._finalizer = weakref.finalize(self, _release, library.pardiso, self._handle,
-                                           self._iparm, self.n)
+        #: whether the analysis came from the store (PARDISO's phase 11 skipped)
+        self.analysis_reused = analysed is not None
+        # MKL's memory is released with the handle, whichever phase fails; a handle whose
+        # factorisation succeeded goes back to the store with its analysis alone
+        factorised = []
+        self._finalizer = weakref.finalize(
+            self, _retire, library.pardiso, (self._handle, self._iparm, self._indptr,
+                                             self._indices), self.n, factorised,
+            None if key is None else weakref.ref(store), key)
         empty = np.zeros(1, dtype=self.dtype)
         t0 = time.perf_counter()
-        self._phase(ANALYSE, empty, empty, 1)
+        if analysed is None:
+            self._phase(ANALYSE, empty, empty, 1)
         t1 = time.perf_counter()
         self._phase(FACTORISE, empty, empty, 1)
-        #: seconds of the analysis (METIS's order, the symbolic factorisation) and of the
-        #: numerical factorisation (benchmarks/sph_factor_floor.py)
+        factorised.append(True)
+        #: seconds of the analysis (METIS's order, the symbolic factorisation; 0 when
+        #: reused) and of the numerical factorisation (benchmarks/sph_factor_floor.py)
         self.seconds = {"analysis": t1 - t0, "factorisation": time.perf_counter() - t1}
         self.nnz = int(self._iparm[17])
 
@@ -150,8 +182,20 @@ def _address(array):
     return ctypes.c_void_p(array.ctypes.data)
 
 
-def _release(call, handle, iparm, n):
+def _release(call, handle, iparm, n, phase=RELEASE):
     empty = np.zeros(1)
     indptr = np.zeros(n + 1, dtype=np.int32)
-    _run(call, handle, iparm, n, RELEASE, empty, indptr, np.zeros(1, dtype=np.int32),
+    _run(call, handle, iparm, n, phase, empty, indptr, np.zeros(1, dtype=np.int32),
          empty, empty, 1)
+
+
+def _retire(call, analysed, n, factorised, store_ref, key):
+    """A dropped factorisation's MKL memory: all of it, or, if it succeeded and its store
+    is alive, its factors alone, the analysed handle given back to the store."""
+    handle, iparm = analysed[:2]
+    store = None if store_ref is None else store_ref()
+    if store is None or not factorised:
+        _release(call, handle, iparm, n)
+        return
+    _release(call, handle, iparm, n, RELEASE_FACTORS)
+    store.keep(key, analysed, lambda kept: _release(call, kept[0], kept[1], n))

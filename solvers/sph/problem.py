@@ -89,7 +89,7 @@ class ElasticProblem:
                  cutoff_radius: float | None = None, min_support: int = 5,
                  linear_solver: str = "auto", stabilisation: float = 0.0,
                  dissection: bool = True, update_factors: bool = True,
-                 lagrange_form_above: int = LAGRANGE_FORM_ABOVE):
+                 lagrange_form_above: int = LAGRANGE_FORM_ABOVE, symbolic=None):
         if method not in METHODS:
             raise ValueError(f"unknown constraint method {method!r} (known: {', '.join(METHODS)})")
         if integration not in INTEGRATIONS:
@@ -107,6 +107,10 @@ class ElasticProblem:
         self.update_factors = bool(update_factors)
         #: plain MS's systems of more unknowns than this are solved in the Lagrange form
         self.lagrange_form_above = int(lagrange_form_above)
+        #: a symbolic.SymbolicStore shared by the problems of one layout (a study's
+        #: realizations): the first system's order or analysis comes from the last problem's.
+        #: Only the first: the systems after breaks differ from run to run
+        self._symbolic = symbolic
         self._factored = None             # (factor, its unknowns' global DOFs) of the last build
         self._penalty_scale = None        # mean diag K of the first system built
         self.cutoff_threshold, self.cutoff_radius = float(cutoff_threshold), cutoff_radius
@@ -297,11 +301,14 @@ class ElasticProblem:
         allow one, else a fresh Factor. ``unknowns``: the global DOF of each row of A, how the
         last system's rows are found in A's; None: A is never updated nor updates another
         (the Lagrange form, whose multipliers are no DOF)."""
+        store, self._symbolic = self._symbolic, None
+
         def fresh():
             return Factor(A, self.linear_solver, nearly_symmetric,
                           points if self.dissection else None,
                           single_precision=not (self.method == "penalty"
-                                                and self.penalty > SINGLE_PRECISION_MAX_PENALTY))
+                                                and self.penalty > SINGLE_PRECISION_MAX_PENALTY),
+                          store=store)
         if self.update_factors and self._factored is not None and unknowns is not None:
             t0 = time.perf_counter()
             try:

@@ -17,6 +17,7 @@ from solvers.sph.report import report as composite_report
 from solvers.sph.scene import MAX_STIFFNESS, Config, parse, stiffness_scale
 from solvers.sph.scene_layout import scene_layout, support_diameter
 from solvers.sph.stiffness import Discretisation
+from solvers.sph.symbolic import SymbolicStore
 from uqflow.errors import SceneError, SolverError
 from uqflow import layout as result_layout
 from uqflow.solver import Solver, register_solver
@@ -82,6 +83,9 @@ class SPHSolver(Solver):
         self.layout = self._layout(None)
         self.disc = self._discretise(self.layout)
         self._template = self._make_template()
+        #: the realizations on the fixed layout hand each other their first system's order
+        #: or PARDISO analysis (solvers/sph/symbolic.py); a random layout's differ
+        self.symbolic = SymbolicStore() if cfg.layout != "random" else None
 
     # -- construction ----------------------------------------------------------------------
 
@@ -213,8 +217,9 @@ class SPHSolver(Solver):
                 disc = self._discretise(layout)
             except SceneError as e:
                 raise SolverError(f"layout of seed {seed}: {e}") from None
+            store = None
         else:
-            layout, disc = self.layout, self.disc
+            layout, disc, store = self.layout, self.disc, self.symbolic
         inside = layout.phase > 0
         E = np.where(inside, p["inclusion.E"], p["matrix.E"])
         nu = np.where(inside, p["inclusion.nu"], p["matrix.nu"])
@@ -240,7 +245,7 @@ class SPHSolver(Solver):
                                      cutoff_threshold=c.cutoff_threshold, cutoff_radius=radius,
                                      min_support=c.min_support, linear_solver=c.linear_solver,
                                      stabilisation=c.stabilisation,
-                                     update_factors=self.update_factors)
+                                     update_factors=self.update_factors, symbolic=store)
             if c.loading == "tension":
                 out = self._tension(problem, layout, strength)
                 out.update(_bounds(layout, E, nu, c.state))
