@@ -17,6 +17,7 @@ solver before). Medians of the realizations after the first, per linear solver.
 from __future__ import annotations
 
 import argparse
+import gc
 import statistics
 import sys
 import time
@@ -50,6 +51,15 @@ def realizations(count: int, seed: int = 19):
              "inclusion.E": 1000.0 * (1.0 + CV * rng.standard_normal())} for _ in range(count)]
 
 
+def resident_mib():
+    """This process's resident memory (MiB), or NaN without psutil."""
+    try:
+        import psutil
+    except ImportError:
+        return float("nan")
+    return psutil.Process().memory_info().rss / 2 ** 20
+
+
 def timed_run(solver, params):
     t0 = time.perf_counter()
     ds = solver.run(params)
@@ -72,13 +82,19 @@ def study(side: int, linear_solver: str, count: int) -> dict:
         log(linear_solver, k, {name: round(s[-1], 3) for name, s in seconds.items()})
     # the last realization's displacements by the two solvers (each solve refined)
     a, b = displacement["reusing"], displacement["alone"]
-    return dict(particles=reusing.layout.x.shape[0], first=seconds["reusing"][0],
+    hits = reusing.symbolic.hits
+    # what the store holds between realizations: the memory its release gives back
+    gc.collect()
+    before = resident_mib()
+    reusing.symbolic.clear()
+    gc.collect()
+    return dict(kept_mib=before - resident_mib(), particles=reusing.layout.x.shape[0],
+                first=seconds["reusing"][0],
                 reusing=statistics.median(seconds["reusing"][1:]),
                 alone=statistics.median(seconds["alone"][1:]),
                 ratios=statistics.median(r / a for r, a in zip(seconds["reusing"][1:],
                                                                  seconds["alone"][1:])),
-                hits=reusing.symbolic.hits,
-                difference=float(np.abs(a - b).max() / np.abs(b).max()))
+                hits=hits, difference=float(np.abs(a - b).max() / np.abs(b).max()))
 
 
 def main(argv=None):
@@ -95,7 +111,7 @@ def main(argv=None):
     budget = BEFORE_S / SPEED_UP
     rows = [f"| {s} | {r['first']:.2f} | {r['reusing']:.2f} | {r['alone']:.2f} "
             f"| {r['ratios']:.2f} | {BEFORE_S / r['reusing']:.1f} | {r['hits']} "
-            f"| {r['difference']:.1e} |" for s, r in results.items()]
+            f"| {r['difference']:.1e} | {r['kept_mib']:.0f} |" for s, r in results.items()]
     n = next(iter(results.values()))["particles"]
     body = (
         "A Monte Carlo study of MS2 on benchmarks/sph_scaling.py's plate at side %d (%s "
@@ -108,10 +124,12 @@ def main(argv=None):
         "store; the target is %g x (%.2f s). \"hits\": realizations handed an order or "
         "analysis; \"difference\": the two solvers' displacements of one realization, "
         "relative to the largest (PARDISO's factors differ in rounding with the analysis "
-        "and with MKL's threads; SuperLU's are the same). direct = SuperLU, pardiso = Intel "
+        "and with MKL's threads; SuperLU's are the same); \"kept\": the resident memory "
+        "the store held after the study (what releasing it gave back, MiB). direct = "
+        "SuperLU, pardiso = Intel "
         "MKL PARDISO (%s MKL threads); 1-minute load average %.2f at the end.\n\n"
         "| solver | first realization | later, with the store | later, without | ratio "
-        "| x before | hits | difference |\n|---|---|---|---|---|---|---|---|\n"
+        "| x before | hits | difference | kept |\n|---|---|---|---|---|---|---|---|---|\n"
         % (side, f"{n:,}", CV, count, BEFORE_S, SPEED_UP, budget,
            mkl_threads(), load1())) + "\n".join(rows) + "\n"
     write_section("sph-study", "SPH: a study's realizations on one layout", body)
