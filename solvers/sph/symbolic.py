@@ -164,6 +164,11 @@ class SymbolicStore:
     def __len__(self) -> int:
         return len(self._items)
 
+    def __reduce__(self):
+        # a copy in another process starts empty: what is kept (MKL's handles, orders) is
+        # this process's, and the lock cannot be pickled
+        return SymbolicStore, (self.capacity,)
+
 
 def _release_all(items: OrderedDict, lock):
     with lock:

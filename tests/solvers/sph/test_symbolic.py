@@ -2,11 +2,13 @@
 same pattern (solvers/sph/symbolic.py)."""
 
 import gc
+import pickle
 import sys
 import threading
 import weakref
 from pathlib import Path
 
+import cloudpickle
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -47,6 +49,16 @@ def test_the_store_releases_what_it_holds_when_it_is_collected():
     del store
     gc.collect()
     assert released == ["A"]
+
+
+def test_a_pickled_store_arrives_empty_with_its_capacity():
+    store = SymbolicStore(capacity=3)
+    store.keep("a", "A")
+    for module in (pickle, cloudpickle):        # multiprocessing's and dask's
+        copy_ = module.loads(module.dumps(store))
+        assert len(copy_) == 0 and copy_.capacity == 3
+        copy_.keep("b", "B")
+        assert copy_.lookup("b") == "B" and store.lookup("b") is None
 
 
 def test_one_item_taken_by_two_threads_at_once_goes_to_one():
@@ -212,6 +224,11 @@ def test_a_study_on_a_fixed_layout_orders_once_with_every_realization_unchanged(
     for E in (700.0, 1300.0):
         a, b = reusing.run({"matrix.E": E}), alone.run({"matrix.E": E})
         assert np.array_equal(a.displacement.values, b.displacement.values)
+    # dask ships the solver: its copy starts with an empty store and runs the same
+    shipped = cloudpickle.loads(cloudpickle.dumps(reusing))
+    assert len(shipped.symbolic) == 0
+    assert np.array_equal(shipped.run({"matrix.E": E}).displacement.values,
+                          b.displacement.values)
 
 
 # -- PARDISO's analysis -----------------------------------------------------------------------
