@@ -7,8 +7,9 @@ solver reuses what depends on the pattern alone. This runs a Monte Carlo study's
 realizations through ``SPHSolver.run`` — the scene of benchmarks/sph_scaling.py's plate at
 side 200 (a central circular inclusion, the exact edge displacement, MS2, Example 1's
 materials), both moduli drawn normal with a C.V. of 0.1 — on two solvers of the same scene
-alternated realization by realization: one keeping its symbolic store, one without (the
-solver before). Medians of the realizations after the first, per linear solver.
+alternated realization by realization: one keeping its symbolic store, one without (both
+build the layout's geometry once: ``Discretisation.memo``). Medians of the realizations after
+the first, per linear solver.
 
     python benchmarks/sph_study.py             # writes BENCHMARKS.md "sph-study"
     python benchmarks/sph_study.py --quick     # a tiny run, nothing written
@@ -105,6 +106,9 @@ def main(argv=None):
     args = ap.parse_args(argv)
     side, count = (40, 3) if args.quick else (args.side, args.realizations)
     solvers = (["pardiso"] if pardiso_available() else []) + ["direct"]
+    for solver in solvers:
+        # the process's first call of each solver (MKL's loading, say) is not a realization's
+        SPHSolver.from_scene(scene(40, solver)).run({})
     results = {s: study(side, s, count) for s in solvers}
     if args.quick:
         return results
@@ -117,7 +121,9 @@ def main(argv=None):
         "A Monte Carlo study of MS2 on benchmarks/sph_scaling.py's plate at side %d (%s "
         "particles) through `SPHSolver.run`, both moduli drawn normal (C.V. %.1f), %d "
         "realizations, on two solvers of one scene alternated realization by realization: "
-        "one keeping its symbolic store (solvers/sph/symbolic.py), one without. Seconds per "
+        "one keeping its symbolic store (solvers/sph/symbolic.py), one without (both build "
+        "the layout's geometry once), after one "
+        "small solve by each linear solver (the process's first call). Seconds per "
         "realization (the whole run: assembly, transformation, factorisation, solves, "
         "outputs): the first, then medians of the later ones and of their ratios in the same "
         "pairs. \"x before\": %.1f s (MS2 direct before issue 19) over the median with the "

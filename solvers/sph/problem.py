@@ -132,13 +132,14 @@ class ElasticProblem:
         self.pair_inclusion = np.asarray(lay.pair_inclusion)
         nb = self.boundary.size
         slaves = np.concatenate([self.boundary, self.pairs[:, 0]])
-        if method == "master-slave-local":
+        local = method == "master-slave-local"
+        if local:
             # seed §4.3: a slave's row sees no other slave, so Phi_ss is diagonal
             invisible = np.zeros(n, dtype=bool)
             invisible[slaves] = True
-            points = disc.x[slaves]
-            slave_rows = disc.interpolation(points, disc.phase[slaves], invisible=invisible,
-                                            keep=slaves, min_support=min_support)
+            slave_rows = disc.memo(("local slave rows", min_support), lambda: disc.interpolation(
+                disc.x[slaves], disc.phase[slaves], invisible=invisible, keep=slaves,
+                min_support=min_support))
         else:
             slave_rows = disc.phi[slaves]
         self.boundary_rows = slave_rows[:nb]
@@ -164,7 +165,8 @@ class ElasticProblem:
 
         test = None
         if integration == "vci":
-            test = self._corrected_test_operator()
+            test = disc.memo(("corrected test operator", local, min_support),
+                             self._corrected_test_operator)
         self.test = disc.B if test is None else test
         self.K = disc.stiffness(self.D, test)
         if stabilisation > 0.0:

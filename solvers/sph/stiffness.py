@@ -82,6 +82,15 @@ class Discretisation:
         self.gy = sf.matrix(sf.dpsi_dy)
         self.B = strain_operator(self.gx, self.gy)
         self.timings = {"neighbours": t1 - t0, "shape_functions": time.perf_counter() - t1}
+        self._memo = {}
+
+    def memo(self, key, build):
+        """``build()``, built once per ``key``: what the layout and a method's options decide
+        alone (the slave rows, the corrected test gradients), shared by the problems of a
+        study's realizations, which differ in the moduli."""
+        if key not in self._memo:
+            self._memo[key] = build()
+        return self._memo[key]
 
     def interpolation(self, points, phases, invisible=None, keep=None,
                       min_support: int = 0) -> sp.csr_matrix:

@@ -13,12 +13,13 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from solvers.sph import SPHSolver, linear
+from solvers.sph import SPHSolver, linear, symbolic
 from solvers.sph.linear import Factor
-from solvers.sph import symbolic
+from solvers.sph.problem import ElasticProblem
 from solvers.sph.symbolic import SymbolicStore, covering_pattern, embedded, pattern_key
 
-from .test_linear import NEEDS_PARDISO, agreement_bound, free_grid, lu_residual_bound
+from .test_linear import (NEEDS_PARDISO, agreement_bound, free_grid, lu_residual_bound,
+                          plate)
 
 sys.path.insert(0, str(Path(__file__).parent))
 from _scenes import example1  # noqa: E402
@@ -61,7 +62,7 @@ def test_a_pickled_store_arrives_empty_with_its_capacity():
         assert copy_.lookup("b") == "B" and store.lookup("b") is None
 
 
-def test_one_item_taken_by_two_threads_at_once_goes_to_one():
+def test_one_item_taken_by_eight_threads_at_once_goes_to_one():
     store = SymbolicStore()
     store.keep("a", "A")
     got, start = [], threading.Barrier(8)
@@ -229,6 +230,25 @@ def test_a_study_on_a_fixed_layout_orders_once_with_every_realization_unchanged(
     assert len(shipped.symbolic) == 0
     assert np.array_equal(shipped.run({"matrix.E": E}).displacement.values,
                           b.displacement.values)
+
+
+@pytest.mark.parametrize("method", ["master-slave-local", "master-slave"])
+def test_a_layouts_geometry_is_built_once_and_solves_as_on_a_fresh_discretisation(method):
+    disc, materials, edge = plate()
+    first = ElasticProblem(disc, **materials, method=method)
+    first.solve(edge)
+    stiffer = dict(materials, E=1.3 * materials["E"], nu=0.9 * materials["nu"])
+    second = ElasticProblem(disc, **stiffer, method=method)
+    assert second.test is first.test            # the corrected test gradients, built once
+    fresh = ElasticProblem(plate()[0], **stiffer, method=method)
+    assert second.test is not fresh.test
+    assert np.array_equal(second.solve(edge).u, fresh.solve(edge).u)
+    # the other method's slave rows differ, and so do its test gradients: not shared
+    other = {"master-slave-local": "master-slave", "master-slave": "master-slave-local"}[method]
+    on_shared = ElasticProblem(disc, **materials, method=other)
+    on_fresh = ElasticProblem(plate()[0], **materials, method=other)
+    assert on_shared.test is not first.test
+    assert np.array_equal(on_shared.solve(edge).u, on_fresh.solve(edge).u)
 
 
 # -- PARDISO's analysis -----------------------------------------------------------------------
