@@ -217,9 +217,8 @@ class SPHSolver(Solver):
                 disc = self._discretise(layout)
             except SceneError as e:
                 raise SolverError(f"layout of seed {seed}: {e}") from None
-            store = None
         else:
-            layout, disc, store = self.layout, self.disc, self.symbolic
+            layout, disc = self.layout, self.disc
         inside = layout.phase > 0
         E = np.where(inside, p["inclusion.E"], p["matrix.E"])
         nu = np.where(inside, p["inclusion.nu"], p["matrix.nu"])
@@ -245,7 +244,8 @@ class SPHSolver(Solver):
                                      cutoff_threshold=c.cutoff_threshold, cutoff_radius=radius,
                                      min_support=c.min_support, linear_solver=c.linear_solver,
                                      stabilisation=c.stabilisation,
-                                     update_factors=self.update_factors, symbolic=store)
+                                     update_factors=self.update_factors,
+                                     symbolic=self.symbolic)
             if c.loading == "tension":
                 out = self._tension(problem, layout, strength)
                 out.update(_bounds(layout, E, nu, c.state))
