@@ -21,6 +21,11 @@
     written in Taichi on its CPU backend with ``cpu_max_num_threads`` = the same thread count:
     ``benchmarks/taichi_mlsmpm.py`` in a subprocess (its own thread pool; its banner off our
     stdout). ``null`` when Taichi is not installed (``pip install -e .[bench]``).
+    Measured in ``--pairs`` alternated pairs (default 3): (a)'s measure again on the same warm
+    solver, then Taichi's; the ratio is the median of the pairs' ratios, each taken from two
+    measurements seconds apart, so a slow spell of the shared machine falls on both sides of
+    a pair rather than on one side of the comparison (Taichi's step time is bimodal on this
+    machine: docs/mpm.md, "Performance").
 (c) step time and memory against particle count: ``--scaling-counts`` (default 1e4, 4e4,
     1.6e5, 6.4e5, 1e6), each exactly 4 s² for s cells a side of the same scene family (2 × 2
     particles per cell, L = s dx; s = 50, 100, 200, 400, 500; s ≥ 24 so the plate is whole;
@@ -347,6 +352,32 @@ def taichi(n: int, steps: int, threads: int) -> dict | None:
     return json.loads(lines[-1])
 
 
+def taichi_pairs(solver: MPMSolver, args) -> list[dict]:
+    """``args.pairs`` alternated measurements: (a)'s again on the warm ``solver`` (median of
+    ``args.repeats``), then Taichi's in a subprocess; each pair's ratio from its own two."""
+    pairs = []
+    n = int(solver.parts.x.size)
+    for k in range(args.pairs):
+        times, _ = timed_steps(solver, args.steps, args.repeats)
+        ours = n * args.steps / statistics.median(times)
+        log(f"pair {k + 1}: uqflow {ours:.3g} /s; taichi ...")
+        tai = taichi(n, args.steps, args.threads)
+        theirs = tai.get("particle_updates_per_s")
+        pairs.append({"uqflow_particle_updates_per_s": ours,
+                      "uqflow_times_s": [round(t, 4) for t in times], "taichi": tai,
+                      "ratio": ours / theirs if theirs else None})
+        log(f"  taichi {theirs}")
+        if not theirs:          # not installed, or failed: the next pair would fail alike
+            break
+    return pairs
+
+
+def median_pair(pairs: list[dict]) -> dict:
+    """The pair whose Taichi figure is the median (the lower middle one of an even count)."""
+    ranked = sorted(pairs, key=lambda q: q["taichi"]["particle_updates_per_s"])
+    return ranked[(len(ranked) - 1) // 2]
+
+
 # -- seed-size runs --------------------------------------------------------------------------
 
 SEED_CHILD = """
@@ -488,6 +519,8 @@ def main(argv=None) -> int:
     p.add_argument("--steps", type=int, default=50)
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--pairs", type=int, default=3,
+                   help="alternated uqflow/Taichi measurements of (b)")
     p.add_argument("--scaling-counts", "--counts", dest="counts", type=int, nargs="+",
                    default=list(COUNTS), help="particle counts of (c), each 4 s² (s ≥ 24)")
     p.add_argument("--scaling-steps", type=int, default=20)
@@ -514,7 +547,8 @@ def main(argv=None) -> int:
     waited = wait_for_load(args.max_load, args.wait)
     load_start = load1()
     log(f"load {load_start} (waited {waited:.0f} s); throughput at {args.particles} ...")
-    main_r = throughput(args.particles, args.steps, args.repeats, args.threads, True)
+    solver = MPMSolver.from_scene(scene_for(args.particles, args.threads))
+    main_r = throughput(args.particles, args.steps, args.repeats, args.threads, True, solver)
     log(f"  {main_r['step_s'] * 1e3:.2f} ms/step, {main_r['particle_updates_per_s']:.3g} /s; "
         f"profile {main_r['profile_ms_per_step']}")
     one = busy = busy_spin = None
@@ -526,12 +560,15 @@ def main(argv=None) -> int:
         busy_spin = contended(args, SPIN_LIMIT)
         log(f"  one core taken: {busy}; with {SPIN_LIMIT}: {busy_spin}")
     load_mid = load1()
-    tai = None
-    if not args.no_taichi:
-        log("taichi ...")
-        tai = taichi(main_r["particles"], args.steps, args.threads)
-    tai_ups = tai.get("particle_updates_per_s") if tai else None
-    log(f"  taichi: {tai_ups}")
+    pairs = [] if args.no_taichi else taichi_pairs(solver, args)
+    measured_pairs = [q for q in pairs if q["ratio"] is not None]
+    tai = pairs[0]["taichi"] if pairs else None
+    tai_ups = ratio = None
+    if measured_pairs:
+        tai = median_pair(measured_pairs)["taichi"]
+        tai_ups = statistics.median(q["taichi"]["particle_updates_per_s"] for q in measured_pairs)
+        ratio = statistics.median(q["ratio"] for q in measured_pairs)
+    log(f"  taichi: {tai_ups}, ratio {ratio}")
     sc = []
     if not args.skip_scaling:
         for n in sorted(set(args.counts)):
@@ -559,7 +596,8 @@ def main(argv=None) -> int:
     result = {
         "particle_updates_per_s": ups,
         "taichi_particle_updates_per_s": tai_ups,
-        "ratio_to_taichi": ups / tai_ups if tai_ups else None,
+        "ratio_to_taichi": ratio,
+        "taichi_pairs": pairs,
         "target": TARGET, "meets_target": ups >= TARGET,
         "particles": main_r["particles"], "steps": args.steps, "threads": main_r["threads"],
         "step_ms": main_r["step_s"] * 1e3, "repeat_times_s": main_r["times_s"],
@@ -634,12 +672,20 @@ def section(r: dict, fig: Path) -> str:
     slope_text = "not fitted (fewer than two counts measured)" if slope is None else \
         f"**{slope:.2f}** (counts {', '.join(f'{n:,}' for n in r['scaling_slope_counts'])})"
     if tai_ups:
-        tai_text = (f"**{tai_ups:.3g}** particle-updates/s ({1e3 * tai['step_s']:.2f} ms/step, "
-                    f"{tai['particles']:,} particles, {tai['threads']} threads, Taichi "
-                    f"{tai['taichi_version']}, compile {tai['compile_s']:.1f} s; repetitions "
+        pairs = [q for q in r["taichi_pairs"] if q["ratio"] is not None]
+        listed = "; ".join(f"{q['uqflow_particle_updates_per_s']:.3g} / "
+                           f"{q['taichi']['particle_updates_per_s']:.3g} = {q['ratio']:.2f}"
+                           for q in pairs)
+        tai_text = (f"**{tai_ups:.3g}** particle-updates/s, the median of {len(pairs)} "
+                    f"alternated pairs, each (a)'s measure again on the same warm solver and "
+                    f"then Taichi's in a subprocess (uqflow / Taichi per pair: {listed}). "
+                    f"Ratio uqflow / Taichi, the median of the pairs' ratios: "
+                    f"**{r['ratio_to_taichi']:.2f}**. The median pair's Taichi run: "
+                    f"{1e3 * tai['step_s']:.2f} ms/step, {tai['particles']:,} particles, "
+                    f"{tai['threads']} threads, Taichi {tai['taichi_version']}, compile "
+                    f"{tai['compile_s']:.1f} s; repetitions "
                     f"{', '.join(f'{t:.3f}' for t in tai['times_s'])} s for "
-                    f"{tai['steps']} steps). Ratio uqflow / Taichi: "
-                    f"**{r['ratio_to_taichi']:.2f}**.")
+                    f"{tai['steps']} steps.")
     else:
         tai_text = f"not measured (null): {tai.get('error', 'Taichi unavailable')}."
     verdict = "meets" if r["meets_target"] else "is **below**"

@@ -2,6 +2,7 @@
 exact particle counts of the scaling part, its memory figure in a fresh process, and the
 dask study in its --quick mode."""
 
+import numpy as np
 import pytest
 
 
@@ -52,3 +53,36 @@ def test_dask_study_runs_in_quick_mode(monkeypatch, benchmark_module):
     assert result["identical_outputs"]                 # uqflow's results ignore the workers
     text = module.section(result)
     assert f"{on_dask['overhead_per_realization_s']:.2f} |" in text
+
+
+def test_taichi_pairs_alternate_and_take_each_pairs_own_ratio(throughput, monkeypatch):
+    # a fake Taichi that alternates fast and slow, and a fake of (a) whose speed follows it
+    # (the machine's slow spell on both sides of a pair): every pair's ratio is 2
+    calls = []
+    tick = iter([1.0, 2.0, 1.0, 2.0, 1.0, 2.0])
+    slowness = [1.0]
+
+    def fake_timed_steps(solver, steps, repeats):
+        slowness[0] = next(tick)
+        calls.append("uqflow")
+        return [slowness[0] / 2] * repeats, 2
+
+    def fake_taichi(n, steps, threads):
+        calls.append("taichi")
+        return {"particle_updates_per_s": n * steps / slowness[0]}
+
+    monkeypatch.setattr(throughput, "timed_steps", fake_timed_steps)
+    monkeypatch.setattr(throughput, "taichi", fake_taichi)
+    solver = type("S", (), {"parts": type("P", (), {"x": np.zeros(10)})})()
+    args = type("A", (), {"pairs": 3, "steps": 4, "repeats": 5, "threads": 2})()
+    pairs = throughput.taichi_pairs(solver, args)
+    assert calls == ["uqflow", "taichi"] * 3
+    assert [q["ratio"] for q in pairs] == [2.0, 2.0, 2.0]
+    # Taichi at 40, 20, 40 particle-updates/s: the median is 40, the first such pair
+    assert throughput.median_pair(pairs) is pairs[0]
+    # Taichi absent: one pair, no ratio, and no further attempts
+    calls.clear()
+    monkeypatch.setattr(throughput, "taichi", lambda n, s, t: calls.append("taichi") or
+                        {"error": "taichi not installed"})
+    pairs = throughput.taichi_pairs(solver, args)
+    assert calls == ["uqflow", "taichi"] and len(pairs) == 1 and pairs[0]["ratio"] is None
