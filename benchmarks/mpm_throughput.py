@@ -21,11 +21,14 @@
     written in Taichi on its CPU backend with ``cpu_max_num_threads`` = the same thread count:
     ``benchmarks/taichi_mlsmpm.py`` in a subprocess (its own thread pool; its banner off our
     stdout). ``null`` when Taichi is not installed (``pip install -e .[bench]``).
-    Measured in ``--pairs`` alternated pairs (default 3): (a)'s measure again on the same warm
-    solver, then Taichi's; the ratio is the median of the pairs' ratios, each taken from two
-    measurements seconds apart, so a slow spell of the shared machine falls on both sides of
-    a pair rather than on one side of the comparison (Taichi's step time is bimodal on this
-    machine: docs/mpm.md, "Performance").
+    Measured in ``--pairs`` alternated sets (default 3): (a)'s measure again on the same warm
+    solver, then Taichi's, then the same minimal step written in numba
+    (``benchmarks/numba_mlsmpm.py``, in this process); the ratios are the medians of the sets'
+    ratios, each taken from measurements seconds apart, so a slow spell of the shared machine
+    falls on both sides of a ratio rather than on one side of the comparison (Taichi's step
+    time is bimodal on this machine: docs/mpm.md, "Performance"). Taichi's minimal step in
+    numba separates the two differences of the headline ratio: the language and kernel style
+    on the same work, and the work of our full MUSL step.
 (c) step time and memory against particle count: ``--scaling-counts`` (default 1e4, 4e4,
     1.6e5, 6.4e5, 1e6), each exactly 4 s² for s cells a side of the same scene family (2 × 2
     particles per cell, L = s dx; s = 50, 100, 200, 400, 500; s ≥ 24 so the plate is whole;
@@ -353,8 +356,9 @@ def taichi(n: int, steps: int, threads: int) -> dict | None:
 
 
 def taichi_pairs(solver: MPMSolver, args) -> list[dict]:
-    """``args.pairs`` alternated measurements: (a)'s again on the warm ``solver`` (median of
-    ``args.repeats``), then Taichi's in a subprocess; each pair's ratio from its own two."""
+    """``args.pairs`` alternated sets: (a)'s again on the warm ``solver`` (median of
+    ``args.repeats``), then Taichi's in a subprocess, then Taichi's minimal step written in
+    numba (``minimal_in_numba``); each pair's ratios from its own measurements."""
     pairs = []
     n = int(solver.parts.x.size)
     for k in range(args.pairs):
@@ -363,17 +367,27 @@ def taichi_pairs(solver: MPMSolver, args) -> list[dict]:
         log(f"pair {k + 1}: uqflow {ours:.3g} /s; taichi ...")
         tai = taichi(n, args.steps, args.threads)
         theirs = tai.get("particle_updates_per_s")
+        if not theirs:          # not installed, or failed: the next pair would fail alike
+            pairs.append({"uqflow_particle_updates_per_s": ours, "taichi": tai, "ratio": None})
+            break
+        same = minimal_in_numba(n, args.steps, args.repeats, args.threads)
         pairs.append({"uqflow_particle_updates_per_s": ours,
                       "uqflow_times_s": [round(t, 4) for t in times], "taichi": tai,
-                      "ratio": ours / theirs if theirs else None})
-        log(f"  taichi {theirs}")
-        if not theirs:          # not installed, or failed: the next pair would fail alike
-            break
+                      "ratio": ours / theirs, "numba_minimal": same,
+                      "numba_minimal_ratio": same["particle_updates_per_s"] / theirs})
+        log(f"  taichi {theirs:.3g} /s; the same step in numba "
+            f"{same['particle_updates_per_s']:.3g} /s")
     return pairs
 
 
+def minimal_in_numba(n: int, steps: int, repeats: int, threads: int) -> dict:
+    """Taichi's minimal step in numba (``benchmarks/numba_mlsmpm.py``), in this process."""
+    from benchmarks.numba_mlsmpm import measure
+    return measure(n, steps, repeats, threads)
+
+
 def median_pair(pairs: list[dict]) -> dict:
-    """The pair whose Taichi figure is the median (the lower middle one of an even count)."""
+    """The set whose Taichi figure is the median (the lower middle one of an even count)."""
     ranked = sorted(pairs, key=lambda q: q["taichi"]["particle_updates_per_s"])
     return ranked[(len(ranked) - 1) // 2]
 
@@ -520,7 +534,7 @@ def main(argv=None) -> int:
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--pairs", type=int, default=3,
-                   help="alternated uqflow/Taichi measurements of (b)")
+                   help="alternated sets of (b): uqflow, Taichi, the same in numba")
     p.add_argument("--scaling-counts", "--counts", dest="counts", type=int, nargs="+",
                    default=list(COUNTS), help="particle counts of (c), each 4 s² (s ≥ 24)")
     p.add_argument("--scaling-steps", type=int, default=20)
@@ -676,11 +690,19 @@ def section(r: dict, fig: Path) -> str:
         listed = "; ".join(f"{q['uqflow_particle_updates_per_s']:.3g} / "
                            f"{q['taichi']['particle_updates_per_s']:.3g} = {q['ratio']:.2f}"
                            for q in pairs)
+        same = "; ".join(f"{q['numba_minimal']['particle_updates_per_s']:.3g} / "
+                         f"{q['taichi']['particle_updates_per_s']:.3g} = "
+                         f"{q['numba_minimal_ratio']:.2f}" for q in pairs)
+        same_ratio = statistics.median(q["numba_minimal_ratio"] for q in pairs)
         tai_text = (f"**{tai_ups:.3g}** particle-updates/s, the median of {len(pairs)} "
-                    f"alternated pairs, each (a)'s measure again on the same warm solver and "
-                    f"then Taichi's in a subprocess (uqflow / Taichi per pair: {listed}). "
-                    f"Ratio uqflow / Taichi, the median of the pairs' ratios: "
-                    f"**{r['ratio_to_taichi']:.2f}**. The median pair's Taichi run: "
+                    f"alternated sets, each (a)'s measure again on the same warm solver, "
+                    f"Taichi's in a subprocess, then the same minimal step written in numba "
+                    f"(`benchmarks/numba_mlsmpm.py`: the same arithmetic in the solver's "
+                    f"kernel style; uqflow / Taichi per set: {listed}). "
+                    f"Ratio uqflow / Taichi, the median of the sets' ratios: "
+                    f"**{r['ratio_to_taichi']:.2f}**; the minimal step in numba / in Taichi: "
+                    f"{same} — median **{same_ratio:.2f}**: what the language and the kernel "
+                    f"style give on the same work. The median set's Taichi run: "
                     f"{1e3 * tai['step_s']:.2f} ms/step, {tai['particles']:,} particles, "
                     f"{tai['threads']} threads, Taichi {tai['taichi_version']}, compile "
                     f"{tai['compile_s']:.1f} s; repetitions "

@@ -18,10 +18,7 @@ line of stdout. Taichi prints a banner on stdout at ``ti.init``; callers take th
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
-import os
 import statistics
 import sys
 import time
@@ -157,20 +154,8 @@ def measure(n_particles: int, steps: int, repeats: int = 5, threads: int = 2) ->
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--particles", type=int, default=160_000)
-    p.add_argument("--steps", type=int, default=50)
-    p.add_argument("--repeats", type=int, default=5)
-    p.add_argument("--threads", type=int, default=2)
-    p.add_argument("--json", action="store_true")
-    args = p.parse_args(argv)
-    r = measure(args.particles, args.steps, args.repeats, args.threads)
-    if args.json:
-        print(json.dumps(r))
-    else:
-        print(f"taichi MLS-MPM, {r['particles']} particles, {r['threads']} threads: "
-              f"{r['step_s'] * 1e3:.2f} ms/step, {r['particle_updates_per_s']:.3g} updates/s")
-    return 0
+    from _minimal_step import command_line      # beside this script, run as one
+    return command_line(measure, "Taichi", argv)
 
 
 if __name__ == "__main__":

@@ -56,8 +56,8 @@ def test_dask_study_runs_in_quick_mode(monkeypatch, benchmark_module):
 
 
 def test_taichi_pairs_alternate_and_take_each_pairs_own_ratio(throughput, monkeypatch):
-    # a fake Taichi that alternates fast and slow, and a fake of (a) whose speed follows it
-    # (the machine's slow spell on both sides of a pair): every pair's ratio is 2
+    # fakes whose speeds follow the machine's alternating slow spells, as (a)'s does: within a
+    # set uqflow is twice Taichi and Taichi's step in numba 1.5 times, whatever the spell
     calls = []
     tick = iter([1.0, 2.0, 1.0, 2.0, 1.0, 2.0])
     slowness = [1.0]
@@ -71,18 +71,51 @@ def test_taichi_pairs_alternate_and_take_each_pairs_own_ratio(throughput, monkey
         calls.append("taichi")
         return {"particle_updates_per_s": n * steps / slowness[0]}
 
+    def fake_numba(n, steps, repeats, threads):
+        calls.append("numba")
+        return {"particle_updates_per_s": 1.5 * n * steps / slowness[0]}
+
     monkeypatch.setattr(throughput, "timed_steps", fake_timed_steps)
     monkeypatch.setattr(throughput, "taichi", fake_taichi)
+    monkeypatch.setattr(throughput, "minimal_in_numba", fake_numba)
     solver = type("S", (), {"parts": type("P", (), {"x": np.zeros(10)})})()
     args = type("A", (), {"pairs": 3, "steps": 4, "repeats": 5, "threads": 2})()
     pairs = throughput.taichi_pairs(solver, args)
-    assert calls == ["uqflow", "taichi"] * 3
+    assert calls == ["uqflow", "taichi", "numba"] * 3
     assert [q["ratio"] for q in pairs] == [2.0, 2.0, 2.0]
-    # Taichi at 40, 20, 40 particle-updates/s: the median is 40, the first such pair
+    assert [q["numba_minimal_ratio"] for q in pairs] == [1.5, 1.5, 1.5]
+    # Taichi at 40, 20, 40 particle-updates/s: the median is 40, the first such set
     assert throughput.median_pair(pairs) is pairs[0]
-    # Taichi absent: one pair, no ratio, and no further attempts
+    # Taichi absent: one set, no ratio, and no further attempts
     calls.clear()
     monkeypatch.setattr(throughput, "taichi", lambda n, s, t: calls.append("taichi") or
                         {"error": "taichi not installed"})
     pairs = throughput.taichi_pairs(solver, args)
     assert calls == ["uqflow", "taichi"] and len(pairs) == 1 and pairs[0]["ratio"] is None
+
+
+def test_taichis_minimal_step_in_numba_falls_freely_from_rest(benchmark_module):
+    # From rest (v = 0, C = 0, J = 1) the grid momentum is zero, so every node with mass gets
+    # v = dt g exactly; a particle whose stencil is clear of the sticky floor gathers
+    # dt g Σw and an affine matrix 4/dx Σ w v (x_i - x_p), exactly dt g and 0 (the B-spline
+    # reproduces constants and lines). Rounding: each weight to 4 ulp, 9 products and sums:
+    # <= 32 ulp of dt g, and of 4/dx |dt g| max|x_i - x_p| (1.5 cells) for the matrix.
+    mls = benchmark_module("numba_mlsmpm")
+    x, cells, dx = mls.lattice(4 * 16 * 16)
+    n, ng = x.shape[0], cells + 2 * mls.PAD
+    dt, p_vol = 0.2 * dx / (mls.BULK / mls.RHO) ** 0.5, (dx / mls.PPC) ** 2
+    v, C, J = np.zeros((n, 2)), np.zeros((n, 2, 2)), np.ones(n)
+    buf, grid_m, grid_v = np.zeros((1, ng, ng, 3)), np.zeros((ng, ng)), np.zeros((ng, ng, 2))
+    x0 = x.copy()
+    mls.substep(x, v, C, J, buf, grid_m, grid_v, dx, dt, p_vol, mls.RHO * p_vol)
+    eps = np.finfo(float).eps
+    fall = dt * mls.GRAVITY
+    assert grid_m.sum() == pytest.approx(n * mls.RHO * p_vol, rel=16 * eps * n)  # 9 n terms
+    clear = np.floor(x0[:, 1] / dx - 0.5) >= mls.PAD
+    assert 0 < clear.sum() < n
+    assert np.all(v[:, 0] == 0.0)                       # nothing pushes sideways
+    assert np.abs(v[clear, 1] - fall).max() <= 32 * eps * abs(fall)
+    assert np.abs(C[clear]).max() <= 32 * eps * 4 / dx * abs(fall) * 1.5
+    assert np.all(v[~clear, 1] > fall)                  # the floor holds the lowest ones back
+    # one rounding of x + dt v, with x < 1.3
+    np.testing.assert_allclose(x[:, 1], x0[:, 1] + dt * v[:, 1], rtol=0, atol=2 * eps)
