@@ -358,7 +358,7 @@ def taichi(n: int, steps: int, threads: int) -> dict | None:
 def taichi_pairs(solver: MPMSolver, args) -> list[dict]:
     """``args.pairs`` alternated sets: (a)'s again on the warm ``solver`` (median of
     ``args.repeats``), then Taichi's in a subprocess, then Taichi's minimal step written in
-    numba (``minimal_in_numba``); each pair's ratios from its own measurements."""
+    numba (``minimal_in_numba``); each set's ratios from its own measurements."""
     pairs = []
     n = int(solver.parts.x.size)
     for k in range(args.pairs):
@@ -697,7 +697,7 @@ def section(r: dict, fig: Path) -> str:
         tai_text = (f"**{tai_ups:.3g}** particle-updates/s, the median of {len(pairs)} "
                     f"alternated sets, each (a)'s measure again on the same warm solver, "
                     f"Taichi's in a subprocess, then the same minimal step written in numba "
-                    f"(`benchmarks/numba_mlsmpm.py`: the same arithmetic in the solver's "
+                    f"(`benchmarks/numba_mlsmpm.py`: the same operations in the solver's "
                     f"kernel style; uqflow / Taichi per set: {listed}). "
                     f"Ratio uqflow / Taichi, the median of the sets' ratios: "
                     f"**{r['ratio_to_taichi']:.2f}**; the minimal step in numba / in Taichi: "

@@ -2,11 +2,11 @@
 
 ``benchmarks/mpm_throughput.py`` compares our full-physics MUSL step with Taichi's minimal
 MLS-MPM fluid step: two differences at once, the work a step does and the language. This
-is the same minimal step, arithmetic for arithmetic (weakly compressible fluid, quadratic
+is the same minimal step, operation for operation (weakly compressible fluid, quadratic
 B-splines, APIC, f64, the same lattice, time step, gravity and sticky walls), written in the
 style of the solver's kernels (solvers/mpm/step.py): the scatter into one grid buffer per
 thread over a contiguous chunk of particles, summed per node afterwards; the gather a
-``prange`` over particles. Its rate beside Taichi's, in the same pairs, is what the language
+``prange`` over particles. Its rate beside Taichi's, in the same sets, is what the language
 and the kernel style give on the same work; our full step beside it is what the seed's
 MUSL step and the material models cost.
 
