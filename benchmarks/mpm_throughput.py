@@ -83,22 +83,14 @@ import tomllib
 from pathlib import Path
 
 
-def _threads_from_argv(argv) -> int:
-    for i, a in enumerate(argv):
-        if a == "--threads" and i + 1 < len(argv):
-            return int(argv[i + 1])
-        if a.startswith("--threads="):
-            return int(a.split("=", 1)[1])
-    return 2
-
-
-THREADS = _threads_from_argv(sys.argv[1:])
-os.environ["NUMBA_NUM_THREADS"] = str(THREADS)       # before numba is imported
-
-import numpy as np  # noqa: E402
-
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+
+from benchmarks._threads import numba_threads_from_argv  # noqa: E402
+
+THREADS = numba_threads_from_argv(sys.argv[1:])      # before numba is imported
+
+import numpy as np  # noqa: E402
 
 import numba  # noqa: E402
 

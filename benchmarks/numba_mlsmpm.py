@@ -19,15 +19,13 @@ imported, ``measure`` uses ``threads`` of the process's numba threads.
 from __future__ import annotations
 
 import math
-import os
 import statistics
 import sys
 import time
 
 if __name__ == "__main__":
-    for _i, _a in enumerate(sys.argv):
-        if _a == "--threads" and _i + 1 < len(sys.argv):
-            os.environ["NUMBA_NUM_THREADS"] = sys.argv[_i + 1]
+    from _threads import numba_threads_from_argv    # beside this script, run as one
+    numba_threads_from_argv(sys.argv[1:])
 
 import numba  # noqa: E402
 import numpy as np  # noqa: E402
@@ -53,7 +51,9 @@ def _stencil(x, p, inv_dx):
     yi = x[p, 1] * inv_dx
     bx = int(xi - 0.5)
     by = int(yi - 0.5)
-    return bx, by, xi - bx, yi - by, _weights(xi - bx), _weights(yi - by)
+    fx = xi - bx
+    fy = yi - by
+    return bx, by, fx, fy, _weights(fx), _weights(fy)
 
 
 @njit(cache=True, parallel=True)
@@ -153,36 +153,41 @@ def lattice(n_particles: int):
     return x, cells, dx
 
 
-def measure(n_particles: int, steps: int, repeats: int = 5, threads: int = 2) -> dict:
-    x0, cells, dx = lattice(n_particles)
-    n = x0.shape[0]
+def at_rest(n_particles: int, threads: int):
+    """(x, v, C, J, buf, grid_m, grid_v, dx, dt, p_vol, p_mass): ``substep``'s arguments for
+    the lattice at rest (v = 0, C = 0, J = 1), with one grid buffer per thread."""
+    x, cells, dx = lattice(n_particles)
+    n = x.shape[0]
     ng = cells + 2 * PAD
     dt = 0.2 * dx / math.sqrt(BULK / RHO)          # CFL 0.2 on the sound speed
     p_vol = (dx / PPC) ** 2
-    p_mass = RHO * p_vol
+    return (x, np.zeros((n, 2)), np.zeros((n, 2, 2)), np.ones(n), np.zeros((threads, ng, ng, 3)),
+            np.zeros((ng, ng)), np.zeros((ng, ng, 2)), dx, dt, p_vol, RHO * p_vol)
+
+
+def measure(n_particles: int, steps: int, repeats: int = 5, threads: int = 2) -> dict:
+    state = at_rest(n_particles, threads)
+    x, J = state[0], state[3]
+    n = x.shape[0]
     before = numba.get_num_threads()
     numba.set_num_threads(threads)
     try:
-        x, v, C, J = x0.copy(), np.zeros((n, 2)), np.zeros((n, 2, 2)), np.ones(n)
-        buf = np.zeros((threads, ng, ng, 3))
-        grid_m, grid_v = np.zeros((ng, ng)), np.zeros((ng, ng, 2))
-        args = (buf, grid_m, grid_v, dx, dt, p_vol, p_mass)
         t0 = time.perf_counter()
-        substep(x, v, C, J, *args)                 # compile, or load numba's cache
+        substep(*state)                            # compile, or load numba's cache
         compile_s = time.perf_counter() - t0
         for _ in range(3):
-            substep(x, v, C, J, *args)
+            substep(*state)
         times = []
         for _ in range(repeats):
             t0 = time.perf_counter()
             for _ in range(steps):
-                substep(x, v, C, J, *args)
+                substep(*state)
             times.append(time.perf_counter() - t0)
     finally:
         numba.set_num_threads(before)
     med = statistics.median(times)
     return {"particles": n, "steps": steps, "repeats": repeats, "threads": threads,
-            "grid_nodes": ng * ng, "dt": dt, "compile_s": compile_s, "times_s": times,
+            "grid_nodes": state[5].size, "dt": state[8], "compile_s": compile_s, "times_s": times,
             "median_s": med, "step_s": med / steps, "particle_updates_per_s": n * steps / med,
             "finite": bool((J > 0).all() and np.isfinite(x).all()),
             "numba_version": numba.__version__, "precision": "f64"}

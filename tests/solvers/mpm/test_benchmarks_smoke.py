@@ -101,13 +101,10 @@ def test_taichis_minimal_step_in_numba_falls_freely_from_rest(benchmark_module):
     # reproduces constants and lines). Rounding: each weight to 4 ulp, 9 products and sums:
     # <= 32 ulp of dt g, and of 4/dx |dt g| max|x_i - x_p| (1.5 cells) for the matrix.
     mls = benchmark_module("numba_mlsmpm")
-    x, cells, dx = mls.lattice(4 * 16 * 16)
-    n, ng = x.shape[0], cells + 2 * mls.PAD
-    dt, p_vol = 0.2 * dx / (mls.BULK / mls.RHO) ** 0.5, (dx / mls.PPC) ** 2
-    v, C, J = np.zeros((n, 2)), np.zeros((n, 2, 2)), np.ones(n)
-    buf, grid_m, grid_v = np.zeros((1, ng, ng, 3)), np.zeros((ng, ng)), np.zeros((ng, ng, 2))
-    x0 = x.copy()
-    mls.substep(x, v, C, J, buf, grid_m, grid_v, dx, dt, p_vol, mls.RHO * p_vol)
+    state = mls.at_rest(4 * 16 * 16, threads=1)
+    x, v, C, J, buf, grid_m, grid_v, dx, dt, p_vol, p_mass = state
+    n, x0 = x.shape[0], x.copy()
+    mls.substep(*state)
     eps = np.finfo(float).eps
     fall = dt * mls.GRAVITY
     assert grid_m.sum() == pytest.approx(n * mls.RHO * p_vol, rel=16 * eps * n)  # 9 n terms
